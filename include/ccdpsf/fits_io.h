@@ -1,0 +1,86 @@
+// FITS input and output through CFITSIO, behind RAII, with atomic writes.
+//
+// Every writer here writes to a temporary file beside the target and renames it into place
+// only when the whole file has been written and closed, so a failed or interrupted run never
+// leaves a half-written file under the final name. Writers overwrite an existing target.
+// Fallible calls return false (or an empty optional) and put a one-line reason in *error.
+#ifndef CCDPSF_FITS_IO_H_
+#define CCDPSF_FITS_IO_H_
+
+#include <optional>
+#include <string>
+#include <variant>
+#include <vector>
+
+#include "ccdpsf/image.h"
+
+namespace ccdpsf {
+
+// One header card. Strings are written as FITS strings, bools as T/F, integers as integers.
+struct FitsKey {
+  std::string name;
+  std::variant<double, long long, std::string, bool> value;
+  std::string comment;
+};
+using FitsHeader = std::vector<FitsKey>;
+
+// Looks a keyword up (case-insensitive, first match). Integers convert to double; a string
+// that parses as a number does too.
+std::optional<double> FindNumber(const FitsHeader& header, const std::string& name);
+std::optional<std::string> FindString(const FitsHeader& header, const std::string& name);
+
+// A 2-D image as read: pixel values with BZERO/BSCALE applied (CFITSIO does this), as
+// doubles; non-finite values are kept as NaN. header holds the user keywords of the HDU the
+// image came from (structural keywords such as SIMPLE, BITPIX, NAXIS* are not included).
+struct FitsImage {
+  Image pixels;
+  FitsHeader header;
+  int bitpix = 0;    // BITPIX of the stored data
+  int hdu = 1;       // 1-based HDU number the image came from
+};
+
+// Reads the 2-D image in the primary HDU, or in the first image extension when the primary
+// HDU is empty. Fails with a one-line reason for a missing file, a file that is not FITS, a
+// truncated file, no image HDU, an image that is not 2-D or is empty, or a table where the
+// image should be.
+std::optional<FitsImage> ReadFitsImage(const std::string& path, std::string* error);
+
+// Writes `image` as 16-bit unsigned integers (BITPIX = 16, BZERO = 32768). Every value must
+// be an integer in [0, 65535]; anything else is an error (the caller rounds and clips).
+bool WriteFitsImageU16(const std::string& path, const Image& image, const FitsHeader& header,
+                       std::string* error);
+
+// Writes `image` as 64-bit floats (BITPIX = -64) in the primary HDU.
+bool WriteFitsImageF64(const std::string& path, const Image& image, const FitsHeader& header,
+                       std::string* error);
+
+// One image extension of a multi-extension file.
+struct FitsImageHdu {
+  std::string extname;
+  Image image;
+  FitsHeader header;
+};
+
+// Writes an empty primary HDU carrying primary_header, then each image as a 64-bit float
+// IMAGE extension with EXTNAME set.
+bool WriteFitsImagesF64(const std::string& path, const FitsHeader& primary_header,
+                        const std::vector<FitsImageHdu>& images, std::string* error);
+
+// One column of a binary table: doubles (TFORM 1D) or, when is_integer, 64-bit integers
+// (TFORM 1K, values rounded). All columns of a table have the same length.
+struct FitsColumn {
+  std::string name;
+  std::string unit;
+  std::vector<double> values;
+  bool is_integer = false;
+};
+
+// Writes an empty primary HDU carrying primary_header and one BINTABLE extension named
+// extname with the given columns (readable by astropy.table.Table.read and TOPCAT).
+bool WriteFitsTable(const std::string& path, const FitsHeader& primary_header,
+                    const std::string& extname, const std::vector<FitsColumn>& columns,
+                    std::string* error);
+
+}  // namespace ccdpsf
+
+#endif  // CCDPSF_FITS_IO_H_

@@ -1,0 +1,74 @@
+// Pixel conventions, stated once for the whole project.
+//
+// Coordinates are 0-based pixel indices with pixel centres at integers, as in numpy and
+// astropy: pixel (i, j) covers [i - 0.5, i + 0.5] x [j - 0.5, j + 0.5]. x is the column index
+// (FITS NAXIS1, the serial direction), y the row index (NAXIS2, the parallel direction).
+// Images are stored row-major: element (x, y) sits at data[y * nx + x], which is also the
+// order CFITSIO reads and writes.
+#ifndef CCDPSF_IMAGE_H_
+#define CCDPSF_IMAGE_H_
+
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <string>
+#include <vector>
+
+namespace ccdpsf {
+
+// A dense 2-D array of doubles in the convention above. The unit is the caller's (ADU,
+// electrons, ...) and is named where the image is held.
+struct Image {
+  Image() = default;
+  Image(int nx_in, int ny_in, double fill = 0.0)
+      : nx(nx_in), ny(ny_in), data(static_cast<size_t>(nx_in) * ny_in, fill) {}
+
+  double& operator()(int x, int y) { return data[static_cast<size_t>(y) * nx + x]; }
+  double operator()(int x, int y) const { return data[static_cast<size_t>(y) * nx + x]; }
+  size_t size() const { return data.size(); }
+  bool empty() const { return data.empty(); }
+
+  int nx = 0;
+  int ny = 0;
+  std::vector<double> data;
+};
+
+// What is known about the exposure a stamp was cut from. NaN means "not known" for every
+// floating-point field.
+struct ExposureInfo {
+  std::string source;  // file the data came from
+  double wavelength_nm = std::numeric_limits<double>::quiet_NaN();
+  double exptime_s = std::numeric_limits<double>::quiet_NaN();
+  double pixel_um = 12.0;  // pixel pitch [um]; VIS CCD273 default
+  double focus_position_um = std::numeric_limits<double>::quiet_NaN();
+};
+
+// A calibrated cut-out around one spot: what every fit consumes.
+//
+// electrons holds (data_adu - bias_adu) * gain_e_per_adu: the bias-subtracted signal in
+// electrons. valid is 1 for pixels that enter the likelihood and 0 for masked ones
+// (saturated, non-finite, or flagged by the reader); a masked pixel's value is meaningless.
+// Stamp pixel (i, j) is frame pixel (origin_x + i, origin_y + j).
+struct Stamp {
+  Image electrons;
+  std::vector<uint8_t> valid;
+  int origin_x = 0;
+  int origin_y = 0;
+  double gain_e_per_adu = 1.0;
+  double read_noise_e = 0.0;
+  double bias_adu = 0.0;
+  double saturation_adu = std::numeric_limits<double>::infinity();
+  ExposureInfo info;
+
+  int nx() const { return electrons.nx; }
+  int ny() const { return electrons.ny; }
+  int NumValid() const {
+    int n = 0;
+    for (uint8_t v : valid) n += v ? 1 : 0;
+    return n;
+  }
+};
+
+}  // namespace ccdpsf
+
+#endif  // CCDPSF_IMAGE_H_

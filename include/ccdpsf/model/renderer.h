@@ -1,0 +1,44 @@
+// Renders the spot model of spot_model.h onto a pixel grid, with first derivatives.
+//
+// Usage:
+//   SpotRenderer renderer(options);
+//   std::vector<double> model(grid.size()), jacobian(grid.size() * kNumSpotParams);
+//   renderer.Render(params, grid, model.data(), jacobian.data());
+//
+// model[j * nx + i] is the expected number of electrons in pixel (i, j); jacobian holds
+// d model[p] / d params[k] at jacobian[p * kNumSpotParams + k] (row-major, one row per
+// pixel). Pass jacobian = nullptr when derivatives are not needed.
+//
+// A renderer keeps scratch buffers between calls, so one instance must not be used from two
+// threads at once; make one per thread. Parameters must pass ValidSpotParams (checked with
+// CHECK: calling with invalid parameters is a bug in the caller).
+#ifndef CCDPSF_MODEL_RENDERER_H_
+#define CCDPSF_MODEL_RENDERER_H_
+
+#include <memory>
+
+#include "ccdpsf/model/spot_model.h"
+
+namespace ccdpsf::model {
+
+class SpotRenderer {
+ public:
+  explicit SpotRenderer(const ModelOptions& options);
+  ~SpotRenderer();
+  SpotRenderer(const SpotRenderer&) = delete;
+  SpotRenderer& operator=(const SpotRenderer&) = delete;
+
+  const ModelOptions& options() const { return options_; }
+
+  void Render(const SpotParams& params, const PixelGrid& grid, double* model,
+              double* jacobian) const;
+
+ private:
+  struct Workspace;
+  ModelOptions options_;
+  std::unique_ptr<Workspace> workspace_;
+};
+
+}  // namespace ccdpsf::model
+
+#endif  // CCDPSF_MODEL_RENDERER_H_

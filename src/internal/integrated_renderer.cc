@@ -1,0 +1,334 @@
+// Exact pixel integration of the spot model.
+//
+// Write the model as a radially symmetric image S (the Airy pattern, or the Airy pattern
+// convolved with the pillbox) convolved with a separable kernel K = kx(x) ky(y), where kx is
+// a Gaussian of total width sX convolved with the unit pixel box (pixel_kernel.h):
+//
+//   M(a, b) = Integral S(p - c) kx(xa - px) ky(yb - py) dp.
+//
+// With a Gaussian defocus both Gaussians merge, sX^2 = sigma_f^2 + sigma_x^2 (the origin of
+// DESIGN.md pitfall 1); with a pillbox, sX = sigma_x and S carries the disc.
+//
+// The integral is evaluated with the uniform (trapezoidal) rule on nodes p = c + (i hX, j hY),
+// done as two one-dimensional passes because K is separable:
+//   first pass  B(i, b) = hY sum_j S(i, j) ky(yb - cy - j hY)       for every node column i,
+//   second pass M(a, b) = hX sum_i kx(xa - cx - i hX) B(i, b).
+// Error bound. By Poisson summation the uniform rule's error is the integrand's Fourier
+// transform at multiples of 1/h. S is band-limited to the Airy cut-off rho_c = Rz / r (its
+// transform is the circular-pupil OTF, zero beyond rho_c), and the kernel's transform is
+// exp(-2 pi^2 s^2 f^2) sinc(f). So the error of one pass is at most
+//   (8 rho_c^2 / (pi D)) exp(-2 pi^2 s^2 D^2) times the flux,   D = 1/h - rho_c,
+// and QuadratureStep picks h so that this is below the tolerance. The rule is exact up to
+// that bound for any centre: nodes move with the centre, so S is evaluated at fixed offsets.
+// Truncation: a node contributes to pixel a only while |xa - node| <= 1/2 + T sX, with T
+// chosen so the Gaussian tail beyond it is below the tolerance. The Airy tail beyond the
+// stamp never needs truncating: it reaches the stamp only through the kernel.
+//
+// Derivatives are those of the quadrature sum itself (the node spacing is piecewise
+// constant in the widths: QuadratureStep quantises 1/h), so they are exact for the values
+// returned: centre and widths enter only through the kernels, the Airy radius (and pillbox
+// radius) only through S.
+#include "internal/integrated_renderer.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "ccdpsf/model/airy.h"
+#include "glog/logging.h"
+#include "internal/gauss_legendre.h"
+#include "internal/pixel_kernel.h"
+
+namespace ccdpsf::internal {
+
+using model::kAiryRadius;
+using model::kCcdSigmaX;
+using model::kCcdSigmaY;
+using model::kCentreX;
+using model::kCentreY;
+using model::kDefocus;
+using model::kFlux;
+using model::kNumSpotParams;
+
+namespace {
+
+// Largest number of quadrature nodes allowed in one image: guards against parameters far
+// outside anything physical turning into gigabytes (ValidSpotParams keeps us well below).
+constexpr double kMaxNodes = 3.0e7;
+
+// Half-width of the Gaussian kernel in units of its sigma beyond which its tail mass is
+// below `tolerance` (one-sided normal tail bound exp(-T^2/2) / 2).
+double KernelHalfWidthSigmas(double tolerance) {
+  return std::sqrt(2.0 * std::log(0.5 / tolerance)) + 0.5;
+}
+
+// Unit-flux Airy intensity at distance d [px] for wavenumber k = pi Rz / r [1/px], and its
+// derivative with respect to k. I = k^2 / (4 pi) a(k d)^2 integrates to 1 over the plane.
+inline void AiryIntensity(double d, double k, double* value, double* d_dk) {
+  double a, da;
+  model::AiryAmplitudeAndDerivative(k * d, &a, &da);
+  const double norm = k * k / (4.0 * M_PI);
+  *value = norm * a * a;
+  *d_dk = k / (2.0 * M_PI) * (a * a + a * da * k * d);
+}
+
+// S for the Gaussian-defocus model: the Airy pattern itself.
+void FillAiryQuadrant(double k, double dk_dr, double hx, double hy,
+                      Eigen::MatrixXd* q, Eigen::MatrixXd* q_dr) {
+  // With equal spacings S(|i|, |j|) = S(|j|, |i|): compute the lower triangle, mirror the rest.
+  const bool mirror = hx == hy;
+  const int rows = static_cast<int>(q->rows());
+  for (int ju = 0; ju < q->cols(); ++ju) {
+    const double y2 = (ju * hy) * (ju * hy);
+    for (int iu = 0; iu < rows; ++iu) {
+      if (mirror && iu < ju && ju < rows) continue;
+      const double d = std::sqrt((iu * hx) * (iu * hx) + y2);
+      double v, dv_dk;
+      AiryIntensity(d, k, &v, &dv_dk);
+      (*q)(iu, ju) = v;
+      (*q_dr)(iu, ju) = dv_dk * dk_dr;
+    }
+  }
+  if (!mirror) return;
+  for (int ju = 0; ju < q->cols(); ++ju) {
+    for (int iu = 0; iu < std::min(ju, rows); ++iu) {
+      if (ju >= rows) break;
+      (*q)(iu, ju) = (*q)(ju, iu);
+      (*q_dr)(iu, ju) = (*q_dr)(ju, iu);
+    }
+  }
+}
+
+// S for the pillbox model: the mean of the Airy intensity over a disc of radius R around
+// each node, by Gauss-Legendre in radius and the (spectrally accurate) midpoint rule in
+// angle. The angular integrand has Fourier modes up to about 2 pi rho_c R, the radial one is
+// entire; node counts follow with a margin that the reference tests confirm.
+void FillPillboxQuadrant(double k, double dk_dr, double rho_c, double radius, double hx,
+                         double hy, Eigen::MatrixXd* q, Eigen::MatrixXd* q_dr,
+                         Eigen::MatrixXd* q_dR) {
+  const int n_full = static_cast<int>(std::ceil(2.0 * M_PI * rho_c * radius * 1.1 + 20.0));
+  const int n_theta = (n_full + 1) / 2;  // midpoints on [0, pi]; the integrand is even in theta
+  const int n_rho = static_cast<int>(std::ceil(M_PI * rho_c * radius + 10.0));
+  const GaussLegendreRule& gl = GaussLegendre(n_rho);
+  std::vector<double> cos_theta(n_theta);
+  for (int l = 0; l < n_theta; ++l) cos_theta[l] = std::cos(M_PI * (l + 0.5) / n_theta);
+  std::vector<double> rho(n_rho), w_rho(n_rho);
+  const double area = M_PI * radius * radius;
+  for (int m = 0; m < n_rho; ++m) {
+    rho[m] = 0.5 * radius * (gl.nodes[m] + 1.0);
+    // Integral over the disc = sum_m (R/2) w_m rho_m * (2 pi / n_full_equiv) sum_l A; divided
+    // by the disc area to make the mean.
+    w_rho[m] = 0.5 * radius * gl.weights[m] * rho[m] * (2.0 * M_PI / (2.0 * n_theta)) * 2.0 / area;
+  }
+  for (int ju = 0; ju < q->cols(); ++ju) {
+    for (int iu = 0; iu < q->rows(); ++iu) {
+      const double d = std::hypot(iu * hx, ju * hy);
+      double s = 0.0, s_dk = 0.0;
+      for (int m = 0; m < n_rho; ++m) {
+        double ring = 0.0, ring_dk = 0.0;
+        const double base = d * d + rho[m] * rho[m];
+        for (int l = 0; l < n_theta; ++l) {
+          const double dist = std::sqrt(std::max(0.0, base - 2.0 * d * rho[m] * cos_theta[l]));
+          double v, v_dk;
+          AiryIntensity(dist, k, &v, &v_dk);
+          ring += v;
+          ring_dk += v_dk;
+        }
+        s += w_rho[m] * ring;
+        s_dk += w_rho[m] * ring_dk;
+      }
+      // Edge circle for dS/dR = (2/R) (mean on the circle of radius R - S).
+      double circle = 0.0;
+      const double base = d * d + radius * radius;
+      for (int l = 0; l < n_theta; ++l) {
+        const double dist = std::sqrt(std::max(0.0, base - 2.0 * d * radius * cos_theta[l]));
+        double v, v_dk;
+        AiryIntensity(dist, k, &v, &v_dk);
+        circle += v;
+      }
+      circle /= n_theta;
+      (*q)(iu, ju) = s;
+      (*q_dr)(iu, ju) = s_dk * dk_dr;
+      (*q_dR)(iu, ju) = 2.0 / radius * (circle - s);
+    }
+  }
+}
+
+// The quadrant (rows |i|, cols |j|) expanded along j only: rows |i| = 0..iu_max, cols
+// j = j_lo..j_lo + cols - 1. The first pass runs on these rows only, since S(-i, j) = S(i, j)
+// makes B(-i, b) = B(i, b).
+void ExpandColumns(const Eigen::MatrixXd& q, int j_lo, Eigen::MatrixXd* half) {
+  for (int c = 0; c < half->cols(); ++c) half->col(c) = q.col(std::abs(j_lo + c));
+}
+
+// Kernel weights along one axis. With an integer node density Q = 1/h, the nodes seen by
+// pixel n + 1 are those seen by pixel n shifted by exactly Q, with the same weights; so one
+// window of weights serves every pixel of the axis: pixel n uses nodes first + Q n + m,
+// m = 0..size-1, with weights row m.
+struct AxisWeights {
+  int first = 0;   // first node index seen by pixel 0
+  int q = 1;       // node shift per pixel (= 1/h)
+  Eigen::MatrixXd w;  // (size x 3): h k, d(h k)/d centre, d(h k)/d width
+};
+
+void ComputeAxisWeights(double pixel0, double centre, double h, int q, double half_width,
+                        double s, bool derivs, AxisWeights* aw) {
+  aw->q = q;
+  aw->first = static_cast<int>(std::ceil((pixel0 - centre - half_width) * q));
+  const int last = static_cast<int>(std::floor((pixel0 - centre + half_width) * q));
+  const int size = last - aw->first + 1;
+  aw->w.resize(size, derivs ? 3 : 1);
+  for (int m = 0; m < size; ++m) {
+    const PixelKernelValue kv = PixelKernel(pixel0 - centre - (aw->first + m) * h, s);
+    aw->w(m, 0) = h * kv.value;
+    if (derivs) {
+      aw->w(m, 1) = -h * kv.d_dt;  // t = pixel - centre - node: d/dcentre = -d/dt
+      aw->w(m, 2) = h * kv.d_ds;
+    }
+  }
+}
+
+}  // namespace
+
+double QuadratureStep(double rho_c, double s, double tolerance) {
+  // Solve 2 pi^2 s^2 D^2 = log(8 rho_c^2 / (pi D tol)) by a few fixed-point steps.
+  double delta = 1.0;
+  for (int iter = 0; iter < 6; ++iter) {
+    const double rhs = std::log(std::max(8.0 * rho_c * rho_c / (M_PI * delta * tolerance), 2.0));
+    delta = std::max(std::sqrt(rhs / (2.0 * M_PI * M_PI * s * s)), 0.25);
+  }
+  // An integer number of nodes per pixel: the spacing is piecewise constant in the widths (so
+  // the derivatives are those of the sum), and every pixel sees the same kernel weights.
+  return 1.0 / std::ceil(rho_c + delta);
+}
+
+void RenderIntegrated(const model::ModelOptions& options, const model::SpotParams& p,
+                      const model::PixelGrid& grid, double* model_out, double* jacobian,
+                      IntegratedWorkspace* ws) {
+  const bool pillbox = options.defocus == model::DefocusKind::kPillbox;
+  const double cx = p[kCentreX], cy = p[kCentreY];
+  const double r = p[kAiryRadius];
+  const double defocus = p[kDefocus];
+  const double sx = pillbox ? p[kCcdSigmaX] : std::hypot(defocus, p[kCcdSigmaX]);
+  const double sy = pillbox ? p[kCcdSigmaY] : std::hypot(defocus, p[kCcdSigmaY]);
+  const double rho_c = model::kAiryRz / r;
+  const double k = M_PI * model::kAiryRz / r;
+  const double dk_dr = -k / r;
+  const double tol = options.relative_tolerance;
+
+  const double hx = QuadratureStep(rho_c, sx, tol);
+  const double hy = QuadratureStep(rho_c, sy, tol);
+  const int qx = static_cast<int>(std::lround(1.0 / hx));
+  const int qy = static_cast<int>(std::lround(1.0 / hy));
+  const double tw = KernelHalfWidthSigmas(tol);
+  const bool derivs = jacobian != nullptr;
+
+  AxisWeights wx, wy;
+  ComputeAxisWeights(grid.x0, cx, hx, qx, 0.5 + tw * sx, sx, derivs, &wx);
+  ComputeAxisWeights(grid.y0, cy, hy, qy, 0.5 + tw * sy, sy, derivs, &wy);
+  // Node ranges: every node some pixel of the grid sees.
+  const int i_lo = wx.first, i_hi = wx.first + qx * (grid.nx - 1) + wx.w.rows() - 1;
+  const int j_lo = wy.first, j_hi = wy.first + qy * (grid.ny - 1) + wy.w.rows() - 1;
+  const int ni = i_hi - i_lo + 1, nj = j_hi - j_lo + 1;
+  CHECK_LE(static_cast<double>(ni) * nj, kMaxNodes) << "quadrature grid too large";
+
+  // Radial image S on the nodes, through the symmetric quadrant.
+  const int iu_max = std::max(std::abs(i_lo), std::abs(i_hi));
+  const int ju_max = std::max(std::abs(j_lo), std::abs(j_hi));
+  ws->quadrant.resize(iu_max + 1, ju_max + 1);
+  ws->quadrant_dr.resize(iu_max + 1, ju_max + 1);
+  if (pillbox && defocus > 0.0) {
+    ws->quadrant_dR.resize(iu_max + 1, ju_max + 1);
+    FillPillboxQuadrant(k, dk_dr, rho_c, defocus, hx, hy, &ws->quadrant, &ws->quadrant_dr,
+                        &ws->quadrant_dR);
+  } else {
+    FillAiryQuadrant(k, dk_dr, hx, hy, &ws->quadrant, &ws->quadrant_dr);
+    // A pillbox of zero radius: S = Airy, and dS/dR = 0 there (S - Airy is O(R^2)).
+    if (pillbox) ws->quadrant_dR.setZero(iu_max + 1, ju_max + 1);
+  }
+  const int nh = iu_max + 1;  // rows |i| of the half problem
+  ws->radial.resize(nh, nj);
+  ws->radial_dr.resize(nh, nj);
+  ExpandColumns(ws->quadrant, j_lo, &ws->radial);
+  ExpandColumns(ws->quadrant_dr, j_lo, &ws->radial_dr);
+  if (pillbox) {
+    ws->radial_dR.resize(nh, nj);
+    ExpandColumns(ws->quadrant_dR, j_lo, &ws->radial_dR);
+  }
+
+  // First pass, along y: bh(b, |i|) = hy sum_j S(|i|, j) ky(yb - cy - j hy).
+  ws->bh.resize(grid.ny, nh);
+  if (derivs) {
+    ws->bh_dcy.resize(grid.ny, nh);
+    ws->bh_dsy.resize(grid.ny, nh);
+    ws->bh_dr.resize(grid.ny, nh);
+    if (pillbox) ws->bh_dR.resize(grid.ny, nh);
+  }
+  Eigen::MatrixXd partial;
+  const int wy_size = static_cast<int>(wy.w.rows());
+  for (int b = 0; b < grid.ny; ++b) {
+    const int col0 = qy * b;  // = (first node of row b) - j_lo
+    const auto block = ws->radial.middleCols(col0, wy_size);
+    partial.noalias() = block * wy.w;
+    ws->bh.row(b) = partial.col(0).transpose();
+    if (derivs) {
+      ws->bh_dcy.row(b) = partial.col(1).transpose();
+      ws->bh_dsy.row(b) = partial.col(2).transpose();
+      ws->bh_dr.row(b).noalias() =
+          (ws->radial_dr.middleCols(col0, wy_size) * wy.w.col(0)).transpose();
+      if (pillbox) {
+        ws->bh_dR.row(b).noalias() =
+            (ws->radial_dR.middleCols(col0, wy_size) * wy.w.col(0)).transpose();
+      }
+    }
+  }
+  // Unfold |i| to i = i_lo..i_hi for the second pass.
+  auto unfold = [&](const Eigen::MatrixXd& half, Eigen::MatrixXd* full) {
+    full->resize(grid.ny, ni);
+    for (int c = 0; c < ni; ++c) full->col(c) = half.col(std::abs(i_lo + c));
+  };
+  unfold(ws->bh, &ws->bt);
+  if (derivs) {
+    unfold(ws->bh_dcy, &ws->bt_dcy);
+    unfold(ws->bh_dsy, &ws->bt_dsy);
+    unfold(ws->bh_dr, &ws->bt_dr);
+    if (pillbox) unfold(ws->bh_dR, &ws->bt_dR);
+  }
+
+  // Second pass, along x, one output column a at a time.
+  const int npix = grid.size();
+  if (derivs) std::fill(jacobian, jacobian + static_cast<size_t>(npix) * kNumSpotParams, 0.0);
+  std::fill(model_out, model_out + npix, 0.0);
+  Eigen::VectorXd d_cy, d_sy, d_r, d_R;
+  const double flux = p[kFlux];
+  const double gx = (!pillbox && sx > 0) ? defocus / sx : 0.0;  // d sX / d sigma_f
+  const double gy = (!pillbox && sy > 0) ? defocus / sy : 0.0;
+  const double fx = pillbox ? 1.0 : p[kCcdSigmaX] / sx;          // d sX / d sigma_x
+  const double fy = pillbox ? 1.0 : p[kCcdSigmaY] / sy;
+  const int wx_size = static_cast<int>(wx.w.rows());
+  for (int a = 0; a < grid.nx; ++a) {
+    const int first = i_lo + qx * a;
+    const int w = wx_size;
+    const Eigen::MatrixXd& weights = wx.w;
+    partial.noalias() = ws->bt.middleCols(first - i_lo, w) * weights;
+    for (int b = 0; b < grid.ny; ++b) model_out[b * grid.nx + a] = flux * partial(b, 0);
+    if (!derivs) continue;
+    const auto wv = weights.col(0);
+    d_cy.noalias() = ws->bt_dcy.middleCols(first - i_lo, w) * wv;
+    d_sy.noalias() = ws->bt_dsy.middleCols(first - i_lo, w) * wv;
+    d_r.noalias() = ws->bt_dr.middleCols(first - i_lo, w) * wv;
+    if (pillbox) d_R.noalias() = ws->bt_dR.middleCols(first - i_lo, w) * wv;
+    for (int b = 0; b < grid.ny; ++b) {
+      double* row = jacobian + static_cast<size_t>(b * grid.nx + a) * kNumSpotParams;
+      const double dsx = partial(b, 2), dsy = d_sy(b);
+      row[kFlux] = partial(b, 0);
+      row[kCentreX] = flux * partial(b, 1);
+      row[kCentreY] = flux * d_cy(b);
+      row[kAiryRadius] = flux * d_r(b);
+      row[kDefocus] = pillbox ? flux * d_R(b) : flux * (dsx * gx + dsy * gy);
+      row[kCcdSigmaX] = flux * dsx * fx;
+      row[kCcdSigmaY] = flux * dsy * fy;
+    }
+  }
+}
+
+}  // namespace ccdpsf::internal

@@ -1,0 +1,158 @@
+// The 2015 reference discretisation, templated on the scalar so that Ceres Jets give exact
+// derivatives. On an nx x ny stamp with integer pixel coordinates X (column), Y (row):
+//
+//   A = amp [2 J1(pi q) / (pi q)]^2,  q = hypot(X - x, Y - y) / (r / Rz),
+//       amp such that A at the centre pixel (cx, cy) equals m, cx = int(nx/2 - 0.5);
+//   F = exp(-((X - x)^2 + (Y - y)^2) / (2 sigma_f^2))     (unit peak, on the Airy centre);
+//   M1 = convolve2d(A, F, mode='same')                     (zero padding);
+//   G = exp(-(X - nx/2 + 0.5)^2 / (2 sigma_x^2) - (Y - ny/2 + 0.5)^2 / (2 sigma_y^2));
+//   M = convolve2d(M1, G, mode='same').
+//
+// Nothing is normalised: m is not the flux. In scipy's 'same' mode the output element (i, j)
+// is the full convolution's element (i + cy, j + cx), so kernel index (cy, cx) is the zero
+// shift. F and G are separable, so each 2-D convolution is done as two 1-D ones; with zero
+// padding this is the same sum, term by term.
+#include "internal/pixel_centre_renderer.h"
+
+#include <cmath>
+#include <vector>
+
+#include "ceres/jet.h"
+#include "glog/logging.h"
+
+namespace ccdpsf::internal {
+namespace {
+
+using model::kAiryRadius;
+using model::kCcdSigmaX;
+using model::kCcdSigmaY;
+using model::kCentreX;
+using model::kCentreY;
+using model::kDefocus;
+using model::kFlux;
+using model::kNumSpotParams;
+
+using std::exp;
+using std::sqrt;
+
+// [2 J1(pi q) / (pi q)]^2 as a function of q^2, smooth through q = 0 (where sqrt would give
+// the Jets an infinite derivative).
+template <typename T>
+T AiryPatternOfQ2(const T& q2) {
+  const double kSmall = 1e-6;
+  if (q2 < kSmall) {
+    // a(v) = 1 - v^2/8 + v^4/192 - ..., v^2 = pi^2 q^2; error O(v^6) ~ 1e-16 here.
+    const T v2 = M_PI * M_PI * q2;
+    const T a = T(1.0) - v2 / 8.0 + v2 * v2 / 192.0;
+    return a * a;
+  }
+  const T v = M_PI * sqrt(q2);
+  using ceres::BesselJ1;
+  const T a = T(2.0) * BesselJ1(v) / v;
+  return a * a;
+}
+
+// out[i][j] = sum_l in[i][l] kernel[j + c - l] over 0 <= j + c - l < n: scipy 'same' along
+// the fast (x) axis. in/out are ny x nx row-major.
+template <typename T>
+void ConvolveRowsSame(const std::vector<T>& in, const std::vector<T>& kernel, int nx, int ny,
+                      std::vector<T>* out) {
+  const int c = (nx - 1) / 2;
+  out->assign(static_cast<size_t>(nx) * ny, T(0.0));
+  for (int i = 0; i < ny; ++i) {
+    for (int j = 0; j < nx; ++j) {
+      T sum(0.0);
+      for (int l = 0; l < nx; ++l) {
+        const int kidx = j + c - l;
+        if (kidx < 0 || kidx >= nx) continue;
+        sum += in[i * nx + l] * kernel[kidx];
+      }
+      (*out)[i * nx + j] = sum;
+    }
+  }
+}
+
+// The same along the slow (y) axis.
+template <typename T>
+void ConvolveColumnsSame(const std::vector<T>& in, const std::vector<T>& kernel, int nx, int ny,
+                         std::vector<T>* out) {
+  const int c = (ny - 1) / 2;
+  out->assign(static_cast<size_t>(nx) * ny, T(0.0));
+  for (int i = 0; i < ny; ++i) {
+    for (int k = 0; k < ny; ++k) {
+      const int kidx = i + c - k;
+      if (kidx < 0 || kidx >= ny) continue;
+      const T& w = kernel[kidx];
+      for (int j = 0; j < nx; ++j) (*out)[i * nx + j] += in[k * nx + j] * w;
+    }
+  }
+}
+
+template <typename T>
+void RenderTemplated(const T* p, int nx, int ny, std::vector<T>* model) {
+  const T& m = p[kFlux];
+  const T& x = p[kCentreX];
+  const T& y = p[kCentreY];
+  const T scale = p[kAiryRadius] / model::kAiryRz;  // r / Rz [px]
+  const int cx = static_cast<int>(nx / 2.0 - 0.5);
+  const int cy = static_cast<int>(ny / 2.0 - 0.5);
+
+  const T dxc = double(cx) - x, dyc = double(cy) - y;
+  const T peak_q2 = (dxc * dxc + dyc * dyc) / (scale * scale);
+  const T amp = m / AiryPatternOfQ2(peak_q2);
+  std::vector<T> airy(static_cast<size_t>(nx) * ny);
+  for (int j = 0; j < ny; ++j) {
+    for (int i = 0; i < nx; ++i) {
+      const T dx = double(i) - x, dy = double(j) - y;
+      const T q2 = (dx * dx + dy * dy) / (scale * scale);
+      airy[j * nx + i] = amp * AiryPatternOfQ2(q2);
+    }
+  }
+
+  const T two_sf2 = 2.0 * p[kDefocus] * p[kDefocus];
+  std::vector<T> fx(nx), fy(ny);
+  for (int i = 0; i < nx; ++i) fx[i] = exp(-(double(i) - x) * (double(i) - x) / two_sf2);
+  for (int j = 0; j < ny; ++j) fy[j] = exp(-(double(j) - y) * (double(j) - y) / two_sf2);
+  std::vector<T> tmp, m1;
+  ConvolveRowsSame(airy, fx, nx, ny, &tmp);
+  ConvolveColumnsSame(tmp, fy, nx, ny, &m1);
+
+  const T two_sx2 = 2.0 * p[kCcdSigmaX] * p[kCcdSigmaX];
+  const T two_sy2 = 2.0 * p[kCcdSigmaY] * p[kCcdSigmaY];
+  std::vector<T> gx(nx), gy(ny);
+  for (int i = 0; i < nx; ++i) {
+    const double u = i - nx / 2.0 + 0.5;
+    gx[i] = exp(-T(u * u) / two_sx2);
+  }
+  for (int j = 0; j < ny; ++j) {
+    const double u = j - ny / 2.0 + 0.5;
+    gy[j] = exp(-T(u * u) / two_sy2);
+  }
+  ConvolveRowsSame(m1, gx, nx, ny, &tmp);
+  ConvolveColumnsSame(tmp, gy, nx, ny, model);
+}
+
+}  // namespace
+
+void RenderPixelCentre(const model::SpotParams& params, const model::PixelGrid& grid,
+                       double* model_out, double* jacobian) {
+  CHECK(grid.x0 == 0.0 && grid.y0 == 0.0) << "pixel_centre sampling works on stamp indices";
+  const int npix = grid.size();
+  if (jacobian == nullptr) {
+    std::vector<double> out;
+    RenderTemplated(params.data(), grid.nx, grid.ny, &out);
+    std::copy(out.begin(), out.end(), model_out);
+    return;
+  }
+  using Jet = ceres::Jet<double, kNumSpotParams>;
+  Jet p[kNumSpotParams];
+  for (int k = 0; k < kNumSpotParams; ++k) p[k] = Jet(params[k], k);
+  std::vector<Jet> out;
+  RenderTemplated(p, grid.nx, grid.ny, &out);
+  for (int q = 0; q < npix; ++q) {
+    model_out[q] = out[q].a;
+    for (int k = 0; k < kNumSpotParams; ++k) jacobian[q * kNumSpotParams + k] = out[q].v[k];
+  }
+}
+
+}  // namespace ccdpsf::internal

@@ -1,0 +1,17 @@
+// `pixel_centre` sampling: the discretisation of the authors' 2015 Python code, exactly
+// (DESIGN.md pitfall 2), so that results can be compared with the paper's.
+#ifndef CCDPSF_INTERNAL_PIXEL_CENTRE_RENDERER_H_
+#define CCDPSF_INTERNAL_PIXEL_CENTRE_RENDERER_H_
+
+#include "ccdpsf/model/spot_model.h"
+
+namespace ccdpsf::internal {
+
+// Renders on stamp indices (grid.x0 = grid.y0 = 0 required); see renderer.h for the layout.
+// params[kFlux] is the peak meta-parameter m; only the Gaussian defocus exists in this mode.
+void RenderPixelCentre(const model::SpotParams& params, const model::PixelGrid& grid,
+                       double* model, double* jacobian);
+
+}  // namespace ccdpsf::internal
+
+#endif  // CCDPSF_INTERNAL_PIXEL_CENTRE_RENDERER_H_

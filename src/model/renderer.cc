@@ -1,0 +1,38 @@
+#include "ccdpsf/model/renderer.h"
+
+#include <string>
+
+#include "glog/logging.h"
+#include "internal/integrated_renderer.h"
+#include "internal/pixel_centre_renderer.h"
+
+namespace ccdpsf::model {
+
+struct SpotRenderer::Workspace {
+  internal::IntegratedWorkspace integrated;
+};
+
+SpotRenderer::SpotRenderer(const ModelOptions& options)
+    : options_(options), workspace_(std::make_unique<Workspace>()) {
+  CHECK(options_.sampling == Sampling::kIntegrated ||
+        options_.defocus == DefocusKind::kGaussian)
+      << "pixel_centre sampling has only the Gaussian defocus of the 2015 code";
+  CHECK_GT(options_.relative_tolerance, 0.0);
+}
+
+SpotRenderer::~SpotRenderer() = default;
+
+void SpotRenderer::Render(const SpotParams& params, const PixelGrid& grid, double* model,
+                          double* jacobian) const {
+  std::string error;
+  CHECK(ValidSpotParams(options_, params, &error)) << error;
+  CHECK_GT(grid.nx, 0);
+  CHECK_GT(grid.ny, 0);
+  if (options_.sampling == Sampling::kPixelCentre) {
+    internal::RenderPixelCentre(params, grid, model, jacobian);
+  } else {
+    internal::RenderIntegrated(options_, params, grid, model, jacobian, &workspace_->integrated);
+  }
+}
+
+}  // namespace ccdpsf::model

@@ -1,0 +1,76 @@
+#include "ccdpsf/model/spot_model.h"
+
+#include <cmath>
+#include <sstream>
+
+namespace ccdpsf::model {
+
+bool ParseSampling(const std::string& text, Sampling* sampling) {
+  if (text == "integrated") {
+    *sampling = Sampling::kIntegrated;
+  } else if (text == "pixel_centre") {
+    *sampling = Sampling::kPixelCentre;
+  } else {
+    return false;
+  }
+  return true;
+}
+
+bool ParseDefocusKind(const std::string& text, DefocusKind* kind) {
+  if (text == "gaussian") {
+    *kind = DefocusKind::kGaussian;
+  } else if (text == "pillbox") {
+    *kind = DefocusKind::kPillbox;
+  } else {
+    return false;
+  }
+  return true;
+}
+
+std::string ToString(Sampling sampling) {
+  return sampling == Sampling::kIntegrated ? "integrated" : "pixel_centre";
+}
+
+std::string ToString(DefocusKind kind) {
+  return kind == DefocusKind::kGaussian ? "gaussian" : "pillbox";
+}
+
+bool ValidSpotParams(const ModelOptions& options, const SpotParams& p, std::string* error) {
+  static const char* kNames[kNumSpotParams] = {"flux", "x", "y", "airy radius", "defocus",
+                                               "ccd sigma_x", "ccd sigma_y"};
+  for (int i = 0; i < kNumSpotParams; ++i) {
+    if (!std::isfinite(p[i])) {
+      *error = std::string("model parameter ") + kNames[i] + " is not finite";
+      return false;
+    }
+  }
+  std::ostringstream why;
+  if (p[kFlux] < 0) why << "flux must be >= 0 (got " << p[kFlux] << ")";
+  else if (p[kAiryRadius] <= 0) why << "airy radius must be > 0 px (got " << p[kAiryRadius] << ")";
+  else if (p[kDefocus] < 0) why << "defocus must be >= 0 px (got " << p[kDefocus] << ")";
+  else if (p[kCcdSigmaX] < 0 || p[kCcdSigmaY] < 0) why << "ccd sigmas must be >= 0 px";
+  else if (options.sampling == Sampling::kIntegrated) {
+    // The quadrature needs some Gaussian smoothing on each axis: its node spacing scales
+    // with the smallest total width (see integrated_renderer.cc).
+    const double gx = options.defocus == DefocusKind::kGaussian
+                          ? std::hypot(p[kDefocus], p[kCcdSigmaX]) : p[kCcdSigmaX];
+    const double gy = options.defocus == DefocusKind::kGaussian
+                          ? std::hypot(p[kDefocus], p[kCcdSigmaY]) : p[kCcdSigmaY];
+    if (gx < kMinGaussianWidthPx || gy < kMinGaussianWidthPx) {
+      why << "integrated sampling needs a total Gaussian width >= " << kMinGaussianWidthPx
+          << " px on each axis (got " << gx << ", " << gy << ")";
+    }
+    if (p[kAiryRadius] < kMinAiryRadiusPx) {
+      why << "airy radius must be >= " << kMinAiryRadiusPx << " px";
+    }
+  } else if (p[kDefocus] <= 0 || p[kCcdSigmaX] <= 0 || p[kCcdSigmaY] <= 0) {
+    why << "pixel_centre sampling needs defocus and ccd sigmas > 0 px";
+  }
+  if (!why.str().empty()) {
+    *error = why.str();
+    return false;
+  }
+  return true;
+}
+
+}  // namespace ccdpsf::model
