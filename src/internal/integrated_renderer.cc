@@ -187,6 +187,22 @@ void ComputeAxisWeights(double pixel0, double centre, double h, int q, double ha
   }
 }
 
+// The inner loops of both passes, as functions whose restrict-qualified arguments tell the
+// compiler the arrays do not overlap, so that it vectorises them.
+// out += w * x
+inline void Axpy(int n, double w, const double* __restrict x, double* __restrict out) {
+  for (int i = 0; i < n; ++i) out[i] += w * x[i];
+}
+// out0 += w0 x, out1 += w1 x, out2 += w2 x: one input with three weights.
+inline void Axpy3(int n, double w0, double w1, double w2, const double* __restrict x,
+                  double* __restrict out0, double* __restrict out1, double* __restrict out2) {
+  for (int i = 0; i < n; ++i) {
+    out0[i] += w0 * x[i];
+    out1[i] += w1 * x[i];
+    out2[i] += w2 * x[i];
+  }
+}
+
 }  // namespace
 
 double QuadratureStep(double rho_c, double s, double tolerance) {
@@ -255,78 +271,80 @@ void RenderIntegrated(const model::ModelOptions& options, const model::SpotParam
     ExpandColumns(ws->quadrant_dR, j_lo, &ws->radial_dR);
   }
 
-  // First pass, along y: bh(b, |i|) = hy sum_j S(|i|, j) ky(yb - cy - j hy).
-  ws->bh.resize(grid.ny, nh);
-  if (derivs) {
-    ws->bh_dcy.resize(grid.ny, nh);
-    ws->bh_dsy.resize(grid.ny, nh);
-    ws->bh_dr.resize(grid.ny, nh);
-    if (pillbox) ws->bh_dR.resize(grid.ny, nh);
-  }
-  Eigen::MatrixXd partial;
+  // First pass, along y: B(|i|, b) = hy sum_j S(|i|, j) ky(yb - cy - j hy), and the same
+  // with d ky / d cy, d ky / d sY, and with dS / dr (and dS / dR): nr right-hand sides.
+  // Hand-written loops: at these sizes (~75 x 40 per output row) a general matrix product
+  // spends more time packing than multiplying. The inner loop runs down a contiguous column
+  // of S; each finished row b is stored transposed, bt[(k * nh + |i|) * ny + b], so that the
+  // second pass can run its inner loop over b.
+  const int nr = derivs ? (pillbox ? 5 : 4) : 1;
+  const int ny = grid.ny;
+  ws->row.resize(static_cast<size_t>(nr) * nh);
+  ws->bt.resize(static_cast<size_t>(nr) * nh * ny);
   const int wy_size = static_cast<int>(wy.w.rows());
-  for (int b = 0; b < grid.ny; ++b) {
-    const int col0 = qy * b;  // = (first node of row b) - j_lo
-    const auto block = ws->radial.middleCols(col0, wy_size);
-    partial.noalias() = block * wy.w;
-    ws->bh.row(b) = partial.col(0).transpose();
-    if (derivs) {
-      ws->bh_dcy.row(b) = partial.col(1).transpose();
-      ws->bh_dsy.row(b) = partial.col(2).transpose();
-      ws->bh_dr.row(b).noalias() =
-          (ws->radial_dr.middleCols(col0, wy_size) * wy.w.col(0)).transpose();
-      if (pillbox) {
-        ws->bh_dR.row(b).noalias() =
-            (ws->radial_dR.middleCols(col0, wy_size) * wy.w.col(0)).transpose();
+  const double* s_val = ws->radial.data();
+  const double* s_dr = ws->radial_dr.data();
+  const double* s_dR = pillbox ? ws->radial_dR.data() : nullptr;
+  double* out = ws->row.data();
+  for (int b = 0; b < ny; ++b) {
+    std::fill(ws->row.begin(), ws->row.end(), 0.0);
+    for (int m = 0; m < wy_size; ++m) {
+      const size_t col = static_cast<size_t>(qy * b + m) * nh;
+      const double* sv = s_val + col;
+      const double w0 = wy.w(m, 0);
+      if (!derivs) {
+        Axpy(nh, w0, sv, out);
+        continue;
       }
+      Axpy3(nh, w0, wy.w(m, 1), wy.w(m, 2), sv, out, out + nh, out + 2 * nh);
+      Axpy(nh, w0, s_dr + col, out + 3 * nh);
+      if (pillbox) Axpy(nh, w0, s_dR + col, out + 4 * nh);
     }
-  }
-  // Unfold |i| to i = i_lo..i_hi for the second pass.
-  auto unfold = [&](const Eigen::MatrixXd& half, Eigen::MatrixXd* full) {
-    full->resize(grid.ny, ni);
-    for (int c = 0; c < ni; ++c) full->col(c) = half.col(std::abs(i_lo + c));
-  };
-  unfold(ws->bh, &ws->bt);
-  if (derivs) {
-    unfold(ws->bh_dcy, &ws->bt_dcy);
-    unfold(ws->bh_dsy, &ws->bt_dsy);
-    unfold(ws->bh_dr, &ws->bt_dr);
-    if (pillbox) unfold(ws->bh_dR, &ws->bt_dR);
+    for (size_t q = 0; q < ws->row.size(); ++q) ws->bt[q * ny + b] = out[q];
   }
 
-  // Second pass, along x, one output column a at a time.
-  const int npix = grid.size();
-  if (derivs) std::fill(jacobian, jacobian + static_cast<size_t>(npix) * kNumSpotParams, 0.0);
-  std::fill(model_out, model_out + npix, 0.0);
-  Eigen::VectorXd d_cy, d_sy, d_r, d_R;
+  // Second pass, along x: M(a, b) = hx sum_i kx(xa - cx - i hx) B(|i|, b), vectorised over b.
   const double flux = p[kFlux];
   const double gx = (!pillbox && sx > 0) ? defocus / sx : 0.0;  // d sX / d sigma_f
   const double gy = (!pillbox && sy > 0) ? defocus / sy : 0.0;
   const double fx = pillbox ? 1.0 : p[kCcdSigmaX] / sx;          // d sX / d sigma_x
   const double fy = pillbox ? 1.0 : p[kCcdSigmaY] / sy;
   const int wx_size = static_cast<int>(wx.w.rows());
+  const int nacc = derivs ? (pillbox ? 7 : 6) : 1;
+  ws->acc.resize(static_cast<size_t>(nacc) * ny);
+  double* acc = ws->acc.data();
+  const double* bt = ws->bt.data();
+  const size_t plane = static_cast<size_t>(nh) * ny;  // one right-hand side in bt
   for (int a = 0; a < grid.nx; ++a) {
+    std::fill(ws->acc.begin(), ws->acc.end(), 0.0);
     const int first = i_lo + qx * a;
-    const int w = wx_size;
-    const Eigen::MatrixXd& weights = wx.w;
-    partial.noalias() = ws->bt.middleCols(first - i_lo, w) * weights;
-    for (int b = 0; b < grid.ny; ++b) model_out[b * grid.nx + a] = flux * partial(b, 0);
-    if (!derivs) continue;
-    const auto wv = weights.col(0);
-    d_cy.noalias() = ws->bt_dcy.middleCols(first - i_lo, w) * wv;
-    d_sy.noalias() = ws->bt_dsy.middleCols(first - i_lo, w) * wv;
-    d_r.noalias() = ws->bt_dr.middleCols(first - i_lo, w) * wv;
-    if (pillbox) d_R.noalias() = ws->bt_dR.middleCols(first - i_lo, w) * wv;
-    for (int b = 0; b < grid.ny; ++b) {
-      double* row = jacobian + static_cast<size_t>(b * grid.nx + a) * kNumSpotParams;
-      const double dsx = partial(b, 2), dsy = d_sy(b);
-      row[kFlux] = partial(b, 0);
-      row[kCentreX] = flux * partial(b, 1);
-      row[kCentreY] = flux * d_cy(b);
-      row[kAiryRadius] = flux * d_r(b);
-      row[kDefocus] = pillbox ? flux * d_R(b) : flux * (dsx * gx + dsy * gy);
-      row[kCcdSigmaX] = flux * dsx * fx;
-      row[kCcdSigmaY] = flux * dsy * fy;
+    for (int m = 0; m < wx_size; ++m) {
+      const double* v = bt + static_cast<size_t>(std::abs(first + m)) * ny;
+      const double w0 = wx.w(m, 0);
+      // acc rows: value, d/dcx, d/dsX, d/dcy, d/dsY, d/dr, d/dR.
+      if (!derivs) {
+        Axpy(ny, w0, v, acc);
+        continue;
+      }
+      Axpy3(ny, w0, wx.w(m, 1), wx.w(m, 2), v, acc, acc + ny, acc + 2 * ny);
+      Axpy(ny, w0, v + plane, acc + 3 * ny);
+      Axpy(ny, w0, v + 2 * plane, acc + 4 * ny);
+      Axpy(ny, w0, v + 3 * plane, acc + 5 * ny);
+      if (pillbox) Axpy(ny, w0, v + 4 * plane, acc + 6 * ny);
+    }
+    for (int b = 0; b < ny; ++b) {
+      const int pix = b * grid.nx + a;
+      model_out[pix] = flux * acc[b];
+      if (!derivs) continue;
+      double* row = jacobian + static_cast<size_t>(pix) * kNumSpotParams;
+      const double d_sx = acc[2 * ny + b], d_sy = acc[4 * ny + b];
+      row[kFlux] = acc[b];
+      row[kCentreX] = flux * acc[ny + b];
+      row[kCentreY] = flux * acc[3 * ny + b];
+      row[kAiryRadius] = flux * acc[5 * ny + b];
+      row[kDefocus] = pillbox ? flux * acc[6 * ny + b] : flux * (d_sx * gx + d_sy * gy);
+      row[kCcdSigmaX] = flux * d_sx * fx;
+      row[kCcdSigmaY] = flux * d_sy * fy;
     }
   }
 }

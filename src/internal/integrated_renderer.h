@@ -2,6 +2,8 @@
 #ifndef CCDPSF_INTERNAL_INTEGRATED_RENDERER_H_
 #define CCDPSF_INTERNAL_INTEGRATED_RENDERER_H_
 
+#include <vector>
+
 #include <Eigen/Core>
 
 #include "ccdpsf/model/spot_model.h"
@@ -14,8 +16,9 @@ struct IntegratedWorkspace {
   Eigen::MatrixXd radial_dr;  // dS / d(airy radius)
   Eigen::MatrixXd radial_dR;  // dS / d(pillbox radius) (pillbox only)
   Eigen::MatrixXd quadrant, quadrant_dr, quadrant_dR;
-  Eigen::MatrixXd bh, bh_dcy, bh_dsy, bh_dr, bh_dR;  // first pass on rows |i|, (ny x |i|)
-  Eigen::MatrixXd bt, bt_dcy, bt_dsy, bt_dr, bt_dR;  // unfolded to every node column i
+  std::vector<double> row;  // first pass: the right-hand sides of one output row, by |i|
+  std::vector<double> bt;   // first pass output, [(rhs * n|i| + |i|) * ny + b]
+  std::vector<double> acc;  // second pass accumulators, [quantity * ny + b]
 };
 
 // Renders with unit flux semantics handled inside; see renderer.h for the output layout.

@@ -34,12 +34,13 @@ void AirySeries(double v, double* a, double* da, double* d2a) {
   *d2a = (v == 0.0) ? -0.25 : sd2a;
 }
 
+// Per-interval quintic polynomials in u = (v - v_i) / h, coefficients c0..c5, equal to the
+// quintic Hermite interpolant through a, a', a'' at both ends of the interval; stored
+// contiguously so one evaluation touches one cache line.
 struct AiryTable {
   AiryTable() {
     const int n = static_cast<int>(kTableMax / kTableStep) + 2;
-    a.resize(n);
-    da.resize(n);
-    d2a.resize(n);
+    std::vector<double> a(n), da(n), d2a(n);
     for (int i = 0; i < n; ++i) {
       const double v = i * kTableStep;
       if (v < kSeriesLimit) {
@@ -49,8 +50,23 @@ struct AiryTable {
         d2a[i] = -a[i] - 3.0 * da[i] / v;  // Bessel equation for a = 2 J1(v) / v.
       }
     }
+    coefficients.resize(static_cast<size_t>(n - 1) * 6);
+    const double h = kTableStep;
+    for (int i = 0; i + 1 < n; ++i) {
+      // Hermite data scaled to the unit interval.
+      const double p0 = a[i], p1 = a[i + 1];
+      const double m0 = da[i] * h, m1 = da[i + 1] * h;
+      const double c0 = d2a[i] * h * h, c1 = d2a[i + 1] * h * h;
+      double* c = &coefficients[static_cast<size_t>(i) * 6];
+      c[0] = p0;
+      c[1] = m0;
+      c[2] = 0.5 * c0;
+      c[3] = -10 * p0 - 6 * m0 - 1.5 * c0 + 10 * p1 - 4 * m1 + 0.5 * c1;
+      c[4] = 15 * p0 + 8 * m0 + 1.5 * c0 - 15 * p1 + 7 * m1 - c1;
+      c[5] = -6 * p0 - 3 * m0 - 0.5 * c0 + 6 * p1 - 3 * m1 + 0.5 * c1;
+    }
   }
-  std::vector<double> a, da, d2a;
+  std::vector<double> coefficients;
 };
 
 const AiryTable& Table() {
@@ -80,30 +96,13 @@ void AiryAmplitudeAndDerivative(double v, double* a, double* da_dv) {
     AiryAmplitudeDirect(v, a, da_dv);
     return;
   }
-  const AiryTable& t = Table();
   const double s = v * (1.0 / kTableStep);
   const int i = static_cast<int>(s);
   const double u = s - i;  // in [0, 1)
-  const double h = kTableStep;
-  // Quintic Hermite on [0, 1] in u, with derivatives scaled by h.
-  const double p0 = t.a[i], p1 = t.a[i + 1];
-  const double m0 = t.da[i] * h, m1 = t.da[i + 1] * h;
-  const double c0 = t.d2a[i] * h * h, c1 = t.d2a[i + 1] * h * h;
-  const double u2 = u * u, u3 = u2 * u, u4 = u3 * u, u5 = u4 * u;
-  const double h00 = 1 - 10 * u3 + 15 * u4 - 6 * u5;
-  const double h10 = u - 6 * u3 + 8 * u4 - 3 * u5;
-  const double h20 = 0.5 * (u2 - 3 * u3 + 3 * u4 - u5);
-  const double h01 = 10 * u3 - 15 * u4 + 6 * u5;
-  const double h11 = -4 * u3 + 7 * u4 - 3 * u5;
-  const double h21 = 0.5 * (u3 - 2 * u4 + u5);
-  *a = h00 * p0 + h10 * m0 + h20 * c0 + h01 * p1 + h11 * m1 + h21 * c1;
-  const double d00 = -30 * u2 + 60 * u3 - 30 * u4;
-  const double d10 = 1 - 18 * u2 + 32 * u3 - 15 * u4;
-  const double d20 = 0.5 * (2 * u - 9 * u2 + 12 * u3 - 5 * u4);
-  const double d01 = 30 * u2 - 60 * u3 + 30 * u4;
-  const double d11 = -12 * u2 + 28 * u3 - 15 * u4;
-  const double d21 = 0.5 * (3 * u2 - 8 * u3 + 5 * u4);
-  *da_dv = (d00 * p0 + d10 * m0 + d20 * c0 + d01 * p1 + d11 * m1 + d21 * c1) / h;
+  const double* c = &Table().coefficients[static_cast<size_t>(i) * 6];
+  *a = c[0] + u * (c[1] + u * (c[2] + u * (c[3] + u * (c[4] + u * c[5]))));
+  *da_dv = (c[1] + u * (2 * c[2] + u * (3 * c[3] + u * (4 * c[4] + u * 5 * c[5])))) *
+           (1.0 / kTableStep);
 }
 
 double AiryAmplitude(double v) {
