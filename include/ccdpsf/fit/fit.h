@@ -1,0 +1,65 @@
+// A complete fit of one exposure or a joint set: MAP (Ceres) -> Laplace approximation with
+// identifiability analysis -> ensemble MCMC seeded from it -> posterior summaries of the
+// parameters and of the PSF metrics.
+#ifndef CCDPSF_FIT_FIT_H_
+#define CCDPSF_FIT_FIT_H_
+
+#include <map>
+#include <string>
+#include <vector>
+
+#include "ccdpsf/fit/ensemble_sampler.h"
+#include "ccdpsf/fit/fit_model.h"
+#include "ccdpsf/fit/laplace.h"
+#include "ccdpsf/fit/map_fit.h"
+
+namespace ccdpsf::fit {
+
+struct FitOptions {
+  MapOptions map;
+  bool run_mcmc = true;
+  // Walkers: 0 picks max(32, 4 dim) rounded up to even.
+  int num_walkers = 0;
+  SamplerOptions mcmc;
+  // Posterior draws (thinned from the chain after burn-in) used for the derived metrics;
+  // the peak pixel, which needs a render per draw and exposure, uses at most peak_draws.
+  int derived_draws = 4000;
+  int peak_draws = 400;
+};
+
+// Centre and intervals of one quantity: the MAP value with its Laplace sd (NaN when the
+// data do not constrain it), and the posterior median with central 68 % and 99.7 %
+// intervals (NaN without MCMC).
+struct Summary {
+  double map = NAN;
+  double laplace_sd = NAN;
+  double median = NAN;
+  double lo68 = NAN, hi68 = NAN;
+  double lo997 = NAN, hi997 = NAN;
+};
+
+struct FitResult {
+  std::vector<std::string> names;
+  MapResult map;
+  LaplaceResult laplace;
+  bool have_mcmc = false;
+  SamplerResult chain;
+  std::vector<Summary> parameters;                // in theta order
+  std::vector<std::pair<std::string, Summary>> derived;  // fixed order, see fit.cc
+  double seconds = 0.0;
+};
+
+// Names of the derived quantities, in the order of FitResult::derived, with their units in
+// the names (fwhm_um, ..., peak_e).
+const std::vector<std::string>& DerivedNames();
+
+// The derived quantities at theta, except peak_e (needs a render): returned in DerivedNames()
+// order with peak_e = NaN.
+std::vector<double> DerivedAt(const FitModel& model, const double* theta);
+
+bool RunFit(const FitModel& model, const FitOptions& options, FitResult* result,
+            std::string* error);
+
+}  // namespace ccdpsf::fit
+
+#endif  // CCDPSF_FIT_FIT_H_

@@ -1,0 +1,43 @@
+// FIT.json: the fit's options as a file (command-line flags override it).
+//
+//   {"sampling": "integrated", "defocus": "gaussian", "likelihood": "gaussian",
+//    "joint": false,
+//    "priors": {"airy_radius_px": [0.1, 1.5], "defocus_px": [0.0, 1.5],
+//               "ccd_sigma_x_px": [0.05, 1.5], "ccd_sigma_y_px": [0.05, 1.5],
+//               "position_halfwidth_px": 2.0, "flux_fraction": [0.2, 5.0]},
+//    "map":  {"start_airy_radii_px": [0.35, 0.6, 0.9], "start_defocus_shares": [0.25, 0.75]},
+//    "mcmc": {"enabled": true, "walkers": 0, "max_steps": 20000, "target_ess": 1000,
+//             "min_tau_multiple": 50, "seed": 1, "threads": 2},
+//    "calibration": {"gain_e_per_adu": 3.1, "read_noise_e": 4.5, "bias_adu": 1000,
+//                    "saturation_adu": 65535, "stamp_size": 21}}
+//
+// Every key is optional; unknown keys are errors.
+#ifndef CCDPSF_FIT_FIT_CONFIG_H_
+#define CCDPSF_FIT_FIT_CONFIG_H_
+
+#include <string>
+
+#include "ccdpsf/exposure.h"
+#include "ccdpsf/fit/fit.h"
+#include "nlohmann/json.hpp"
+
+namespace ccdpsf::fit {
+
+struct FitConfig {
+  FitModelOptions model;
+  FitOptions fit;
+  CalibrationOptions calibration;
+  bool joint = false;
+};
+
+// Overlays the JSON onto *config (keys absent keep their current values). False with a
+// one-line reason on malformed JSON, unknown keys, wrong types or out-of-range values.
+bool ParseFitConfig(const std::string& json_text, FitConfig* config, std::string* error);
+bool LoadFitConfig(const std::string& path, FitConfig* config, std::string* error);
+
+// The resolved configuration as JSON (for run.json).
+nlohmann::json FitConfigJson(const FitConfig& config);
+
+}  // namespace ccdpsf::fit
+
+#endif  // CCDPSF_FIT_FIT_CONFIG_H_

@@ -1,0 +1,37 @@
+// What `ccdpsf fit` leaves in its output folder (DESIGN.md section 2):
+//   fit.json        parameters, derived metrics, identifiability, MCMC diagnostics, fit
+//                   statistics, the MAP-vs-MCMC comparison, the exposures and their
+//                   calibration (written last: its presence means the folder is complete)
+//   residuals.fits  per exposure four image extensions DATA_K, MODEL_K, RESID_K, NRESID_K
+//                   [e-, e-, e-, sigma]; masked pixels are NaN
+//   chain.fits      binary table CHAIN: walker, step, log_prob, one column per parameter
+//                   (post burn-in marked by the BURNIN keyword)
+//   corner.png / residuals.png (+ their .gp scripts and .dat data, for restyling)
+//   report.md       a readable summary linking the plots
+#ifndef CCDPSF_FIT_FIT_REPORT_H_
+#define CCDPSF_FIT_FIT_REPORT_H_
+
+#include <string>
+#include <vector>
+
+#include "ccdpsf/exposure.h"
+#include "ccdpsf/fit/fit.h"
+#include "nlohmann/json.hpp"
+
+namespace ccdpsf::fit {
+
+// The fit.json document.
+nlohmann::json FitJson(const FitModel& model, const FitResult& result,
+                       const std::vector<CalibrationReport>& calibration);
+
+// Writes everything above into out_dir atomically (staged, fit.json last). `run_record` is
+// stored as run.json (resolved options, seed, software versions). Plot failures (no
+// gnuplot) are not errors: they are listed in `warnings` and in report.md.
+bool WriteFitReport(const std::string& out_dir, const FitModel& model, const FitResult& result,
+                    const std::vector<CalibrationReport>& calibration,
+                    const nlohmann::json& run_record, std::vector<std::string>* warnings,
+                    std::string* error);
+
+}  // namespace ccdpsf::fit
+
+#endif  // CCDPSF_FIT_FIT_REPORT_H_

@@ -1,0 +1,63 @@
+// Maximum a posteriori point with Ceres (flat priors: the maximum-likelihood point inside
+// the prior box).
+//
+// One residual block per exposure; its parameter blocks are the shared PSF block (flux,
+// Airy radius, defocus, CCD sigma_x, sigma_y) - the same pointer for every exposure, which
+// is what makes the fit joint - and the exposure's own (x, y) block. For each valid pixel the
+// block returns two residuals,
+//
+//   r1 = (D - m) / sigma,   r2 = sqrt(log(var / var0) + 1),   var = sigma^2 = m + s^2,
+//
+// with var0 = s^2 the read-noise-plus-rounding floor, so 1/2 sum (r1^2 + r2^2) equals
+// -log L + constant for the Gaussian likelihood with model-dependent variance: the -sum log
+// sigma term is kept (r2 >= 1, so its derivative is bounded). r1 is the whitened residual.
+// Bounds are the prior box, set with SetParameterLower/UpperBound.
+#ifndef CCDPSF_FIT_MAP_FIT_H_
+#define CCDPSF_FIT_MAP_FIT_H_
+
+#include <string>
+#include <vector>
+
+#include "ccdpsf/fit/fit_model.h"
+
+namespace ceres {
+class CostFunction;
+}
+
+namespace ccdpsf::fit {
+
+struct MapOptions {
+  // Starting points: every combination of these Airy radii [px] and shares of the Gaussian
+  // width given to the defocus (moment starts, FitModel::MomentStart). Several starts make
+  // the answer independent of the luck of one.
+  std::vector<double> start_airy_radii_px = {0.35, 0.6, 0.9};
+  std::vector<double> start_defocus_shares = {0.25, 0.75};
+  int max_iterations = 200;
+  int num_threads = 1;
+};
+
+struct MapResult {
+  std::vector<double> theta;
+  double log_likelihood = 0.0;  // of the model's likelihood kind, at theta
+  double chi2 = 0.0;            // sum of squared whitened residuals
+  int num_pixels = 0;
+  int dof = 0;                  // pixels - parameters
+  int num_starts = 0;
+  int num_usable_starts = 0;
+  std::vector<double> start_costs;  // final Ceres cost of each start, in order
+  int iterations = 0;               // of the best start
+  std::string termination;          // Ceres' message for the best start
+  double seconds = 0.0;
+};
+
+// Returns false with a one-line reason when no start reaches a usable solution.
+bool FindMap(const FitModel& model, const MapOptions& options, MapResult* result,
+             std::string* error);
+
+// The residual block of exposure k (parameter blocks: shared[5], position[2]). Exposed for
+// gradient checks; the caller owns the result (or hands it to a ceres::Problem).
+ceres::CostFunction* NewExposureCost(const FitModel& model, int k);
+
+}  // namespace ccdpsf::fit
+
+#endif  // CCDPSF_FIT_MAP_FIT_H_

@@ -1,0 +1,97 @@
+// The paper's 9-step simulator of spot-projection exposures (section 3.3):
+//   1-4  render the expected electrons per pixel (Airy, defocus, CCD kernel, pixel grid);
+//   5    Poisson noise;  6 bias;  7 Gaussian read noise;  8 gain (e- -> ADU);
+//   9    round to whole ADU, clip to [0, min(65535, saturation)], store as 16-bit FITS.
+//
+// The configuration is the JSON of DESIGN.md section 2. Extensions beyond it:
+//   "image": {"prescan_x": N}   N bias-only columns at the left of the frame (written as
+//                               BIASSEC) so readers can be tested on realistic frames; spot
+//                               positions are in frame coordinates, prescan included.
+//   "model": {"stamp_size": n}  pixel_centre sampling only: the 2015 model lives on an n x n
+//                               stamp (default 21, or the frame if smaller) whose centre pixel
+//                               is the pixel nearest the spot; outside it the frame holds no
+//                               signal.
+//   "omit_keywords": [..]       header keywords not to write (e.g. "BIASLVL", "RDNOISE") so
+//                               the reader's estimators can be exercised.
+//   per exposure: "wavelength_nm", "exptime_s", "focus_position_um" override the top level.
+// Unknown keys are errors, so a typo never silently falls back to a default.
+#ifndef CCDPSF_SIMULATE_H_
+#define CCDPSF_SIMULATE_H_
+
+#include <cstdint>
+#include <optional>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "ccdpsf/image.h"
+#include "ccdpsf/model/spot_model.h"
+
+namespace ccdpsf {
+
+struct SimulatedExposure {
+  // Total electrons of the continuous image (integrated sampling) or the peak meta-parameter
+  // m [e-] (pixel_centre sampling; given as "peak_e" in the JSON).
+  double flux_e = 0.0;
+  double x_px = 0.0;  // spot centre, frame coordinates
+  double y_px = 0.0;
+  double wavelength_nm = 0.0;
+  double exptime_s = 0.0;
+  std::optional<double> focus_position_um;
+};
+
+struct SimulationConfig {
+  uint64_t seed = 0;
+  int nx = 21;         // image area [px], excluding prescan
+  int ny = 21;
+  int prescan_x = 0;   // bias-only columns left of the image area
+  double gain_e_per_adu = 3.1;
+  double read_noise_e = 4.5;
+  double bias_adu = 1000.0;
+  double pixel_um = 12.0;
+  double saturation_adu = 65535.0;
+  model::ModelOptions model;
+  double airy_radius_px = 0.47;
+  double defocus_px = 0.41;  // Gaussian sigma or pillbox radius
+  double ccd_sigma_x_px = 0.291;
+  double ccd_sigma_y_px = 0.335;
+  int stamp_size = 21;       // pixel_centre only
+  std::vector<std::string> omit_keywords;
+  std::vector<SimulatedExposure> exposures;
+
+  int FrameNx() const { return nx + prescan_x; }
+  model::SpotParams Params(const SimulatedExposure& exposure) const;
+};
+
+// Parses and validates a configuration. Returns nullopt with a one-line reason on malformed
+// JSON, unknown keys, wrong types or values outside their domain.
+std::optional<SimulationConfig> ParseSimulationConfig(const std::string& json_text,
+                                                      std::string* error);
+std::optional<SimulationConfig> LoadSimulationConfig(const std::string& path,
+                                                     std::string* error);
+
+// Steps 1-4: expected photo-electrons per pixel of one exposure over the whole frame
+// (prescan columns are zero).
+Image ExpectedElectrons(const SimulationConfig& config, const SimulatedExposure& exposure);
+
+// Steps 5-9 applied to an expected image: the stored ADU values (whole numbers).
+Image ObserveAdu(const SimulationConfig& config, const Image& expected_e,
+                 std::mt19937_64& engine);
+
+// The random stream of exposure `index`: independent of the number of exposures.
+std::mt19937_64 ExposureEngine(const SimulationConfig& config, int index);
+
+struct SimulationResult {
+  std::vector<std::string> files;  // in exposure order
+  std::string truth_path;
+};
+
+// Writes DIR/exposure_NNN.fits (or model_NNN.fits with `noiseless`) and DIR/truth.json.
+// All files are first written to a temporary folder inside DIR and moved into place only
+// when every one succeeded, truth.json last; on failure nothing is left behind.
+bool RunSimulation(const SimulationConfig& config, const std::string& out_dir, bool noiseless,
+                   SimulationResult* result, std::string* error);
+
+}  // namespace ccdpsf
+
+#endif  // CCDPSF_SIMULATE_H_

@@ -1,0 +1,534 @@
+#include "ccdpsf/fit/ensemble_sampler.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <condition_variable>
+#include <cstdio>
+#include <limits>
+#include <mutex>
+#include <optional>
+#include <random>
+#include <sstream>
+#include <system_error>
+#include <thread>
+
+#include "Eigen/Core"
+#include "Eigen/SVD"
+#include "ccdpsf/fit/autocorrelation.h"
+#include "ccdpsf/random.h"
+#include "glog/logging.h"
+
+namespace ccdpsf::fit {
+namespace {
+
+constexpr double kInf = std::numeric_limits<double>::infinity();
+
+// A fixed team of threads that runs one task at a time: Run(task) calls task(t) once for
+// every t in [0, size()), t = 0 on the calling thread, and returns when all have finished.
+// The workers persist for the whole run, so a half-step costs one wake-up and one wait
+// rather than thread creation.
+class ThreadTeam {
+ public:
+  // Starts up to num_threads - 1 workers; if the system refuses a thread, the team is
+  // smaller (size() says how large), which changes nothing but speed.
+  explicit ThreadTeam(int num_threads) {
+    for (int t = 1; t < num_threads; ++t) {
+      try {
+        workers_.emplace_back(&ThreadTeam::WorkerLoop, this, t);
+      } catch (const std::system_error&) {
+        break;
+      }
+    }
+  }
+
+  ~ThreadTeam() {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      stop_ = true;
+    }
+    start_.notify_all();
+    for (std::thread& worker : workers_) worker.join();
+  }
+
+  ThreadTeam(const ThreadTeam&) = delete;
+  ThreadTeam& operator=(const ThreadTeam&) = delete;
+
+  int size() const { return static_cast<int>(workers_.size()) + 1; }
+
+  void Run(const std::function<void(int)>& task) {
+    if (workers_.empty()) {
+      task(0);
+      return;
+    }
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      task_ = &task;
+      pending_ = static_cast<int>(workers_.size());
+      ++generation_;
+    }
+    start_.notify_all();
+    task(0);
+    std::unique_lock<std::mutex> lock(mutex_);
+    done_.wait(lock, [this] { return pending_ == 0; });
+    task_ = nullptr;
+  }
+
+ private:
+  void WorkerLoop(int index) {
+    uint64_t seen = 0;
+    while (true) {
+      const std::function<void(int)>* task = nullptr;
+      {
+        std::unique_lock<std::mutex> lock(mutex_);
+        start_.wait(lock, [&] { return stop_ || generation_ != seen; });
+        if (stop_) return;
+        seen = generation_;
+        task = task_;
+      }
+      (*task)(index);
+      {
+        std::lock_guard<std::mutex> lock(mutex_);
+        --pending_;
+        if (pending_ == 0) done_.notify_one();
+      }
+    }
+  }
+
+  std::mutex mutex_;
+  std::condition_variable start_;
+  std::condition_variable done_;
+  const std::function<void(int)>* task_ = nullptr;
+  uint64_t generation_ = 0;
+  int pending_ = 0;
+  bool stop_ = false;
+  std::vector<std::thread> workers_;
+};
+
+// [begin, end) of thread t's share when `count` items are split into `parts` contiguous
+// blocks whose sizes differ by at most one.
+void StaticBlock(int count, int parts, int t, int* begin, int* end) {
+  *begin = static_cast<int>(static_cast<int64_t>(count) * t / parts);
+  *end = static_cast<int>(static_cast<int64_t>(count) * (t + 1) / parts);
+}
+
+// Checks that the initial walkers span all dim directions: the stretch move only forms
+// affine combinations of walkers, so a deficient ensemble could never leave its subspace.
+// Columns are scaled to unit RMS first, so parameters of very different units (a flux in
+// electrons beside a width in pixels) do not make the test scale-dependent.
+bool SpansAllDirections(const std::vector<double>& initial, int num_walkers, int dim,
+                        std::string* error) {
+  Eigen::MatrixXd centred(num_walkers, dim);
+  for (int w = 0; w < num_walkers; ++w) {
+    for (int k = 0; k < dim; ++k) centred(w, k) = initial[w * dim + k];
+  }
+  for (int k = 0; k < dim; ++k) {
+    centred.col(k).array() -= centred.col(k).mean();
+    const double rms = centred.col(k).norm();
+    if (!(rms > 0.0)) {
+      *error = "ensemble sampler: parameter " + std::to_string(k) +
+               " has the same value in every initial walker";
+      return false;
+    }
+    centred.col(k) /= rms;
+  }
+  const Eigen::JacobiSVD<Eigen::MatrixXd> svd(centred);
+  const Eigen::VectorXd& singular = svd.singularValues();
+  // Relative threshold well above rounding (~1e-16) but far below any deliberately spread
+  // ensemble, whose columns are unit vectors in general position.
+  if (singular(dim - 1) < 1e-9 * singular(0)) {
+    *error = "ensemble sampler: the initial walkers lie in a lower-dimensional affine "
+             "subspace (smallest/largest singular value " +
+             std::to_string(singular(dim - 1) / singular(0)) + ")";
+    return false;
+  }
+  return true;
+}
+
+// For messages: whole numbers as such (2000, not 2e+03), others to `precision` significant
+// digits, but never in exponent form below 1e7.
+std::string FormatNumber(double value, int precision = 3) {
+  std::ostringstream out;
+  if (std::isfinite(value) && std::fabs(value) < 1e7 &&
+      (value == std::round(value) || std::fabs(value) >= std::pow(10.0, precision))) {
+    out << std::fixed;
+    out.precision(0);
+  } else {
+    out.precision(precision);
+  }
+  out << value;
+  return out.str();
+}
+
+// The sampler's state and its two operations (a step, a convergence check).
+class EnsembleSampler {
+ public:
+  EnsembleSampler(const std::vector<LogDensity>& log_density, int dim, int num_walkers,
+                  const SamplerOptions& options, ThreadTeam* team)
+      : log_density_(log_density),
+        dim_(dim),
+        num_walkers_(num_walkers),
+        half_(num_walkers / 2),
+        options_(options),
+        team_(team),
+        positions_(static_cast<size_t>(num_walkers) * dim),
+        log_prob_(num_walkers),
+        accepted_(num_walkers, 0),
+        // Each thread's scratch starts on its own 64-byte cache line (8 doubles), so that
+        // threads writing proposals do not invalidate each other's caches.
+        proposal_stride_((dim + 7) / 8 * 8),
+        proposal_(static_cast<size_t>(team->size()) * proposal_stride_) {
+    engines_.reserve(num_walkers);
+    for (int w = 0; w < num_walkers; ++w) {
+      engines_.emplace_back(DeriveSeed(options.seed, static_cast<uint64_t>(w)));
+    }
+  }
+
+  // Sets the positions and evaluates their log-densities; false, with a message, when one
+  // of them is not finite.
+  bool Initialise(const std::vector<double>& initial, std::string* error) {
+    positions_ = initial;
+    const int threads = team_->size();
+    team_->Run([&](int t) {
+      int begin, end;
+      StaticBlock(num_walkers_, threads, t, &begin, &end);
+      for (int w = begin; w < end; ++w) {
+        log_prob_[w] = log_density_[t](&positions_[static_cast<size_t>(w) * dim_]);
+      }
+    });
+    for (int w = 0; w < num_walkers_; ++w) {
+      if (!std::isfinite(log_prob_[w])) {
+        *error = "ensemble sampler: initial walker " + std::to_string(w) +
+                 " has log-density " + FormatNumber(log_prob_[w]) +
+                 " (every walker must start inside the support)";
+        return false;
+      }
+    }
+    return true;
+  }
+
+  // One step: the first half, then the second; appends the new state to the chain.
+  void Step(std::vector<double>* chain, std::vector<double>* log_prob) {
+    for (int half = 0; half < 2; ++half) {
+      team_->Run([this, half](int t) { UpdateHalf(half, t); });
+    }
+    chain->insert(chain->end(), positions_.begin(), positions_.end());
+    log_prob->insert(log_prob->end(), log_prob_.begin(), log_prob_.end());
+  }
+
+  const std::vector<int64_t>& accepted() const { return accepted_; }
+
+ private:
+  // Thread t's share of the walkers of half `half`.
+  void UpdateHalf(int half, int t) {
+    const double a = options_.stretch_a;
+    const int other_begin = (1 - half) * half_;
+    int begin, end;
+    StaticBlock(half_, team_->size(), t, &begin, &end);
+    double* y = &proposal_[static_cast<size_t>(t) * proposal_stride_];
+    for (int i = begin; i < end; ++i) {
+      const int k = half * half_ + i;
+      std::mt19937_64& engine = engines_[k];
+      // Always three draws, in this order, so a walker's stream never depends on outcomes.
+      const double u_partner = Uniform01(engine);
+      const double u_stretch = Uniform01(engine);
+      const double u_accept = Uniform01(engine);
+      const int j = other_begin + std::min(half_ - 1, static_cast<int>(u_partner * half_));
+      // Inverse CDF of g(z) ~ 1/sqrt(z) on [1/a, a]: z = ((a - 1) u + 1)^2 / a.
+      const double root = (a - 1.0) * u_stretch + 1.0;
+      const double z = root * root / a;
+      const double* xk = &positions_[static_cast<size_t>(k) * dim_];
+      const double* xj = &positions_[static_cast<size_t>(j) * dim_];
+      for (int d = 0; d < dim_; ++d) y[d] = xj[d] + z * (xk[d] - xj[d]);
+      const double log_prob_y = log_density_[t](y);
+      if (!std::isfinite(log_prob_y)) continue;
+      const double log_ratio = (dim_ - 1) * std::log(z) + log_prob_y - log_prob_[k];
+      if (std::log(u_accept) < log_ratio) {
+        std::copy(y, y + dim_, &positions_[static_cast<size_t>(k) * dim_]);
+        log_prob_[k] = log_prob_y;
+        ++accepted_[k];
+      }
+    }
+  }
+
+  const std::vector<LogDensity>& log_density_;
+  const int dim_;
+  const int num_walkers_;
+  const int half_;
+  const SamplerOptions& options_;
+  ThreadTeam* team_;
+  std::vector<double> positions_;  // [walker * dim + k]
+  std::vector<double> log_prob_;   // [walker]
+  std::vector<int64_t> accepted_;  // [walker]
+  const int proposal_stride_;
+  std::vector<double> proposal_;  // [thread * proposal_stride_ + k], per-thread scratch
+  std::vector<std::mt19937_64> engines_;
+};
+
+struct Diagnostics {
+  int burn_in = 0;
+  std::vector<double> tau;
+  std::vector<double> ess;
+  double max_tau = kInf;  // inf if any tau is missing
+  bool converged = false;
+  std::string reason;
+};
+
+// tau of every parameter on chain steps [first, last); the default (tau = inf, no window)
+// where there is no estimate. Parameters are dealt out among the team's threads, each
+// writing only its own entries, so the result does not depend on the team size.
+std::vector<AutocorrelationTime> TauPerParameter(const std::vector<double>& chain,
+                                                 int num_walkers, int dim, int first, int last,
+                                                 ThreadTeam* team) {
+  std::vector<AutocorrelationTime> tau(dim);
+  const int threads = team->size();
+  const std::ptrdiff_t step_stride = static_cast<std::ptrdiff_t>(num_walkers) * dim;
+  team->Run([&](int t) {
+    for (int k = t; k < dim; k += threads) {
+      const std::optional<AutocorrelationTime> estimate = EnsembleIntegratedAutocorrelationTime(
+          chain.data() + first * step_stride + k, last - first, num_walkers, step_stride, dim);
+      if (estimate) tau[k] = *estimate;  // else the default: tau = inf, no window
+    }
+  });
+  return tau;
+}
+
+// previous_max_tau: the largest tau of the previous check (+inf if none or not estimated).
+Diagnostics Check(const std::vector<double>& chain, int num_walkers, int dim, int steps,
+                  double previous_max_tau, const SamplerOptions& options, ThreadTeam* team) {
+  Diagnostics diag;
+  const int half = steps / 2;
+  const double wanted = std::ceil(options.burn_in_taus * previous_max_tau);
+  // (NaN from 0 * inf also fails the comparison and gives half.)
+  diag.burn_in = wanted < half ? static_cast<int>(wanted) : half;
+
+  const int kept = steps - diag.burn_in;
+  double max_tau = 0.0;
+  double min_ess = kInf;
+  int min_ess_parameter = 0;
+  int no_window_parameter = -1;
+  for (const AutocorrelationTime& t :
+       TauPerParameter(chain, num_walkers, dim, diag.burn_in, steps, team)) {
+    const int k = static_cast<int>(diag.tau.size());
+    diag.tau.push_back(t.tau);
+    diag.ess.push_back(EffectiveSampleSize(num_walkers, kept, t.tau));
+    if (!t.window_found && no_window_parameter < 0) no_window_parameter = k;
+    max_tau = std::max(max_tau, t.window_found ? t.tau : kInf);
+    if (diag.ess.back() < min_ess) {
+      min_ess = diag.ess.back();
+      min_ess_parameter = k;
+    }
+  }
+  const double needed = options.min_tau_multiple * max_tau;
+  const bool long_enough = kept > needed;
+  const bool enough_ess = min_ess >= options.target_ess;
+  diag.converged = long_enough && enough_ess && no_window_parameter < 0;
+  diag.max_tau = max_tau;
+
+  std::ostringstream reason;
+  reason << kept << " post-burn-in steps " << (long_enough ? ">" : "<=") << " "
+         << FormatNumber(options.min_tau_multiple) << " x max tau (" << FormatNumber(max_tau)
+         << ") = " << FormatNumber(needed) << "; min ESS " << FormatNumber(min_ess)
+         << " (parameter " << min_ess_parameter << ") " << (enough_ess ? ">=" : "<")
+         << " target " << FormatNumber(options.target_ess);
+  if (no_window_parameter >= 0) {
+    reason << "; no tau estimate for parameter " << no_window_parameter
+           << " (chain too short, or a walker never moved)";
+  }
+  diag.reason = reason.str();
+  return diag;
+}
+
+// The progress line: rewritten in place on stderr, first shown after 1 s, then at most
+// every 0.25 s so that it costs nothing next to the sampling.
+class ProgressLine {
+ public:
+  ProgressLine(const SamplerOptions& options, std::chrono::steady_clock::time_point start)
+      : options_(options), start_(start), last_(start) {}
+
+  ~ProgressLine() {
+    if (shown_) std::fputc('\n', stderr);
+  }
+
+  // last: the final update, drawn (if the line is shown at all) whatever the time since the
+  // previous one, so that the line left on screen is the final state.
+  void Update(int steps, const Diagnostics* last_check, double acceptance, bool last) {
+    if (!options_.progress) return;
+    const auto now = std::chrono::steady_clock::now();
+    const double elapsed = std::chrono::duration<double>(now - start_).count();
+    if (elapsed <= 1.0) return;
+    if (!last && std::chrono::duration<double>(now - last_).count() < 0.25) return;
+    last_ = now;
+    shown_ = true;
+    std::ostringstream line;
+    if (!options_.progress_label.empty()) line << options_.progress_label << ": ";
+    line << "step " << steps << "/" << options_.max_steps << "  acceptance "
+         << FormatNumber(acceptance, 2);
+    if (last_check != nullptr && !last_check->tau.empty()) {
+      line << "  max tau " << FormatNumber(*std::max_element(last_check->tau.begin(),
+                                                              last_check->tau.end()))
+           << "  min ESS "
+           << FormatNumber(*std::min_element(last_check->ess.begin(), last_check->ess.end()))
+           << "/" << FormatNumber(options_.target_ess);
+    }
+    line << "  " << FormatNumber(elapsed) << " s";
+    // Trailing spaces clear what a longer previous line left behind.
+    std::fprintf(stderr, "\r%s     ", line.str().c_str());
+    std::fflush(stderr);
+  }
+
+ private:
+  const SamplerOptions& options_;
+  const std::chrono::steady_clock::time_point start_;
+  std::chrono::steady_clock::time_point last_;
+  bool shown_ = false;
+};
+
+// The step of the check after one at `steps`: the first multiple of check_interval at least
+// max(check_interval, check_fraction * steps) later, or max_steps if that comes first.
+int NextCheck(int steps, const SamplerOptions& options) {
+  const int64_t interval = options.check_interval;
+  const double spacing = std::max(static_cast<double>(interval), options.check_fraction * steps);
+  int64_t next = static_cast<int64_t>(std::ceil((steps + spacing) / interval)) * interval;
+  next = std::max<int64_t>(next, steps + 1);
+  return static_cast<int>(std::min<int64_t>(next, options.max_steps));
+}
+
+}  // namespace
+
+bool SamplerOptions::IsValid(std::string* error) const {
+  auto fail = [error](const std::string& message) {
+    *error = "sampler options: " + message;
+    return false;
+  };
+  if (max_steps < 1) return fail("max_steps must be >= 1");
+  if (check_interval < 1) return fail("check_interval must be >= 1");
+  if (!(check_fraction >= 0.0) || !(check_fraction <= 1.0)) {
+    return fail("check_fraction must be in [0, 1]");
+  }
+  if (!(target_ess >= 0.0) || !std::isfinite(target_ess)) {
+    return fail("target_ess must be finite and >= 0");
+  }
+  if (!(min_tau_multiple >= 0.0) || !std::isfinite(min_tau_multiple)) {
+    return fail("min_tau_multiple must be finite and >= 0");
+  }
+  if (!(burn_in_taus >= 0.0) || !std::isfinite(burn_in_taus)) {
+    return fail("burn_in_taus must be finite and >= 0");
+  }
+  if (!(stretch_a > 1.0) || !std::isfinite(stretch_a)) {
+    return fail("stretch_a must be finite and > 1");
+  }
+  if (num_threads < 1) return fail("num_threads must be >= 1");
+  return true;
+}
+
+bool RunEnsembleSampler(const std::vector<LogDensity>& log_density_per_thread, int dim,
+                        const std::vector<double>& initial, const SamplerOptions& options,
+                        SamplerResult* result, std::string* error) {
+  CHECK(result != nullptr);
+  CHECK(error != nullptr);
+  const auto start = std::chrono::steady_clock::now();
+  if (!options.IsValid(error)) return false;
+  if (dim < 1) {
+    *error = "ensemble sampler: dim must be >= 1, got " + std::to_string(dim);
+    return false;
+  }
+  if (log_density_per_thread.empty()) {
+    *error = "ensemble sampler: no log-density function given";
+    return false;
+  }
+  for (const LogDensity& f : log_density_per_thread) {
+    if (!f) {
+      *error = "ensemble sampler: an empty log-density function was given";
+      return false;
+    }
+  }
+  if (initial.empty() || initial.size() % dim != 0) {
+    *error = "ensemble sampler: initial has " + std::to_string(initial.size()) +
+             " values, not a positive multiple of dim = " + std::to_string(dim);
+    return false;
+  }
+  const size_t walkers_size = initial.size() / dim;
+  if (walkers_size > static_cast<size_t>(std::numeric_limits<int>::max())) {
+    *error = "ensemble sampler: too many walkers";
+    return false;
+  }
+  const int num_walkers = static_cast<int>(walkers_size);
+  if (num_walkers % 2 != 0 || num_walkers < 2 * dim + 2) {
+    *error = "ensemble sampler: need an even number of walkers >= 2 * dim + 2 = " +
+             std::to_string(2 * dim + 2) + ", got " + std::to_string(num_walkers);
+    return false;
+  }
+  for (double v : initial) {
+    if (!std::isfinite(v)) {
+      *error = "ensemble sampler: initial positions must be finite";
+      return false;
+    }
+  }
+  if (!SpansAllDirections(initial, num_walkers, dim, error)) return false;
+
+  const int wanted_threads =
+      std::min({options.num_threads, static_cast<int>(log_density_per_thread.size()),
+                num_walkers / 2});
+  ThreadTeam team(wanted_threads);
+  EnsembleSampler sampler(log_density_per_thread, dim, num_walkers, options, &team);
+  if (!sampler.Initialise(initial, error)) return false;
+
+  SamplerResult out;
+  out.num_walkers = num_walkers;
+  out.dim = dim;
+  out.num_threads_used = team.size();
+  const size_t state_size = static_cast<size_t>(num_walkers) * dim;
+  // Room for the first check interval; the vectors grow geometrically after that.
+  out.chain.reserve(state_size * std::min(options.max_steps, options.check_interval));
+  out.log_prob.reserve(static_cast<size_t>(num_walkers) *
+                       std::min(options.max_steps, options.check_interval));
+
+  ProgressLine progress(options, start);
+  Diagnostics diag;
+  bool have_check = false;
+  int steps = 0;
+  int next_check = std::min(options.check_interval, options.max_steps);
+  while (steps < options.max_steps) {
+    sampler.Step(&out.chain, &out.log_prob);
+    ++steps;
+    bool stop = steps == options.max_steps;
+    if (steps == next_check) {
+      diag = Check(out.chain, num_walkers, dim, steps, have_check ? diag.max_tau : kInf,
+                   options, &team);
+      have_check = true;
+      stop = stop || diag.converged;
+      next_check = NextCheck(steps, options);
+    }
+    if (options.progress) {
+      int64_t total = 0;
+      for (int64_t a : sampler.accepted()) total += a;
+      progress.Update(steps, have_check ? &diag : nullptr,
+                      static_cast<double>(total) / (static_cast<double>(steps) * num_walkers),
+                      stop);
+    }
+    if (stop) break;
+  }
+
+  out.num_steps = steps;
+  out.burn_in = diag.burn_in;
+  out.tau = diag.tau;
+  out.ess = diag.ess;
+  out.converged = diag.converged;
+  out.stop_reason = (diag.converged ? "converged after " + std::to_string(steps) + " steps: "
+                                    : "not converged at max_steps = " + std::to_string(steps) +
+                                          ": ") +
+                    diag.reason;
+  out.acceptance_fraction.resize(num_walkers);
+  double sum = 0.0;
+  for (int w = 0; w < num_walkers; ++w) {
+    out.acceptance_fraction[w] = static_cast<double>(sampler.accepted()[w]) / steps;
+    sum += out.acceptance_fraction[w];
+  }
+  out.mean_acceptance = sum / num_walkers;
+  out.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  *result = std::move(out);
+  return true;
+}
+
+}  // namespace ccdpsf::fit

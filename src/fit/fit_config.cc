@@ -1,0 +1,216 @@
+#include "ccdpsf/fit/fit_config.h"
+
+#include <fstream>
+#include <sstream>
+
+#include "internal/json_reader.h"
+
+namespace ccdpsf::fit {
+namespace {
+
+using internal::JsonReader;
+using nlohmann::json;
+
+// Reads [lower, upper] with lower < upper.
+bool Range(JsonReader* r, const std::string& key, double out[2]) {
+  if (!r->Has(key)) return true;
+  const json& v = r->Get(key);
+  if (!v.is_array() || v.size() != 2 || !v[0].is_number() || !v[1].is_number() ||
+      !(v[0].get<double>() < v[1].get<double>())) {
+    r->Fail("'" + r->Path(key) + "' must be [lower, upper] with lower < upper");
+    return false;
+  }
+  out[0] = v[0].get<double>();
+  out[1] = v[1].get<double>();
+  return true;
+}
+
+bool NumberList(JsonReader* r, const std::string& key, std::vector<double>* out) {
+  if (!r->Has(key)) return true;
+  const json& v = r->Get(key);
+  if (!v.is_array() || v.empty()) {
+    r->Fail("'" + r->Path(key) + "' must be a non-empty list of numbers");
+    return false;
+  }
+  out->clear();
+  for (const json& x : v) {
+    if (!x.is_number()) {
+      r->Fail("'" + r->Path(key) + "' must be a non-empty list of numbers");
+      return false;
+    }
+    out->push_back(x.get<double>());
+  }
+  return true;
+}
+
+void OptionalNumber(JsonReader* r, const std::string& key, std::optional<double>* out) {
+  if (!r->Has(key)) return;
+  double v = 0;
+  r->Number(key, &v);
+  if (r->ok()) *out = v;
+}
+
+}  // namespace
+
+bool ParseFitConfig(const std::string& text, FitConfig* c, std::string* error) {
+  json j = json::parse(text, nullptr, false, true);
+  if (j.is_discarded()) {
+    *error = "fit config is not valid JSON";
+    return false;
+  }
+  JsonReader r(j, "", error);
+  std::string s;
+  if (r.Has("sampling")) {
+    r.String("sampling", &s);
+    if (r.ok() && !model::ParseSampling(s, &c->model.model.sampling)) {
+      r.Fail("'sampling' must be \"integrated\" or \"pixel_centre\"");
+    }
+  }
+  if (r.Has("defocus")) {
+    r.String("defocus", &s);
+    if (r.ok() && !model::ParseDefocusKind(s, &c->model.model.defocus)) {
+      r.Fail("'defocus' must be \"gaussian\" or \"pillbox\"");
+    }
+  }
+  if (r.Has("likelihood")) {
+    r.String("likelihood", &s);
+    if (r.ok() && !ParseLikelihoodKind(s, &c->model.likelihood)) {
+      r.Fail("'likelihood' must be \"gaussian\" or \"poisson_normal\"");
+    }
+  }
+  if (r.Has("joint")) {
+    const json& v = r.Get("joint");
+    if (!v.is_boolean()) r.Fail("'joint' must be true or false");
+    else c->joint = v.get<bool>();
+  }
+  if (r.ok() && r.Has("priors")) {
+    JsonReader p(r.Get("priors"), "priors", error);
+    PriorRanges& pr = c->model.priors;
+    Range(&p, "airy_radius_px", pr.airy_radius_px);
+    Range(&p, "defocus_px", pr.defocus_px);
+    Range(&p, "ccd_sigma_x_px", pr.ccd_sigma_x_px);
+    Range(&p, "ccd_sigma_y_px", pr.ccd_sigma_y_px);
+    double flux[2] = {pr.flux_lower_fraction, pr.flux_upper_fraction};
+    Range(&p, "flux_fraction", flux);
+    pr.flux_lower_fraction = flux[0];
+    pr.flux_upper_fraction = flux[1];
+    p.Number("position_halfwidth_px", &pr.position_halfwidth_px);
+    p.RejectUnknownKeys();
+    if (!p.ok()) return false;
+    if (pr.airy_radius_px[0] < model::kMinAiryRadiusPx || pr.defocus_px[0] < 0 ||
+        pr.ccd_sigma_x_px[0] < model::kMinGaussianWidthPx ||
+        pr.ccd_sigma_y_px[0] < model::kMinGaussianWidthPx || pr.flux_lower_fraction <= 0 ||
+        pr.position_halfwidth_px <= 0) {
+      *error = "priors: airy radius >= 0.05 px, ccd sigmas >= 0.05 px, defocus >= 0, flux "
+               "fraction > 0 and position half-width > 0 are required";
+      return false;
+    }
+  }
+  if (r.ok() && r.Has("map")) {
+    JsonReader m(r.Get("map"), "map", error);
+    NumberList(&m, "start_airy_radii_px", &c->fit.map.start_airy_radii_px);
+    NumberList(&m, "start_defocus_shares", &c->fit.map.start_defocus_shares);
+    long long it = c->fit.map.max_iterations;
+    m.Integer("max_iterations", &it);
+    c->fit.map.max_iterations = static_cast<int>(it);
+    m.RejectUnknownKeys();
+    if (!m.ok()) return false;
+  }
+  if (r.ok() && r.Has("mcmc")) {
+    JsonReader m(r.Get("mcmc"), "mcmc", error);
+    if (m.Has("enabled")) {
+      const json& v = m.Get("enabled");
+      if (!v.is_boolean()) m.Fail("'mcmc.enabled' must be true or false");
+      else c->fit.run_mcmc = v.get<bool>();
+    }
+    long long walkers = c->fit.num_walkers, steps = c->fit.mcmc.max_steps,
+              seed = static_cast<long long>(c->fit.mcmc.seed), threads = c->fit.mcmc.num_threads;
+    m.Integer("walkers", &walkers);
+    m.Integer("max_steps", &steps);
+    m.Integer("seed", &seed);
+    m.Integer("threads", &threads);
+    m.Number("target_ess", &c->fit.mcmc.target_ess);
+    m.Number("min_tau_multiple", &c->fit.mcmc.min_tau_multiple);
+    m.RejectUnknownKeys();
+    if (!m.ok()) return false;
+    if (walkers < 0 || steps < 1 || seed < 0 || threads < 1) {
+      *error = "mcmc: walkers >= 0, max_steps >= 1, seed >= 0 and threads >= 1 are required";
+      return false;
+    }
+    c->fit.num_walkers = static_cast<int>(walkers);
+    c->fit.mcmc.max_steps = static_cast<int>(steps);
+    c->fit.mcmc.seed = static_cast<uint64_t>(seed);
+    c->fit.mcmc.num_threads = static_cast<int>(threads);
+  }
+  if (r.ok() && r.Has("calibration")) {
+    JsonReader k(r.Get("calibration"), "calibration", error);
+    CalibrationOptions& co = c->calibration;
+    OptionalNumber(&k, "gain_e_per_adu", &co.gain_e_per_adu);
+    OptionalNumber(&k, "read_noise_e", &co.read_noise_e);
+    OptionalNumber(&k, "bias_adu", &co.bias_adu);
+    OptionalNumber(&k, "saturation_adu", &co.saturation_adu);
+    OptionalNumber(&k, "wavelength_nm", &co.wavelength_nm);
+    OptionalNumber(&k, "pixel_um", &co.pixel_um);
+    long long size = co.stamp_size;
+    k.Integer("stamp_size", &size);
+    co.stamp_size = static_cast<int>(size);
+    k.RejectUnknownKeys();
+    if (!k.ok()) return false;
+    if (!co.IsValid(error)) return false;
+  }
+  r.RejectUnknownKeys();
+  return r.ok();
+}
+
+bool LoadFitConfig(const std::string& path, FitConfig* config, std::string* error) {
+  std::ifstream in(path);
+  if (!in) {
+    *error = "cannot read fit config '" + path + "'";
+    return false;
+  }
+  std::stringstream text;
+  text << in.rdbuf();
+  if (!ParseFitConfig(text.str(), config, error)) {
+    *error = "'" + path + "': " + *error;
+    return false;
+  }
+  return true;
+}
+
+json FitConfigJson(const FitConfig& c) {
+  const PriorRanges& p = c.model.priors;
+  auto opt = [](const std::optional<double>& v) { return v ? json(*v) : json(nullptr); };
+  return {{"sampling", model::ToString(c.model.model.sampling)},
+          {"defocus", model::ToString(c.model.model.defocus)},
+          {"likelihood", ToString(c.model.likelihood)},
+          {"joint", c.joint},
+          {"priors",
+           {{"airy_radius_px", {p.airy_radius_px[0], p.airy_radius_px[1]}},
+            {"defocus_px", {p.defocus_px[0], p.defocus_px[1]}},
+            {"ccd_sigma_x_px", {p.ccd_sigma_x_px[0], p.ccd_sigma_x_px[1]}},
+            {"ccd_sigma_y_px", {p.ccd_sigma_y_px[0], p.ccd_sigma_y_px[1]}},
+            {"flux_fraction", {p.flux_lower_fraction, p.flux_upper_fraction}},
+            {"position_halfwidth_px", p.position_halfwidth_px}}},
+          {"map",
+           {{"start_airy_radii_px", c.fit.map.start_airy_radii_px},
+            {"start_defocus_shares", c.fit.map.start_defocus_shares},
+            {"max_iterations", c.fit.map.max_iterations}}},
+          {"mcmc",
+           {{"enabled", c.fit.run_mcmc},
+            {"walkers", c.fit.num_walkers},
+            {"max_steps", c.fit.mcmc.max_steps},
+            {"target_ess", c.fit.mcmc.target_ess},
+            {"min_tau_multiple", c.fit.mcmc.min_tau_multiple},
+            {"seed", c.fit.mcmc.seed},
+            {"threads", c.fit.mcmc.num_threads}}},
+          {"calibration",
+           {{"gain_e_per_adu", opt(c.calibration.gain_e_per_adu)},
+            {"read_noise_e", opt(c.calibration.read_noise_e)},
+            {"bias_adu", opt(c.calibration.bias_adu)},
+            {"saturation_adu", opt(c.calibration.saturation_adu)},
+            {"wavelength_nm", opt(c.calibration.wavelength_nm)},
+            {"pixel_um", opt(c.calibration.pixel_um)},
+            {"stamp_size", c.calibration.stamp_size}}}};
+}
+
+}  // namespace ccdpsf::fit

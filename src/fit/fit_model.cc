@@ -1,0 +1,332 @@
+#include "ccdpsf/fit/fit_model.h"
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+
+#include "glog/logging.h"
+
+namespace ccdpsf::fit {
+namespace {
+
+using model::SpotParam;
+
+// theta index of each renderer parameter for exposure k.
+int ThetaIndex(int spot_param, int k) {
+  switch (spot_param) {
+    case model::kFlux: return kFluxE;
+    case model::kCentreX: return FitModel::XIndex(k);
+    case model::kCentreY: return FitModel::YIndex(k);
+    case model::kAiryRadius: return kAiryRadiusPx;
+    case model::kDefocus: return kDefocusPx;
+    case model::kCcdSigmaX: return kCcdSigmaXPx;
+    case model::kCcdSigmaY: return kCcdSigmaYPx;
+  }
+  LOG(FATAL) << "bad spot parameter " << spot_param;
+  return -1;
+}
+
+CcdNoise NoiseOf(const Stamp& s) {
+  CcdNoise noise;
+  noise.gain_e_per_adu = s.gain_e_per_adu;
+  noise.read_noise_e = s.read_noise_e;
+  return noise;
+}
+
+}  // namespace
+
+std::unique_ptr<FitModel> FitModel::Create(std::vector<Stamp> stamps,
+                                           const FitModelOptions& options, std::string* error) {
+  if (stamps.empty()) {
+    *error = "no exposures to fit";
+    return nullptr;
+  }
+  if (options.model.sampling == model::Sampling::kPixelCentre &&
+      options.model.defocus != model::DefocusKind::kGaussian) {
+    *error = "pixel_centre sampling has only the Gaussian defocus of the 2015 code";
+    return nullptr;
+  }
+  for (size_t k = 0; k < stamps.size(); ++k) {
+    const Stamp& s = stamps[k];
+    const std::string what = "exposure " + std::to_string(k) +
+                             (s.info.source.empty() ? "" : " ('" + s.info.source + "')");
+    if (s.nx() != stamps[0].nx() || s.ny() != stamps[0].ny()) {
+      std::ostringstream m;
+      m << what << " has a " << s.nx() << "x" << s.ny() << " stamp, exposure 0 has "
+        << stamps[0].nx() << "x" << stamps[0].ny() << ": a joint fit needs one stamp size";
+      *error = m.str();
+      return nullptr;
+    }
+    if (s.valid.size() != s.electrons.size()) {
+      *error = what + ": mask and image sizes differ";
+      return nullptr;
+    }
+    if (s.NumValid() == 0) {
+      *error = what + ": every pixel of the stamp is masked";
+      return nullptr;
+    }
+    if (!(s.gain_e_per_adu > 0) || !(s.read_noise_e >= 0)) {
+      *error = what + ": gain must be > 0 and read noise >= 0";
+      return nullptr;
+    }
+  }
+  std::unique_ptr<FitModel> m(new FitModel());
+  m->stamps_ = std::move(stamps);
+  m->options_ = options;
+  const PriorRanges& pr = options.priors;
+  const bool peak = options.model.sampling == model::Sampling::kPixelCentre;
+  const bool pillbox = options.model.defocus == model::DefocusKind::kPillbox;
+  m->names_ = {peak ? "peak_e" : "flux_e", "airy_radius_px",
+               pillbox ? "defocus_radius_px" : "defocus_sigma_px", "ccd_sigma_x_px",
+               "ccd_sigma_y_px"};
+
+  // Signal and centroid of each stamp: first moments of the positive signal in a 5 x 5 box
+  // around the brightest valid pixel.
+  double signal_sum = 0.0;
+  for (size_t k = 0; k < m->stamps_.size(); ++k) {
+    const Stamp& s = m->stamps_[k];
+    int bx = -1, by = -1;
+    double best = -INFINITY, total = 0.0;
+    for (int y = 0; y < s.ny(); ++y) {
+      for (int x = 0; x < s.nx(); ++x) {
+        if (!s.valid[y * s.nx() + x]) continue;
+        const double v = s.electrons(x, y);
+        total += v;
+        if (v > best) {
+          best = v;
+          bx = x;
+          by = y;
+        }
+      }
+    }
+    const double noise_e = std::sqrt(NoiseOf(s).VarianceE2(0.0));
+    if (!(best > 5.0 * noise_e) || !(total > 0)) {
+      std::ostringstream msg;
+      msg << "exposure " << k << (s.info.source.empty() ? "" : " ('" + s.info.source + "')")
+          << " has no spot to fit: brightest pixel " << best << " e- against "
+          << noise_e << " e- of noise";
+      *error = msg.str();
+      return nullptr;
+    }
+    double w = 0, wx = 0, wy = 0;
+    for (int y = std::max(0, by - 2); y <= std::min(s.ny() - 1, by + 2); ++y) {
+      for (int x = std::max(0, bx - 2); x <= std::min(s.nx() - 1, bx + 2); ++x) {
+        if (!s.valid[y * s.nx() + x]) continue;
+        const double v = std::max(0.0, s.electrons(x, y));
+        w += v;
+        wx += v * x;
+        wy += v * y;
+      }
+    }
+    m->centroid_x_.push_back(s.origin_x + wx / w);
+    m->centroid_y_.push_back(s.origin_y + wy / w);
+    signal_sum += total;
+  }
+  m->signal_e_ = signal_sum / m->stamps_.size();
+
+  // Flux bounds: around the summed signal for the total flux; the 2015 meta-parameter m has
+  // no simple relation to it (the model is unnormalised), so its range is wide.
+  const double s_e = m->signal_e_;
+  m->lower_ = {peak ? 1e-4 * s_e : pr.flux_lower_fraction * s_e, pr.airy_radius_px[0],
+               pr.defocus_px[0], pr.ccd_sigma_x_px[0], pr.ccd_sigma_y_px[0]};
+  m->upper_ = {peak ? 1e4 * s_e : pr.flux_upper_fraction * s_e, pr.airy_radius_px[1],
+               pr.defocus_px[1], pr.ccd_sigma_x_px[1], pr.ccd_sigma_y_px[1]};
+  // The 2015 model divides by sigma_f: keep it away from zero.
+  if (peak) m->lower_[kDefocusPx] = std::max(m->lower_[kDefocusPx], 0.02);
+  for (int k = 0; k < m->num_exposures(); ++k) {
+    m->names_.push_back("x_px." + std::to_string(k));
+    m->names_.push_back("y_px." + std::to_string(k));
+    m->lower_.push_back(m->centroid_x_[k] - pr.position_halfwidth_px);
+    m->upper_.push_back(m->centroid_x_[k] + pr.position_halfwidth_px);
+    m->lower_.push_back(m->centroid_y_[k] - pr.position_halfwidth_px);
+    m->upper_.push_back(m->centroid_y_[k] + pr.position_halfwidth_px);
+  }
+  for (int i = 0; i < m->dim(); ++i) {
+    if (!(m->lower_[i] < m->upper_[i])) {
+      *error = "empty prior range for " + m->names_[i];
+      return nullptr;
+    }
+  }
+  return m;
+}
+
+int FitModel::NumValidPixels() const {
+  int n = 0;
+  for (const Stamp& s : stamps_) n += s.NumValid();
+  return n;
+}
+
+bool FitModel::InsidePrior(const double* theta) const {
+  for (int i = 0; i < dim(); ++i) {
+    if (!(theta[i] >= lower_[i] && theta[i] <= upper_[i])) return false;
+  }
+  return true;
+}
+
+model::SpotParams FitModel::SpotFor(const double* theta, int k) const {
+  model::SpotParams p;
+  p[model::kFlux] = theta[kFluxE];
+  p[model::kAiryRadius] = theta[kAiryRadiusPx];
+  p[model::kDefocus] = theta[kDefocusPx];
+  p[model::kCcdSigmaX] = theta[kCcdSigmaXPx];
+  p[model::kCcdSigmaY] = theta[kCcdSigmaYPx];
+  p[model::kCentreX] = theta[XIndex(k)];
+  p[model::kCentreY] = theta[YIndex(k)];
+  if (options_.model.sampling == model::Sampling::kPixelCentre) {
+    p[model::kCentreX] -= stamps_[k].origin_x;
+    p[model::kCentreY] -= stamps_[k].origin_y;
+  }
+  return p;
+}
+
+model::PixelGrid FitModel::GridFor(int k) const {
+  model::PixelGrid g;
+  g.nx = stamps_[k].nx();
+  g.ny = stamps_[k].ny();
+  if (options_.model.sampling == model::Sampling::kIntegrated) {
+    g.x0 = stamps_[k].origin_x;
+    g.y0 = stamps_[k].origin_y;
+  }
+  return g;
+}
+
+std::vector<double> FitModel::MomentStart(double airy_radius_px, double defocus_share) const {
+  // Width of the signal from second moments in a 5 x 5 box about the centroid, less the
+  // pixel (1/12 px^2) and the Airy core (a Gaussian of sigma ~ 0.34 r has the same FWHM).
+  double var_sum = 0.0;
+  for (int k = 0; k < num_exposures(); ++k) {
+    const Stamp& s = stamps_[k];
+    const double cx = centroid_x_[k] - s.origin_x, cy = centroid_y_[k] - s.origin_y;
+    double w = 0, wxx = 0, wyy = 0;
+    const int x0 = static_cast<int>(std::lround(cx)), y0 = static_cast<int>(std::lround(cy));
+    for (int y = std::max(0, y0 - 2); y <= std::min(s.ny() - 1, y0 + 2); ++y) {
+      for (int x = std::max(0, x0 - 2); x <= std::min(s.nx() - 1, x0 + 2); ++x) {
+        if (!s.valid[y * s.nx() + x]) continue;
+        const double v = std::max(0.0, s.electrons(x, y));
+        w += v;
+        wxx += v * (x - cx) * (x - cx);
+        wyy += v * (y - cy) * (y - cy);
+      }
+    }
+    var_sum += 0.5 * (wxx + wyy) / w;
+  }
+  const double airy_sigma = 0.34 * airy_radius_px;
+  double gauss_var = var_sum / num_exposures() - 1.0 / 12.0 - airy_sigma * airy_sigma;
+  gauss_var = std::clamp(gauss_var, 0.15 * 0.15, 1.2 * 1.2);
+  const double sg = std::sqrt(gauss_var);
+  std::vector<double> theta(dim());
+  theta[kAiryRadiusPx] = airy_radius_px;
+  theta[kDefocusPx] = std::sqrt(defocus_share) * sg;
+  theta[kCcdSigmaXPx] = theta[kCcdSigmaYPx] = std::max(0.06, std::sqrt(1 - defocus_share) * sg);
+  for (int k = 0; k < num_exposures(); ++k) {
+    theta[XIndex(k)] = centroid_x_[k];
+    theta[YIndex(k)] = centroid_y_[k];
+  }
+  // Flux: the least-squares scale of the unit-flux model to the data.
+  theta[kFluxE] = 1.0;
+  for (int i = 0; i < kNumShared; ++i) theta[i] = std::clamp(theta[i], lower_[i], upper_[i]);
+  theta[kFluxE] = 1.0;
+  FitEvaluator ev(*this);
+  double num = 0, den = 0;
+  std::vector<double> m;
+  for (int k = 0; k < num_exposures(); ++k) {
+    ev.ModelImage(theta.data(), k, &m, nullptr);
+    const Stamp& s = stamps_[k];
+    for (size_t q = 0; q < m.size(); ++q) {
+      if (!s.valid[q]) continue;
+      num += m[q] * s.electrons.data[q];
+      den += m[q] * m[q];
+    }
+  }
+  theta[kFluxE] = std::clamp(den > 0 ? num / den : signal_e_, lower_[kFluxE], upper_[kFluxE]);
+  return theta;
+}
+
+std::unique_ptr<FitEvaluator> FitModel::NewEvaluator() const {
+  return std::make_unique<FitEvaluator>(*this);
+}
+
+FitEvaluator::FitEvaluator(const FitModel& model)
+    : fit_model_(model), renderer_(model.options().model) {}
+
+void FitEvaluator::ModelImage(const double* theta, int k, std::vector<double>* model,
+                              std::vector<double>* jacobian) {
+  const model::PixelGrid grid = fit_model_.GridFor(k);
+  const int n = grid.size();
+  model->resize(n);
+  if (jacobian == nullptr) {
+    renderer_.Render(fit_model_.SpotFor(theta, k), grid, model->data(), nullptr);
+    return;
+  }
+  spot_jacobian_.resize(static_cast<size_t>(n) * model::kNumSpotParams);
+  renderer_.Render(fit_model_.SpotFor(theta, k), grid, model->data(), spot_jacobian_.data());
+  const int dim = fit_model_.dim();
+  jacobian->assign(static_cast<size_t>(n) * dim, 0.0);
+  for (int q = 0; q < n; ++q) {
+    for (int p = 0; p < model::kNumSpotParams; ++p) {
+      (*jacobian)[static_cast<size_t>(q) * dim + ThetaIndex(p, k)] =
+          spot_jacobian_[static_cast<size_t>(q) * model::kNumSpotParams + p];
+    }
+  }
+}
+
+double FitEvaluator::LogLikelihood(const double* theta) {
+  const LikelihoodKind kind = fit_model_.options().likelihood;
+  double total = 0.0;
+  for (int k = 0; k < fit_model_.num_exposures(); ++k) {
+    const Stamp& s = fit_model_.stamps()[k];
+    const CcdNoise noise = NoiseOf(s);
+    ModelImage(theta, k, &pixels_, nullptr);
+    for (size_t q = 0; q < pixels_.size(); ++q) {
+      if (!s.valid[q]) continue;
+      total += PixelLogLikelihood(kind, s.electrons.data[q], pixels_[q], noise);
+    }
+  }
+  return total;
+}
+
+double FitEvaluator::LogPosterior(const double* theta) {
+  if (!fit_model_.InsidePrior(theta)) return -INFINITY;
+  const double ll = LogLikelihood(theta);
+  return std::isfinite(ll) ? ll : -INFINITY;
+}
+
+double FitEvaluator::ChiSquare(const double* theta) {
+  double chi2 = 0.0;
+  for (int k = 0; k < fit_model_.num_exposures(); ++k) {
+    const Stamp& s = fit_model_.stamps()[k];
+    const CcdNoise noise = NoiseOf(s);
+    ModelImage(theta, k, &pixels_, nullptr);
+    for (size_t q = 0; q < pixels_.size(); ++q) {
+      if (!s.valid[q]) continue;
+      const double r = s.electrons.data[q] - pixels_[q];
+      chi2 += r * r / noise.VarianceE2(pixels_[q]);
+    }
+  }
+  return chi2;
+}
+
+std::vector<double> FitEvaluator::FisherInformation(const double* theta) {
+  const int dim = fit_model_.dim();
+  std::vector<double> fisher(static_cast<size_t>(dim) * dim, 0.0);
+  std::vector<double> jac;
+  for (int k = 0; k < fit_model_.num_exposures(); ++k) {
+    const Stamp& s = fit_model_.stamps()[k];
+    const CcdNoise noise = NoiseOf(s);
+    ModelImage(theta, k, &pixels_, &jac);
+    for (size_t q = 0; q < pixels_.size(); ++q) {
+      if (!s.valid[q]) continue;
+      const double var = noise.VarianceE2(pixels_[q]);
+      // dvar/dtheta = dm/dtheta where the signal is positive (VarianceE2 clamps at 0).
+      const double w = 1.0 / var + (pixels_[q] > 0 ? 0.5 / (var * var) : 0.0);
+      const double* g = &jac[q * dim];
+      for (int a = 0; a < dim; ++a) {
+        if (g[a] == 0.0) continue;
+        for (int b = 0; b < dim; ++b) fisher[a * dim + b] += w * g[a] * g[b];
+      }
+    }
+  }
+  return fisher;
+}
+
+}  // namespace ccdpsf::fit

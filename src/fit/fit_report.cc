@@ -1,0 +1,297 @@
+#include "ccdpsf/fit/fit_report.h"
+
+#include <cmath>
+#include <cstdio>
+#include <sstream>
+
+#include "ccdpsf/atomic_file.h"
+#include "ccdpsf/fits_io.h"
+#include "ccdpsf/plot.h"
+#include "ccdpsf/provenance.h"
+#include "ccdpsf/staged_output.h"
+
+namespace ccdpsf::fit {
+namespace {
+
+using nlohmann::json;
+
+json Num(double v) { return std::isfinite(v) ? json(v) : json(nullptr); }
+
+json SummaryJson(const Summary& s) {
+  return {{"map", Num(s.map)},       {"laplace_sd", Num(s.laplace_sd)}, {"median", Num(s.median)},
+          {"lo68", Num(s.lo68)},     {"hi68", Num(s.hi68)},             {"lo997", Num(s.lo997)},
+          {"hi997", Num(s.hi997)}};
+}
+
+// MAP/Laplace against MCMC: centres, widths (Laplace sd vs half the 68 % interval) and their
+// ratio; the shift of the centre in units of the MCMC width.
+json ComparisonRow(const std::string& name, const Summary& s) {
+  const double width = 0.5 * (s.hi68 - s.lo68);
+  return {{"name", name},
+          {"map", Num(s.map)},
+          {"median", Num(s.median)},
+          {"shift_in_mcmc_sd", Num((s.map - s.median) / width)},
+          {"laplace_sd", Num(s.laplace_sd)},
+          {"mcmc_half_width68", Num(width)},
+          {"width_ratio_laplace_over_mcmc", Num(s.laplace_sd / width)}};
+}
+
+std::string Fmt(double v, int digits = 5) {
+  if (!std::isfinite(v)) return "-";
+  char buf[64];
+  std::snprintf(buf, sizeof(buf), "%.*g", digits, v);
+  return buf;
+}
+
+}  // namespace
+
+json FitJson(const FitModel& model, const FitResult& r,
+             const std::vector<CalibrationReport>& calibration) {
+  json j;
+  j["model"] = {{"sampling", model::ToString(model.options().model.sampling)},
+                {"defocus", model::ToString(model.options().model.defocus)},
+                {"likelihood", ToString(model.options().likelihood)},
+                {"joint", model.num_exposures() > 1}};
+  json params = json::object();
+  json priors = json::object();
+  for (int i = 0; i < model.dim(); ++i) {
+    params[r.names[i]] = SummaryJson(r.parameters[i]);
+    priors[r.names[i]] = {{"kind", "flat"}, {"lower", model.lower()[i]},
+                          {"upper", model.upper()[i]}};
+  }
+  j["parameters"] = params;
+  j["priors"] = priors;
+  json derived = json::object();
+  for (const auto& [name, s] : r.derived) derived[name] = SummaryJson(s);
+  j["derived"] = derived;
+  json nulls = json::array();
+  for (const UnconstrainedDirection& d : r.laplace.unconstrained) {
+    json dir = json::object();
+    for (int i = 0; i < model.dim(); ++i) {
+      if (std::fabs(d.direction[i]) > 1e-9) dir[r.names[i]] = d.direction[i];
+    }
+    nulls.push_back({{"direction", dir},
+                     {"likelihood_sd_over_prior_width", Num(d.sd_fraction_of_prior)},
+                     {"description", d.description}});
+  }
+  json at_bound = json::array();
+  for (int i : r.laplace.at_bound) {
+    at_bound.push_back({{"name", r.names[i]},
+                        {"map", r.map.theta[i]},
+                        {"lower", model.lower()[i]},
+                        {"upper", model.upper()[i]}});
+  }
+  j["identifiability"] = {{"null_directions", nulls}, {"at_bound", at_bound}};
+  if (r.have_mcmc) {
+    const SamplerResult& c = r.chain;
+    json tau = json::object(), ess = json::object();
+    for (int i = 0; i < model.dim(); ++i) {
+      tau[r.names[i]] = Num(c.tau[i]);
+      ess[r.names[i]] = Num(c.ess[i]);
+    }
+    j["mcmc"] = {{"walkers", c.num_walkers},   {"steps", c.num_steps},
+                 {"burn_in", c.burn_in},       {"acceptance_fraction", c.mean_acceptance},
+                 {"tau", tau},                 {"ess", ess},
+                 {"converged", c.converged},   {"stop_reason", c.stop_reason},
+                 {"threads", c.num_threads_used}, {"seconds", c.seconds}};
+  } else {
+    j["mcmc"] = nullptr;
+  }
+  j["fit"] = {{"chi2", r.map.chi2},
+              {"dof", r.map.dof},
+              {"chi2_per_dof", r.map.dof > 0 ? json(r.map.chi2 / r.map.dof) : json(nullptr)},
+              {"loglike", r.map.log_likelihood},
+              {"pixels", r.map.num_pixels},
+              {"starts", r.map.num_starts},
+              {"usable_starts", r.map.num_usable_starts},
+              {"map_seconds", r.map.seconds},
+              {"seconds", r.seconds}};
+  json comparison = json::array();
+  for (int i = 0; i < model.dim(); ++i) comparison.push_back(ComparisonRow(r.names[i], r.parameters[i]));
+  for (const auto& [name, s] : r.derived) comparison.push_back(ComparisonRow(name, s));
+  j["map_vs_mcmc"] = comparison;
+  json exposures = json::array();
+  for (int k = 0; k < model.num_exposures(); ++k) {
+    const Stamp& s = model.stamps()[k];
+    json e = {{"index", k},
+              {"file", s.info.source},
+              {"stamp_origin_px", {s.origin_x, s.origin_y}},
+              {"stamp_size_px", {s.nx(), s.ny()}},
+              {"gain_e_per_adu", s.gain_e_per_adu},
+              {"read_noise_e", s.read_noise_e},
+              {"bias_adu", s.bias_adu},
+              {"wavelength_nm", Num(s.info.wavelength_nm)},
+              {"exptime_s", Num(s.info.exptime_s)},
+              {"pixel_um", s.info.pixel_um},
+              {"masked_pixels", s.nx() * s.ny() - s.NumValid()}};
+    if (k < static_cast<int>(calibration.size())) {
+      const CalibrationReport& c = calibration[k];
+      e["calibration"] = {{"gain", c.gain_source},
+                          {"bias", c.bias_source},
+                          {"read_noise", c.read_noise_source},
+                          {"saturation", c.saturation_source},
+                          {"spot", c.spot_source},
+                          {"peak_e", Num(c.peak_e)}};
+    }
+    exposures.push_back(e);
+  }
+  j["exposures"] = exposures;
+  return j;
+}
+
+bool WriteFitReport(const std::string& out_dir, const FitModel& model, const FitResult& r,
+                    const std::vector<CalibrationReport>& calibration, const json& run_record,
+                    std::vector<std::string>* warnings, std::string* error) {
+  StagedOutput out;
+  if (!out.Begin(out_dir, error)) return false;
+  const int dim = model.dim();
+
+  // residuals.fits and the residual maps.
+  std::unique_ptr<FitEvaluator> ev = model.NewEvaluator();
+  std::vector<FitsImageHdu> hdus;
+  std::vector<StampPanels> panels;
+  std::vector<double> m;
+  for (int k = 0; k < model.num_exposures(); ++k) {
+    const Stamp& s = model.stamps()[k];
+    ev->ModelImage(r.map.theta.data(), k, &m, nullptr);
+    CcdNoise noise{s.gain_e_per_adu, s.read_noise_e, true};
+    StampPanels p;
+    p.title = "exposure " + std::to_string(k) + ": " + s.info.source;
+    p.data = Image(s.nx(), s.ny());
+    p.model = Image(s.nx(), s.ny());
+    p.residual = Image(s.nx(), s.ny());
+    p.normalised = Image(s.nx(), s.ny());
+    p.origin_x = s.origin_x;
+    p.origin_y = s.origin_y;
+    for (size_t q = 0; q < m.size(); ++q) {
+      const bool ok = s.valid[q];
+      p.data.data[q] = ok ? s.electrons.data[q] : NAN;
+      p.model.data[q] = m[q];
+      p.residual.data[q] = ok ? s.electrons.data[q] - m[q] : NAN;
+      p.normalised.data[q] = ok ? p.residual.data[q] / std::sqrt(noise.VarianceE2(m[q])) : NAN;
+    }
+    const std::string kk = std::to_string(k);
+    FitsHeader h = {{"EXPOSURE", static_cast<long long>(k), "exposure index"},
+                    {"SOURCE", s.info.source, "input file"},
+                    {"LTV1", static_cast<double>(-s.origin_x), "stamp to frame: x = i - LTV1"},
+                    {"LTV2", static_cast<double>(-s.origin_y), "stamp to frame: y = j - LTV2"}};
+    hdus.push_back({"DATA_" + kk, p.data, h});
+    hdus.back().header.push_back({"BUNIT", std::string("electron"), "bias-subtracted data"});
+    hdus.push_back({"MODEL_" + kk, p.model, h});
+    hdus.back().header.push_back({"BUNIT", std::string("electron"), "MAP model"});
+    hdus.push_back({"RESID_" + kk, p.residual, h});
+    hdus.back().header.push_back({"BUNIT", std::string("electron"), "data - model"});
+    hdus.push_back({"NRESID_" + kk, p.normalised, h});
+    hdus.back().header.push_back({"BUNIT", std::string(""), "(data - model) / sigma"});
+    panels.push_back(std::move(p));
+  }
+  FitsHeader primary = {{"ORIGIN", std::string("ccdpsf"), "software"},
+                        {"CHI2", r.map.chi2, "sum of squared normalised residuals"},
+                        {"DOF", static_cast<long long>(r.map.dof), "pixels - parameters"}};
+  if (!WriteFitsImagesF64(out.Path("residuals.fits"), primary, hdus, error)) return false;
+  PlotResult plot;
+  if (!WriteResidualMaps(out.staging_dir(), "residuals", panels, &plot, error)) return false;
+  if (!plot.png_written) warnings->push_back("residuals.png not made: " + plot.message);
+
+  // chain.fits and the corner plot.
+  if (r.have_mcmc) {
+    const SamplerResult& c = r.chain;
+    const size_t states = static_cast<size_t>(c.num_steps) * c.num_walkers;
+    std::vector<FitsColumn> cols = {{"walker", "", {}, true}, {"step", "", {}, true},
+                                    {"log_prob", "", {}, false}};
+    for (int i = 0; i < dim; ++i) cols.push_back({r.names[i], "", {}, false});
+    for (auto& col : cols) col.values.reserve(states);
+    for (int step = 0; step < c.num_steps; ++step) {
+      for (int w = 0; w < c.num_walkers; ++w) {
+        const size_t s = static_cast<size_t>(step) * c.num_walkers + w;
+        cols[0].values.push_back(w);
+        cols[1].values.push_back(step);
+        cols[2].values.push_back(c.log_prob[s]);
+        for (int i = 0; i < dim; ++i) cols[3 + i].values.push_back(c.chain[s * dim + i]);
+      }
+    }
+    FitsHeader ch = {{"BURNIN", static_cast<long long>(c.burn_in), "steps to discard"},
+                     {"WALKERS", static_cast<long long>(c.num_walkers), "ensemble size"},
+                     {"CONVERGD", c.converged, "sampler convergence criteria met"}};
+    if (!WriteFitsTable(out.Path("chain.fits"), ch, "CHAIN", cols, error)) return false;
+
+    CornerPlotInput corner;
+    corner.names = r.names;
+    corner.map = r.map.theta;
+    corner.laplace_covariance = r.laplace.covariance;
+    for (int a = 0; a < dim; ++a) {
+      for (int b = 0; b < dim; ++b) {
+        if (!r.laplace.constrained[a] || !r.laplace.constrained[b]) {
+          corner.laplace_covariance[a * dim + b] = NAN;
+        }
+      }
+    }
+    const size_t kept = static_cast<size_t>(c.num_steps - c.burn_in) * c.num_walkers;
+    const size_t n = std::min<size_t>(kept, 5000);
+    for (size_t t = 0; t < n; ++t) {
+      const size_t s = static_cast<size_t>(c.burn_in) * c.num_walkers + t * kept / n;
+      corner.samples.insert(corner.samples.end(), c.chain.begin() + s * dim,
+                            c.chain.begin() + (s + 1) * dim);
+    }
+    corner.num_samples = static_cast<int>(n);
+    corner.title = "posterior (MCMC), MAP and Laplace 68/95 % ellipses";
+    if (!WriteCornerPlot(out.staging_dir(), "corner", corner, &plot, error)) return false;
+    if (!plot.png_written) warnings->push_back("corner.png not made: " + plot.message);
+  }
+
+  // report.md: the numbers people come for, and the plots.
+  std::ostringstream md;
+  md << "# ccdpsf fit\n\n";
+  md << "Model: " << model::ToString(model.options().model.sampling) << " sampling, "
+     << model::ToString(model.options().model.defocus) << " defocus, "
+     << ToString(model.options().likelihood) << " likelihood; " << model.num_exposures()
+     << (model.num_exposures() > 1 ? " exposures (joint fit)" : " exposure") << ".\n\n";
+  md << "chi2 / dof = " << Fmt(r.map.chi2) << " / " << r.map.dof << " = "
+     << Fmt(r.map.chi2 / std::max(1, r.map.dof), 4) << "; MAP from " << r.map.num_usable_starts
+     << " of " << r.map.num_starts << " starts in " << Fmt(r.map.seconds, 3) << " s.\n\n";
+  if (r.have_mcmc) {
+    md << "MCMC: " << r.chain.num_walkers << " walkers x " << r.chain.num_steps
+       << " steps (burn-in " << r.chain.burn_in << "), acceptance "
+       << Fmt(r.chain.mean_acceptance, 3) << ", "
+       << (r.chain.converged ? "converged" : "NOT converged") << ": " << r.chain.stop_reason
+       << ".\n\n";
+  }
+  if (!r.laplace.unconstrained.empty()) {
+    md << "## Not constrained by the data\n\n";
+    for (const auto& d : r.laplace.unconstrained) md << "- " << d.description << "\n";
+    md << "\nLaplace widths are not given for parameters along these directions; their "
+          "intervals come from the MCMC and reflect the priors.\n\n";
+  }
+  if (!r.laplace.at_bound.empty()) {
+    md << "## At a prior bound\n\n";
+    for (int i : r.laplace.at_bound) md << "- " << r.names[i] << " = " << Fmt(r.map.theta[i]) << "\n";
+    md << "\nThe Laplace approximation ignores the bound there.\n\n";
+  }
+  md << "## MAP / Laplace against MCMC\n\n"
+     << "| quantity | MAP | Laplace sd | MCMC median | MCMC 68 % | MCMC 99.7 % | sd ratio |\n"
+     << "|---|---|---|---|---|---|---|\n";
+  auto row = [&](const std::string& name, const Summary& s) {
+    md << "| " << name << " | " << Fmt(s.map) << " | " << Fmt(s.laplace_sd, 3) << " | "
+       << Fmt(s.median) << " | " << Fmt(s.lo68) << " .. " << Fmt(s.hi68) << " | "
+       << Fmt(s.lo997) << " .. " << Fmt(s.hi997) << " | "
+       << Fmt(s.laplace_sd / (0.5 * (s.hi68 - s.lo68)), 3) << " |\n";
+  };
+  for (int i = 0; i < dim; ++i) row(r.names[i], r.parameters[i]);
+  for (const auto& [name, s] : r.derived) row(name, s);
+  md << "\nsd ratio = Laplace sd / half the MCMC 68 % interval (1 for a Gaussian posterior).\n\n";
+  md << "## Plots\n\n![residuals](residuals.png)\n\n";
+  if (r.have_mcmc) md << "![corner](corner.png)\n\n";
+  if (!warnings->empty()) {
+    md << "## Warnings\n\n";
+    for (const auto& w : *warnings) md << "- " << w << "\n";
+  }
+  if (!WriteTextFileAtomically(out.Path("report.md"), md.str(), error)) return false;
+  if (!WriteTextFileAtomically(out.Path("run.json"), run_record.dump(2) + "\n", error)) {
+    return false;
+  }
+  const json fit = FitJson(model, r, calibration);
+  if (!WriteTextFileAtomically(out.Path("fit.json"), fit.dump(2) + "\n", error)) return false;
+  return out.Commit({"fit.json"}, error);
+}
+
+}  // namespace ccdpsf::fit

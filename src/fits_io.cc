@@ -1,0 +1,790 @@
+// FITS input and output through CFITSIO.
+//
+// Files are opened and created with the "diskfile" entry points (fits_open_diskfile,
+// fits_create_diskfile), which take the name literally: CFITSIO's extended filename syntax
+// would otherwise read "run[1].fits" as "extension 1 of run" and "!out.fits" as "overwrite
+// out.fits". Every fitsfile* lives in a FitsFile, which closes it on every path.
+#include "ccdpsf/fits_io.h"
+
+#include <fitsio.h>
+#include <sys/stat.h>
+
+#include <algorithm>
+#include <cctype>
+#include <cerrno>
+#include <climits>
+#include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <limits>
+#include <set>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "ccdpsf/atomic_file.h"
+
+namespace ccdpsf {
+namespace {
+
+// Owns an open fitsfile*. The destructor closes the file and ignores any error (it must not
+// throw and has nobody to tell); writers call Close() themselves to learn whether the final
+// flush succeeded.
+class FitsFile {
+ public:
+  FitsFile() = default;
+  ~FitsFile() {
+    int status = 0;
+    Close(&status);
+  }
+  FitsFile(const FitsFile&) = delete;
+  FitsFile& operator=(const FitsFile&) = delete;
+
+  fitsfile* get() const { return file_; }
+  // For the CFITSIO calls that open or create a file.
+  fitsfile** out() { return &file_; }
+
+  // Closes the file (flushing buffers). Returns false and sets *status on failure; the
+  // handle is released either way.
+  bool Close(int* status) {
+    if (file_ == nullptr) return true;
+    fits_close_file(file_, status);
+    file_ = nullptr;
+    return *status == 0;
+  }
+
+ private:
+  fitsfile* file_ = nullptr;
+};
+
+// The short CFITSIO description of `status`, as "cfitsio status N: text". Clears CFITSIO's
+// message stack so that messages of one failure do not leak into the next.
+std::string CfitsioText(int status) {
+  char text[FLEN_STATUS] = {0};
+  fits_get_errstatus(status, text);
+  fits_clear_errmsg();
+  return "cfitsio status " + std::to_string(status) + ": " + text;
+}
+
+std::string Quoted(const std::string& path) { return "'" + path + "'"; }
+
+std::string ToUpper(std::string text) {
+  for (char& c : text) c = static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
+  return text;
+}
+
+// True if `text` is `prefix` followed by one or more digits (NAXIS1, TFORM12, ...).
+bool IsIndexed(const std::string& text, const char* prefix) {
+  const size_t n = std::strlen(prefix);
+  if (text.size() <= n || text.compare(0, n, prefix) != 0) return false;
+  return std::all_of(text.begin() + n, text.end(),
+                     [](char c) { return std::isdigit(static_cast<unsigned char>(c)); });
+}
+
+// Keywords that describe the layout of the HDU (or are commentary) rather than the exposure.
+// They are neither returned by the reader nor accepted from callers by the writers, because
+// CFITSIO writes them itself and a second copy would contradict the data.
+bool IsStructuralKeyword(const std::string& upper_name) {
+  static const std::set<std::string> kNames = {
+      "SIMPLE", "BITPIX",  "NAXIS",    "EXTEND",   "BZERO",   "BSCALE",  "BLANK",
+      "PCOUNT", "GCOUNT",  "XTENSION", "END",      "COMMENT", "HISTORY", "CONTINUE",
+      "",       "TFIELDS", "THEAP",    "CHECKSUM", "DATASUM", "LONGSTRN"};
+  return kNames.count(upper_name) > 0 || IsIndexed(upper_name, "NAXIS");
+}
+
+// Keywords of the binary table that holds a tile-compressed image; CFITSIO presents the
+// image transparently, but header reads see the table's cards.
+bool IsCompressionKeyword(const std::string& upper_name) {
+  static const char* const kIndexed[] = {"TTYPE", "TFORM",  "TUNIT", "TDIM",  "TSCAL", "TZERO",
+                                         "TNULL", "ZNAXIS", "ZTILE", "ZNAME", "ZVAL"};
+  for (const char* prefix : kIndexed) {
+    if (IsIndexed(upper_name, prefix)) return true;
+  }
+  static const std::set<std::string> kNames = {
+      "ZIMAGE",   "ZBITPIX",  "ZNAXIS",   "ZCMPTYPE", "ZQUANTIZ", "ZDITHER0",
+      "ZSIMPLE",  "ZEXTEND",  "ZBLOCKED", "ZTENSION", "ZPCOUNT",  "ZGCOUNT",
+      "ZHECKSUM", "ZDATASUM", "ZBLANK",   "ZSCALE",   "ZZERO"};
+  return kNames.count(upper_name) > 0;
+}
+
+// Parses a number the way FITS writes it (Fortran 'D' exponents allowed). The whole text,
+// surrounding blanks aside, must be the number.
+std::optional<double> ParseNumber(const std::string& text) {
+  std::string s = text;
+  const size_t first = s.find_first_not_of(" \t");
+  if (first == std::string::npos) return std::nullopt;
+  const size_t last = s.find_last_not_of(" \t");
+  s = s.substr(first, last - first + 1);
+  for (char& c : s) {
+    if (c == 'D' || c == 'd') c = 'E';
+  }
+  errno = 0;
+  char* end = nullptr;
+  const double value = std::strtod(s.c_str(), &end);
+  if (end == s.c_str() || *end != '\0') return std::nullopt;
+  // ERANGE on underflow still yields a usable (tiny or zero) value; on overflow, +-HUGE_VAL
+  // is the honest answer for "larger than a double".
+  return value;
+}
+
+// The text of a FITS string value: 'It''s here  ' -> "It's here" (quotes doubled inside,
+// trailing blanks not significant; FITS standard 4.0, section 4.2.1).
+std::string UnquoteFitsString(const char* value_text) {
+  std::string text = value_text;
+  const size_t open = text.find('\'');
+  if (open == std::string::npos) return text;
+  std::string result;
+  for (size_t i = open + 1; i < text.size(); ++i) {
+    if (text[i] == '\'') {
+      if (i + 1 < text.size() && text[i + 1] == '\'') {
+        result.push_back('\'');
+        ++i;
+        continue;
+      }
+      break;  // closing quote
+    }
+    result.push_back(text[i]);
+  }
+  const size_t last = result.find_last_not_of(' ');
+  result.erase(last == std::string::npos ? 0 : last + 1);
+  return result;
+}
+
+// Converts one header card's value text (as CFITSIO returns it) to a FitsKey value.
+// Returns false for cards without a value.
+bool ParseCardValue(fitsfile* file, const char* name, const char* value_text, int card,
+                    int num_cards, FitsKey* key) {
+  int status = 0;
+  char type = 0;
+  if (value_text[0] == '\0' || fits_get_keytype(value_text, &type, &status)) {
+    fits_clear_errmsg();
+    return false;
+  }
+  switch (type) {
+    case 'C': {
+      std::string value = UnquoteFitsString(value_text);
+      // A long string continued on CONTINUE cards ends in '&'; let CFITSIO assemble it.
+      if (!value.empty() && value.back() == '&' && card < num_cards) {
+        char next_name[FLEN_KEYWORD] = {0};
+        char next_value[FLEN_VALUE] = {0};
+        char next_comment[FLEN_COMMENT] = {0};
+        fits_read_keyn(file, card + 1, next_name, next_value, next_comment, &status);
+        if (status == 0 && std::strcmp(next_name, "CONTINUE") == 0) {
+          char* long_value = nullptr;
+          char long_comment[FLEN_COMMENT] = {0};
+          fits_read_key_longstr(file, name, &long_value, long_comment, &status);
+          if (status == 0 && long_value != nullptr) value = long_value;
+          if (long_value != nullptr) fits_free_memory(long_value, &status);
+        }
+        if (status != 0) fits_clear_errmsg();
+      }
+      key->value = value;
+      return true;
+    }
+    case 'L':
+      key->value = value_text[0] == 'T';
+      return true;
+    case 'I': {
+      errno = 0;
+      char* end = nullptr;
+      const long long value = std::strtoll(value_text, &end, 10);
+      if (errno == 0 && end != value_text) {
+        key->value = value;
+        return true;
+      }
+      // Too large for 64 bits: keep it as a double.
+      const std::optional<double> number = ParseNumber(value_text);
+      if (!number) return false;
+      key->value = *number;
+      return true;
+    }
+    case 'F': {
+      const std::optional<double> number = ParseNumber(value_text);
+      if (!number) return false;
+      key->value = *number;
+      return true;
+    }
+    default:
+      // Complex numbers and anything else: keep the text.
+      key->value = std::string(value_text);
+      return true;
+  }
+}
+
+// Collects the user keywords of the current HDU.
+bool ReadHeader(fitsfile* file, bool compressed, FitsHeader* header, int* status) {
+  int num_cards = 0;
+  if (fits_get_hdrspace(file, &num_cards, nullptr, status)) return false;
+  for (int card = 1; card <= num_cards; ++card) {
+    char name[FLEN_KEYWORD] = {0};
+    char value[FLEN_VALUE] = {0};
+    char comment[FLEN_COMMENT] = {0};
+    if (fits_read_keyn(file, card, name, value, comment, status)) return false;
+    const std::string upper_name = ToUpper(name);
+    if (IsStructuralKeyword(upper_name)) continue;
+    if (compressed && IsCompressionKeyword(upper_name)) continue;
+    FitsKey key;
+    key.name = name;
+    key.comment = comment;
+    if (ParseCardValue(file, name, value, card, num_cards, &key)) {
+      header->push_back(std::move(key));
+    }
+  }
+  return true;
+}
+
+// True if every character is printable ASCII, the only characters a header card may hold
+// (FITS standard 4.0, section 4.1.2). CFITSIO would silently turn others into blanks.
+bool IsPrintableAscii(const std::string& text) {
+  return std::all_of(text.begin(), text.end(), [](char c) { return c >= 0x20 && c <= 0x7e; });
+}
+
+// Keyword names: digits, letters, '-' and '_' (section 4.1.2.1; CFITSIO upper-cases them).
+// Names longer than 8 characters are written with the HIERARCH convention.
+bool IsValidKeywordName(const std::string& name) {
+  if (name.empty() || name.size() > 60) return false;
+  return std::all_of(name.begin(), name.end(), [](char c) {
+    return std::isalnum(static_cast<unsigned char>(c)) || c == '-' || c == '_';
+  });
+}
+
+// Checks a header before writing it: valid names that are not structural, printable text,
+// finite doubles (FITS has no representation for NaN or infinity in a card).
+bool ValidateHeader(const std::string& path, const FitsHeader& header, std::string* error) {
+  for (const FitsKey& key : header) {
+    const std::string upper_name = ToUpper(key.name);
+    if (!IsValidKeywordName(key.name)) {
+      *error = "cannot write " + Quoted(path) + ": invalid keyword name '" + key.name + "'";
+      return false;
+    }
+    const std::string* text = std::get_if<std::string>(&key.value);
+    if (!IsPrintableAscii(key.comment) || (text != nullptr && !IsPrintableAscii(*text))) {
+      *error = "cannot write " + Quoted(path) + ": keyword " + upper_name +
+               " holds characters other than printable ASCII";
+      return false;
+    }
+    if (IsStructuralKeyword(upper_name)) {
+      *error = "cannot write " + Quoted(path) + ": keyword " + upper_name +
+               " is reserved (the writer sets it)";
+      return false;
+    }
+    if (const double* value = std::get_if<double>(&key.value); value && !std::isfinite(*value)) {
+      *error =
+          "cannot write " + Quoted(path) + ": keyword " + upper_name + " has a non-finite value";
+      return false;
+    }
+  }
+  return true;
+}
+
+// Writes the cards of `header` into the current HDU, replacing cards of the same name.
+bool WriteHeader(fitsfile* file, const FitsHeader& header, int* status, std::string* failed) {
+  for (const FitsKey& key : header) {
+    char* comment = key.comment.empty() ? nullptr : const_cast<char*>(key.comment.c_str());
+    char* name = const_cast<char*>(key.name.c_str());
+    if (const double* value = std::get_if<double>(&key.value)) {
+      // 15 significant digits: exact for every decimal a person typed, and as many as a
+      // double carries reliably.
+      fits_update_key_dbl(file, name, *value, -15, comment, status);
+    } else if (const long long* value = std::get_if<long long>(&key.value)) {
+      fits_update_key_lng(file, name, *value, comment, status);
+    } else if (const bool* value = std::get_if<bool>(&key.value)) {
+      fits_update_key_log(file, name, *value ? 1 : 0, comment, status);
+    } else {
+      const std::string& text = std::get<std::string>(key.value);
+      // Strings longer than a card holds go out with the CONTINUE convention.
+      if (text.size() > 68) {
+        fits_update_key_longstr(file, name, const_cast<char*>(text.c_str()), comment, status);
+      } else {
+        fits_update_key_str(file, name, const_cast<char*>(text.c_str()), comment, status);
+      }
+    }
+    if (*status != 0) {
+      *failed = key.name;
+      return false;
+    }
+  }
+  return true;
+}
+
+bool ValidateImage(const std::string& path, const Image& image, std::string* error) {
+  if (image.nx <= 0 || image.ny <= 0) {
+    *error = "cannot write " + Quoted(path) + ": image is empty (" + std::to_string(image.nx) +
+             " x " + std::to_string(image.ny) + ")";
+    return false;
+  }
+  if (image.data.size() != static_cast<size_t>(image.nx) * static_cast<size_t>(image.ny)) {
+    *error = "cannot write " + Quoted(path) + ": image holds " + std::to_string(image.data.size()) +
+             " values, expected " + std::to_string(image.nx) + " x " + std::to_string(image.ny);
+    return false;
+  }
+  return true;
+}
+
+// Creates a new FITS file at temp_path. The name is fresh (WriteAtomically removes any stale
+// file of that name first), so CFITSIO's refusal to overwrite never applies.
+bool CreateFile(const std::string& temp_path, FitsFile* file, int* status) {
+  fits_create_diskfile(file->out(), temp_path.c_str(), status);
+  return *status == 0;
+}
+
+// Formats the reason a write failed: the target (not the temporary) path, what was being
+// done and CFITSIO's reason.
+std::string WriteError(const std::string& path, const std::string& what, int status) {
+  return "cannot write " + Quoted(path) + ": " + what + " (" + CfitsioText(status) + ")";
+}
+
+// Writes one 2-D image HDU (primary if the file is new, else an extension): the header
+// cards and then the pixels. bitpix is DOUBLE_IMG or USHORT_IMG.
+bool WriteImageHdu(fitsfile* file, const std::string& path, int bitpix, const Image& image,
+                   const std::string& extname, const FitsHeader& header, std::string* error) {
+  int status = 0;
+  long naxes[2] = {image.nx, image.ny};
+  if (fits_create_img(file, bitpix, 2, naxes, &status)) {
+    *error = WriteError(path, "cannot create image HDU", status);
+    return false;
+  }
+  if (!extname.empty()) {
+    fits_update_key_str(file, const_cast<char*>("EXTNAME"), const_cast<char*>(extname.c_str()),
+                        const_cast<char*>("extension name"), &status);
+  }
+  std::string failed_key;
+  if (status != 0 || !WriteHeader(file, header, &status, &failed_key)) {
+    *error = WriteError(
+        path, "cannot write keyword " + (failed_key.empty() ? "EXTNAME" : failed_key), status);
+    return false;
+  }
+  const LONGLONG n = static_cast<LONGLONG>(image.data.size());
+  if (bitpix == USHORT_IMG) {
+    // Values were checked by the caller to be integers in [0, 65535]; TUSHORT lets CFITSIO
+    // apply BZERO = 32768 itself.
+    std::vector<unsigned short> values(image.data.size());
+    for (size_t i = 0; i < values.size(); ++i) {
+      values[i] = static_cast<unsigned short>(image.data[i]);
+    }
+    fits_write_img(file, TUSHORT, 1, n, values.data(), &status);
+  } else {
+    // CFITSIO takes a non-const pointer; a copy keeps the caller's image untouched whatever
+    // CFITSIO does with its buffer (it byte-swaps in place on little-endian machines for some
+    // paths).
+    std::vector<double> values = image.data;
+    fits_write_img(file, TDOUBLE, 1, n, values.data(), &status);
+  }
+  if (status != 0) {
+    *error = WriteError(path, "cannot write pixels", status);
+    return false;
+  }
+  // No CHECKSUM/DATASUM cards: CFITSIO stamps the current date into their comments, and the
+  // same inputs and seed must give the same bytes. Truncation is still caught on reading.
+  return true;
+}
+
+// Writes an HDU with no data carrying `header` as the primary HDU.
+bool WriteEmptyPrimary(fitsfile* file, const std::string& path, const FitsHeader& header,
+                       std::string* error) {
+  int status = 0;
+  if (fits_create_img(file, BYTE_IMG, 0, nullptr, &status)) {
+    *error = WriteError(path, "cannot create primary HDU", status);
+    return false;
+  }
+  std::string failed_key;
+  if (!WriteHeader(file, header, &status, &failed_key)) {
+    *error = WriteError(path, "cannot write keyword " + failed_key, status);
+    return false;
+  }
+  return true;
+}
+
+// Closes a file being written, reporting a failed final flush (a full disk shows up here).
+bool CloseWritten(FitsFile* file, const std::string& path, std::string* error) {
+  int status = 0;
+  if (!file->Close(&status)) {
+    *error = WriteError(path, "cannot close file", status);
+    return false;
+  }
+  return true;
+}
+
+// Opening checks done before CFITSIO sees the file, so that the common mistakes get a plain
+// message: no such file, a directory, an empty file, something that is not FITS. Sets
+// *gzip for gzip-compressed files (CFITSIO reads them, but their size on disk says nothing
+// about the size of the data). Returns the file size in bytes, or -1 if it is not known.
+std::optional<long long> CheckReadable(const std::string& path, bool* gzip, std::string* error) {
+  struct stat st;
+  if (::stat(path.c_str(), &st) != 0) {
+    if (errno == ENOENT || errno == ENOTDIR) {
+      *error = "cannot open " + Quoted(path) + ": no such file";
+    } else {
+      *error = "cannot open " + Quoted(path) + ": " + std::strerror(errno);
+    }
+    return std::nullopt;
+  }
+  if (S_ISDIR(st.st_mode)) {
+    *error = "cannot open " + Quoted(path) + ": it is a directory";
+    return std::nullopt;
+  }
+  std::FILE* stream = std::fopen(path.c_str(), "rb");
+  if (stream == nullptr) {
+    *error = "cannot open " + Quoted(path) + ": " + std::strerror(errno);
+    return std::nullopt;
+  }
+  char start[10] = {0};
+  const size_t got = std::fread(start, 1, sizeof(start), stream);
+  std::fclose(stream);
+  if (got == 0) {
+    *error = Quoted(path) + " is not a FITS file (it is empty)";
+    return std::nullopt;
+  }
+  *gzip = got >= 2 && static_cast<unsigned char>(start[0]) == 0x1f &&
+          static_cast<unsigned char>(start[1]) == 0x8b;
+  // Every FITS file starts with the card "SIMPLE  =" (FITS standard 4.0, section 4.4.1.1).
+  // A file that starts so but is cut short is a truncated FITS file, not "not FITS".
+  static const char kSimple[] = "SIMPLE  =";
+  const size_t n = std::min(got, sizeof(kSimple) - 1);
+  if (!*gzip && std::memcmp(start, kSimple, n) != 0) {
+    *error = Quoted(path) + " is not a FITS file";
+    return std::nullopt;
+  }
+  if (!*gzip && got < sizeof(kSimple) - 1) {
+    *error = Quoted(path) + " is truncated or corrupt";
+    return std::nullopt;
+  }
+  // Only a regular file's size says how much data it holds (-1: unknown, e.g. a pipe).
+  return S_ISREG(st.st_mode) ? static_cast<long long>(st.st_size) : -1LL;
+}
+
+std::string Corrupt(const std::string& path, int status) {
+  return Quoted(path) + " is truncated or corrupt (" + CfitsioText(status) + ")";
+}
+
+}  // namespace
+
+std::optional<double> FindNumber(const FitsHeader& header, const std::string& name) {
+  const std::string wanted = ToUpper(name);
+  for (const FitsKey& key : header) {
+    if (ToUpper(key.name) != wanted) continue;
+    if (const double* value = std::get_if<double>(&key.value)) return *value;
+    if (const long long* value = std::get_if<long long>(&key.value)) {
+      return static_cast<double>(*value);
+    }
+    if (const std::string* value = std::get_if<std::string>(&key.value)) {
+      return ParseNumber(*value);
+    }
+    return std::nullopt;  // a logical is not a number
+  }
+  return std::nullopt;
+}
+
+std::optional<std::string> FindString(const FitsHeader& header, const std::string& name) {
+  const std::string wanted = ToUpper(name);
+  for (const FitsKey& key : header) {
+    if (ToUpper(key.name) != wanted) continue;
+    if (const std::string* value = std::get_if<std::string>(&key.value)) return *value;
+    return std::nullopt;
+  }
+  return std::nullopt;
+}
+
+std::optional<FitsImage> ReadFitsImage(const std::string& path, std::string* error) {
+  bool gzip = false;
+  const std::optional<long long> file_size = CheckReadable(path, &gzip, error);
+  if (!file_size) return std::nullopt;
+
+  FitsFile file;
+  int status = 0;
+  if (fits_open_diskfile(file.out(), path.c_str(), READONLY, &status)) {
+    *error = Corrupt(path, status);
+    return std::nullopt;
+  }
+
+  // The primary HDU, or the first image extension with data when the primary is empty.
+  int naxis = 0;
+  if (fits_get_img_dim(file.get(), &naxis, &status)) {
+    *error = Corrupt(path, status);
+    return std::nullopt;
+  }
+  int hdu = 1;
+  if (naxis == 0) {
+    int num_hdus = 0;
+    if (fits_get_num_hdus(file.get(), &num_hdus, &status)) {
+      *error = Corrupt(path, status);
+      return std::nullopt;
+    }
+    std::string first_extension;  // what the first extension was, for the message
+    hdu = 0;
+    for (int h = 2; h <= num_hdus; ++h) {
+      int type = 0;
+      if (fits_movabs_hdu(file.get(), h, &type, &status)) {
+        *error = Corrupt(path, status);
+        return std::nullopt;
+      }
+      if (type != IMAGE_HDU) {
+        if (first_extension.empty()) first_extension = "a table";
+        continue;
+      }
+      if (fits_get_img_dim(file.get(), &naxis, &status)) {
+        *error = Corrupt(path, status);
+        return std::nullopt;
+      }
+      if (naxis > 0) {
+        hdu = h;
+        break;
+      }
+      if (first_extension.empty()) first_extension = "an empty image";
+    }
+    if (hdu == 0) {
+      if (num_hdus <= 1) {
+        *error = Quoted(path) +
+                 " has no image (the primary HDU is empty and there are no "
+                 "extensions)";
+      } else {
+        *error = Quoted(path) + " has no image (first extension is " + first_extension + ")";
+      }
+      return std::nullopt;
+    }
+  }
+
+  if (naxis != 2) {
+    *error = Quoted(path) + ": image is " + std::to_string(naxis) + "-D, expected 2-D";
+    return std::nullopt;
+  }
+  LONGLONG naxes[2] = {0, 0};
+  int bitpix = 0;
+  int compressed = 0;
+  if (fits_get_img_sizell(file.get(), 2, naxes, &status) ||
+      fits_get_img_type(file.get(), &bitpix, &status)) {
+    *error = Corrupt(path, status);
+    return std::nullopt;
+  }
+  compressed = fits_is_compressed_image(file.get(), &status);
+  if (naxes[0] <= 0 || naxes[1] <= 0) {
+    *error = Quoted(path) + ": image is empty (" + std::to_string(naxes[0]) + " x " +
+             std::to_string(naxes[1]) + ")";
+    return std::nullopt;
+  }
+  // A bound on what we are willing to allocate (2^31 pixels = 16 GiB of doubles): a corrupt
+  // header must not make us try to allocate terabytes.
+  constexpr LONGLONG kMaxPixels = LONGLONG{1} << 31;
+  if (naxes[0] > INT_MAX || naxes[1] > INT_MAX || naxes[0] > kMaxPixels / naxes[1]) {
+    *error = Quoted(path) + ": image is too large (" + std::to_string(naxes[0]) + " x " +
+             std::to_string(naxes[1]) + ")";
+    return std::nullopt;
+  }
+  const LONGLONG num_pixels = naxes[0] * naxes[1];
+  // For a plain (not compressed) file the data must fit in the file; checking before
+  // reading gives a clear message and avoids allocating for data that are not there.
+  if (!gzip && !compressed && *file_size >= 0) {
+    LONGLONG header_start = 0, data_start = 0, data_end = 0;
+    if (fits_get_hduaddrll(file.get(), &header_start, &data_start, &data_end, &status)) {
+      *error = Corrupt(path, status);
+      return std::nullopt;
+    }
+    const LONGLONG data_bytes = num_pixels * (std::abs(bitpix) / 8);
+    if (data_start + data_bytes > *file_size) {
+      *error = Quoted(path) + " is truncated or corrupt (the image needs " +
+               std::to_string(data_start + data_bytes) + " bytes, the file has " +
+               std::to_string(*file_size) + ")";
+      return std::nullopt;
+    }
+  }
+
+  FitsImage result;
+  result.bitpix = bitpix;
+  result.hdu = hdu;
+  result.pixels = Image(static_cast<int>(naxes[0]), static_cast<int>(naxes[1]));
+  // Reading as TDOUBLE makes CFITSIO apply BSCALE/BZERO; a NaN null value turns BLANK
+  // pixels of integer images (and NaNs of float images) into NaN.
+  double null_value = std::numeric_limits<double>::quiet_NaN();
+  int any_null = 0;
+  if (fits_read_img(file.get(), TDOUBLE, 1, num_pixels, &null_value, result.pixels.data.data(),
+                    &any_null, &status)) {
+    *error = Corrupt(path, status);
+    return std::nullopt;
+  }
+  if (!ReadHeader(file.get(), compressed != 0, &result.header, &status)) {
+    *error = Corrupt(path, status);
+    return std::nullopt;
+  }
+  return result;
+}
+
+bool WriteFitsImageU16(const std::string& path, const Image& image, const FitsHeader& header,
+                       std::string* error) {
+  if (!ValidateImage(path, image, error) || !ValidateHeader(path, header, error)) return false;
+  for (int y = 0; y < image.ny; ++y) {
+    for (int x = 0; x < image.nx; ++x) {
+      const double v = image(x, y);
+      if (!(v >= 0.0 && v <= 65535.0 && v == std::floor(v))) {
+        char text[64];
+        std::snprintf(text, sizeof(text), "%.17g", v);
+        *error = "cannot write " + Quoted(path) + " as 16-bit unsigned: pixel (" +
+                 std::to_string(x) + ", " + std::to_string(y) + ") = " + text +
+                 " is not an integer in [0, 65535]";
+        return false;
+      }
+    }
+  }
+  return WriteAtomically(
+      path,
+      [&](const std::string& temp_path, std::string* write_error) {
+        FitsFile file;
+        int status = 0;
+        if (!CreateFile(temp_path, &file, &status)) {
+          *write_error = WriteError(path, "cannot create file", status);
+          return false;
+        }
+        return WriteImageHdu(file.get(), path, USHORT_IMG, image, "", header, write_error) &&
+               CloseWritten(&file, path, write_error);
+      },
+      error);
+}
+
+bool WriteFitsImageF64(const std::string& path, const Image& image, const FitsHeader& header,
+                       std::string* error) {
+  if (!ValidateImage(path, image, error) || !ValidateHeader(path, header, error)) return false;
+  return WriteAtomically(
+      path,
+      [&](const std::string& temp_path, std::string* write_error) {
+        FitsFile file;
+        int status = 0;
+        if (!CreateFile(temp_path, &file, &status)) {
+          *write_error = WriteError(path, "cannot create file", status);
+          return false;
+        }
+        return WriteImageHdu(file.get(), path, DOUBLE_IMG, image, "", header, write_error) &&
+               CloseWritten(&file, path, write_error);
+      },
+      error);
+}
+
+bool WriteFitsImagesF64(const std::string& path, const FitsHeader& primary_header,
+                        const std::vector<FitsImageHdu>& images, std::string* error) {
+  if (!ValidateHeader(path, primary_header, error)) return false;
+  for (const FitsImageHdu& hdu : images) {
+    if (!ValidateImage(path, hdu.image, error) || !ValidateHeader(path, hdu.header, error)) {
+      return false;
+    }
+    for (const FitsKey& key : hdu.header) {
+      if (ToUpper(key.name) == "EXTNAME") {
+        *error = "cannot write " + Quoted(path) +
+                 ": give the extension name in extname, not "
+                 "as an EXTNAME keyword";
+        return false;
+      }
+    }
+  }
+  return WriteAtomically(
+      path,
+      [&](const std::string& temp_path, std::string* write_error) {
+        FitsFile file;
+        int status = 0;
+        if (!CreateFile(temp_path, &file, &status)) {
+          *write_error = WriteError(path, "cannot create file", status);
+          return false;
+        }
+        if (!WriteEmptyPrimary(file.get(), path, primary_header, write_error)) return false;
+        for (const FitsImageHdu& hdu : images) {
+          if (!WriteImageHdu(file.get(), path, DOUBLE_IMG, hdu.image, hdu.extname, hdu.header,
+                             write_error)) {
+            return false;
+          }
+        }
+        return CloseWritten(&file, path, write_error);
+      },
+      error);
+}
+
+bool WriteFitsTable(const std::string& path, const FitsHeader& primary_header,
+                    const std::string& extname, const std::vector<FitsColumn>& columns,
+                    std::string* error) {
+  if (!ValidateHeader(path, primary_header, error)) return false;
+  if (columns.empty()) {
+    *error = "cannot write " + Quoted(path) + ": table has no columns";
+    return false;
+  }
+  const size_t num_rows = columns.front().values.size();
+  std::set<std::string> seen;
+  for (const FitsColumn& column : columns) {
+    if (column.name.empty()) {
+      *error = "cannot write " + Quoted(path) + ": a table column has no name";
+      return false;
+    }
+    // FITS column names are compared without case by most readers (astropy, TOPCAT).
+    if (!seen.insert(ToUpper(column.name)).second) {
+      *error = "cannot write " + Quoted(path) + ": duplicate column name '" + column.name + "'";
+      return false;
+    }
+    if (column.values.size() != num_rows) {
+      *error = "cannot write " + Quoted(path) + ": column '" + column.name + "' has " +
+               std::to_string(column.values.size()) + " rows, column '" + columns.front().name +
+               "' has " + std::to_string(num_rows);
+      return false;
+    }
+    if (column.is_integer) {
+      for (size_t row = 0; row < num_rows; ++row) {
+        const double v = column.values[row];
+        // 9.2e18 ~ 2^63: beyond it a 64-bit integer cannot hold the value.
+        if (!std::isfinite(v) || std::fabs(v) >= 9.2e18) {
+          *error = "cannot write " + Quoted(path) + ": integer column '" + column.name + "' row " +
+                   std::to_string(row) +
+                   " holds a value that is not a finite "
+                   "64-bit integer";
+          return false;
+        }
+      }
+    }
+  }
+  return WriteAtomically(
+      path,
+      [&](const std::string& temp_path, std::string* write_error) {
+        FitsFile file;
+        int status = 0;
+        if (!CreateFile(temp_path, &file, &status)) {
+          *write_error = WriteError(path, "cannot create file", status);
+          return false;
+        }
+        if (!WriteEmptyPrimary(file.get(), path, primary_header, write_error)) return false;
+
+        std::vector<std::string> tforms;
+        std::vector<char*> ttype, tform, tunit;
+        for (const FitsColumn& column : columns) tforms.push_back(column.is_integer ? "1K" : "1D");
+        for (size_t i = 0; i < columns.size(); ++i) {
+          ttype.push_back(const_cast<char*>(columns[i].name.c_str()));
+          tform.push_back(const_cast<char*>(tforms[i].c_str()));
+          // CFITSIO writes no TUNITn card for an empty unit.
+          tunit.push_back(const_cast<char*>(columns[i].unit.c_str()));
+        }
+        if (fits_create_tbl(file.get(), BINARY_TBL, static_cast<LONGLONG>(num_rows),
+                            static_cast<int>(columns.size()), ttype.data(), tform.data(),
+                            tunit.data(), extname.empty() ? nullptr : extname.c_str(), &status)) {
+          *write_error = WriteError(path, "cannot create table", status);
+          return false;
+        }
+        for (size_t i = 0; i < columns.size() && num_rows > 0; ++i) {
+          const int column_number = static_cast<int>(i) + 1;
+          if (columns[i].is_integer) {
+            std::vector<LONGLONG> values(num_rows);
+            for (size_t row = 0; row < num_rows; ++row) {
+              values[row] = std::llround(columns[i].values[row]);
+            }
+            fits_write_col(file.get(), TLONGLONG, column_number, 1, 1,
+                           static_cast<LONGLONG>(num_rows), values.data(), &status);
+          } else {
+            std::vector<double> values = columns[i].values;
+            fits_write_col(file.get(), TDOUBLE, column_number, 1, 1,
+                           static_cast<LONGLONG>(num_rows), values.data(), &status);
+          }
+          if (status != 0) {
+            *write_error =
+                WriteError(path, "cannot write column '" + columns[i].name + "'", status);
+            return false;
+          }
+        }
+        return CloseWritten(&file, path, write_error);
+      },
+      error);
+}
+
+}  // namespace ccdpsf

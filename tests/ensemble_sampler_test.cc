@@ -1,0 +1,370 @@
+// The ensemble sampler on densities with known moments, its determinism across thread
+// counts, its convergence bookkeeping and its input checks.
+//
+// Moment tolerances: for any function f of the parameters, the post-burn-in chain average
+// of f has Monte Carlo standard error SE = sd(f) / sqrt(ESS_f), ESS_f = walkers * steps /
+// tau_f, with tau_f the ensemble autocorrelation time of the series f(theta) itself (the
+// Markov-chain central limit theorem). Means use f = theta_k, variances f = (theta_k -
+// mu_k)^2, covariances f = (theta_i - mu_i)(theta_j - mu_j), each with its own tau. We allow
+// 5 SE: about 25 such checks run here, and 5 SE leaves room for the uncertainty of tau_f
+// itself (~10 %) while a wrong move (e.g. a missing z^(dim-1) factor, which biases variances
+// by tens of per cent) still fails by a wide margin.
+#include "ccdpsf/fit/ensemble_sampler.h"
+
+#include <algorithm>
+#include <cmath>
+#include <functional>
+#include <limits>
+#include <optional>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "Eigen/Cholesky"
+#include "Eigen/Core"
+#include "ccdpsf/fit/autocorrelation.h"
+#include "ccdpsf/random.h"
+#include "gtest/gtest.h"
+
+namespace ccdpsf::fit {
+namespace {
+
+constexpr double kInf = std::numeric_limits<double>::infinity();
+
+struct Gaussian {
+  Eigen::VectorXd mean;
+  Eigen::MatrixXd covariance;
+  Eigen::MatrixXd precision;
+
+  Gaussian(const Eigen::VectorXd& m, const Eigen::MatrixXd& c)
+      : mean(m), covariance(c), precision(c.llt().solve(Eigen::MatrixXd::Identity(
+                                    m.size(), m.size()))) {}
+
+  double operator()(const double* theta) const {
+    const Eigen::VectorXd d = Eigen::Map<const Eigen::VectorXd>(theta, mean.size()) - mean;
+    return -0.5 * d.dot(precision * d);
+  }
+};
+
+// The 2-D case: means (1, -2), sds (0.5, 3), correlation 0.9.
+Gaussian Correlated2d() {
+  Eigen::VectorXd mean(2);
+  mean << 1.0, -2.0;
+  Eigen::MatrixXd cov(2, 2);
+  cov << 0.25, 0.9 * 0.5 * 3.0, 0.9 * 0.5 * 3.0, 9.0;
+  return Gaussian(mean, cov);
+}
+
+// The 5-D case: sds from 0.01 to 100 (four decades, which an affine-invariant move must
+// not notice) and correlations 0.5^|i - j|.
+Gaussian Scaled5d() {
+  const double sd[5] = {0.01, 1.0, 100.0, 0.3, 5.0};
+  Eigen::VectorXd mean(5);
+  mean << 0.5, -1.0, 300.0, 0.0, 20.0;
+  Eigen::MatrixXd cov(5, 5);
+  for (int i = 0; i < 5; ++i) {
+    for (int j = 0; j < 5; ++j) cov(i, j) = sd[i] * sd[j] * std::pow(0.5, std::abs(i - j));
+  }
+  return Gaussian(mean, cov);
+}
+
+// A tight ball (1e-3 sd) centred `offset_sd` standard deviations from the mean in every
+// coordinate, so the sampler has to travel and expand: what burn-in is for.
+std::vector<double> InitialBall(const Gaussian& g, int walkers, double offset_sd,
+                                uint64_t seed) {
+  const int dim = static_cast<int>(g.mean.size());
+  std::mt19937_64 engine(seed);
+  std::vector<double> initial(walkers * dim);
+  for (int w = 0; w < walkers; ++w) {
+    for (int k = 0; k < dim; ++k) {
+      const double sd = std::sqrt(g.covariance(k, k));
+      initial[w * dim + k] = g.mean(k) + sd * (offset_sd + 1e-3 * StandardNormal(engine));
+    }
+  }
+  return initial;
+}
+
+std::vector<LogDensity> PerThread(const LogDensity& f, int threads) {
+  return std::vector<LogDensity>(threads, f);
+}
+
+SamplerOptions QuietOptions(uint64_t seed) {
+  SamplerOptions options;
+  options.progress = false;
+  options.seed = seed;
+  return options;
+}
+
+struct McEstimate {
+  double mean = 0.0;
+  double se = 0.0;
+};
+
+// Post-burn-in average of f and its Monte Carlo standard error (see the file comment).
+McEstimate Estimate(const SamplerResult& r, const std::function<double(const double*)>& f) {
+  const int n = r.num_steps - r.burn_in;
+  const int walkers = r.num_walkers;
+  std::vector<double> values(static_cast<size_t>(n) * walkers);
+  for (int t = 0; t < n; ++t) {
+    for (int w = 0; w < walkers; ++w) {
+      values[t * walkers + w] = f(&r.chain[((r.burn_in + t) * walkers + w) * r.dim]);
+    }
+  }
+  double mean = 0.0;
+  for (double v : values) mean += v;
+  mean /= values.size();
+  double var = 0.0;
+  for (double v : values) var += (v - mean) * (v - mean);
+  var /= values.size() - 1;
+  const std::optional<AutocorrelationTime> tau =
+      EnsembleIntegratedAutocorrelationTime(values.data(), n, walkers, walkers, 1);
+  EXPECT_TRUE(tau.has_value() && tau->window_found);
+  const double ess = EffectiveSampleSize(walkers, n, tau ? tau->tau : kInf);
+  return {mean, std::sqrt(var / ess)};
+}
+
+// Means, variances and covariances of a Gaussian's samples within 5 SE.
+void ExpectGaussianMoments(const SamplerResult& r, const Gaussian& g) {
+  const int dim = static_cast<int>(g.mean.size());
+  for (int i = 0; i < dim; ++i) {
+    const McEstimate m = Estimate(r, [i](const double* x) { return x[i]; });
+    EXPECT_NEAR(m.mean, g.mean(i), 5.0 * m.se) << "mean of parameter " << i;
+    for (int j = i; j < dim; ++j) {
+      const double mi = g.mean(i), mj = g.mean(j);
+      const McEstimate c =
+          Estimate(r, [=](const double* x) { return (x[i] - mi) * (x[j] - mj); });
+      EXPECT_NEAR(c.mean, g.covariance(i, j), 5.0 * c.se) << "covariance " << i << "," << j;
+    }
+  }
+}
+
+void ExpectConsistentShapes(const SamplerResult& r, int walkers, int dim) {
+  EXPECT_EQ(r.num_walkers, walkers);
+  EXPECT_EQ(r.dim, dim);
+  EXPECT_EQ(r.chain.size(), static_cast<size_t>(r.num_steps) * walkers * dim);
+  EXPECT_EQ(r.log_prob.size(), static_cast<size_t>(r.num_steps) * walkers);
+  EXPECT_EQ(r.acceptance_fraction.size(), static_cast<size_t>(walkers));
+  EXPECT_EQ(r.tau.size(), static_cast<size_t>(dim));
+  EXPECT_EQ(r.ess.size(), static_cast<size_t>(dim));
+  EXPECT_GE(r.burn_in, 0);
+  EXPECT_LE(r.burn_in, r.num_steps / 2);
+}
+
+TEST(EnsembleSampler, Correlated2dGaussianMoments) {
+  const Gaussian g = Correlated2d();
+  const int walkers = 16;
+  SamplerOptions options = QuietOptions(11);
+  SamplerResult r;
+  std::string error;
+  ASSERT_TRUE(RunEnsembleSampler(PerThread(g, 2), 2, InitialBall(g, walkers, 2.0, 1), options,
+                                 &r, &error))
+      << error;
+  ExpectConsistentShapes(r, walkers, 2);
+  EXPECT_TRUE(r.converged) << r.stop_reason;
+  EXPECT_EQ(r.num_threads_used, 2);
+  ExpectGaussianMoments(r, g);
+  EXPECT_GT(r.mean_acceptance, 0.2);
+  EXPECT_LT(r.mean_acceptance, 0.8);
+}
+
+TEST(EnsembleSampler, Scaled5dGaussianMomentsAndAcceptance) {
+  const Gaussian g = Scaled5d();
+  const int walkers = 32;
+  SamplerResult r;
+  std::string error;
+  ASSERT_TRUE(RunEnsembleSampler(PerThread(g, 2), 5, InitialBall(g, walkers, 3.0, 2),
+                                 QuietOptions(12), &r, &error))
+      << error;
+  ExpectConsistentShapes(r, walkers, 5);
+  EXPECT_TRUE(r.converged) << r.stop_reason;
+  ExpectGaussianMoments(r, g);
+  EXPECT_GT(r.mean_acceptance, 0.2);
+  EXPECT_LT(r.mean_acceptance, 0.8);
+  for (double a : r.acceptance_fraction) {
+    EXPECT_GT(a, 0.1);
+    EXPECT_LT(a, 0.9);
+  }
+}
+
+TEST(EnsembleSampler, UniformBoxMomentsAndSupport) {
+  // Density 1 on [-1, 3] x [0, 0.5] x [10, 20], -inf outside: mean (lo + hi) / 2 and
+  // variance (hi - lo)^2 / 12 per coordinate, and no sample may leave the box.
+  const double lo[3] = {-1.0, 0.0, 10.0};
+  const double hi[3] = {3.0, 0.5, 20.0};
+  const LogDensity box = [&](const double* x) {
+    for (int k = 0; k < 3; ++k) {
+      if (x[k] < lo[k] || x[k] > hi[k]) return -kInf;
+    }
+    return 0.0;
+  };
+  const int walkers = 16;
+  std::mt19937_64 engine(3);
+  std::vector<double> initial(walkers * 3);
+  for (int w = 0; w < walkers; ++w) {
+    for (int k = 0; k < 3; ++k) initial[w * 3 + k] = lo[k] + (hi[k] - lo[k]) * Uniform01(engine);
+  }
+  SamplerResult r;
+  std::string error;
+  ASSERT_TRUE(RunEnsembleSampler(PerThread(box, 2), 3, initial, QuietOptions(13), &r, &error))
+      << error;
+  ExpectConsistentShapes(r, walkers, 3);
+  EXPECT_TRUE(r.converged) << r.stop_reason;
+  for (size_t i = 0; i < r.chain.size(); ++i) {
+    const int k = static_cast<int>(i % 3);
+    ASSERT_GE(r.chain[i], lo[k]);
+    ASSERT_LE(r.chain[i], hi[k]);
+  }
+  for (int k = 0; k < 3; ++k) {
+    const double mu = 0.5 * (lo[k] + hi[k]);
+    const double var = (hi[k] - lo[k]) * (hi[k] - lo[k]) / 12.0;
+    const McEstimate m = Estimate(r, [k](const double* x) { return x[k]; });
+    EXPECT_NEAR(m.mean, mu, 5.0 * m.se) << "mean of parameter " << k;
+    const McEstimate v = Estimate(r, [k, mu](const double* x) { return (x[k] - mu) * (x[k] - mu); });
+    EXPECT_NEAR(v.mean, var, 5.0 * v.se) << "variance of parameter " << k;
+  }
+}
+
+TEST(EnsembleSampler, SameSeedIsBitIdenticalForAnyThreadCount) {
+  const Gaussian g = Correlated2d();
+  // 10 walkers: halves of 5, split unevenly over 2 and 3 threads.
+  const std::vector<double> initial = InitialBall(g, 10, 1.0, 4);
+  SamplerOptions options = QuietOptions(14);
+  options.max_steps = 250;  // not a multiple of check_interval: the final check runs too
+  std::vector<SamplerResult> runs(3);
+  for (int threads = 1; threads <= 3; ++threads) {
+    options.num_threads = threads;
+    std::string error;
+    SamplerResult& r = runs[threads - 1];
+    ASSERT_TRUE(RunEnsembleSampler(PerThread(g, threads), 2, initial, options, &r, &error))
+        << error;
+    EXPECT_EQ(r.num_threads_used, threads);
+    EXPECT_EQ(r.num_steps, 250);
+  }
+  for (int i = 1; i < 3; ++i) {
+    // operator== on vector<double> compares values exactly: bit-identical for non-NaN data.
+    EXPECT_TRUE(runs[i].chain == runs[0].chain) << "threads " << i + 1;
+    EXPECT_TRUE(runs[i].log_prob == runs[0].log_prob);
+    EXPECT_TRUE(runs[i].acceptance_fraction == runs[0].acceptance_fraction);
+    EXPECT_TRUE(runs[i].tau == runs[0].tau);
+    EXPECT_EQ(runs[i].burn_in, runs[0].burn_in);
+    EXPECT_EQ(runs[i].stop_reason, runs[0].stop_reason);
+  }
+
+  options.num_threads = 2;
+  options.seed = 15;
+  SamplerResult other;
+  std::string error;
+  ASSERT_TRUE(RunEnsembleSampler(PerThread(g, 2), 2, initial, options, &other, &error));
+  EXPECT_FALSE(other.chain == runs[0].chain);
+}
+
+TEST(EnsembleSampler, LogProbIsTheDensityOfTheChain) {
+  const Gaussian g = Scaled5d();
+  SamplerOptions options = QuietOptions(16);
+  options.max_steps = 100;
+  SamplerResult r;
+  std::string error;
+  ASSERT_TRUE(RunEnsembleSampler(PerThread(g, 3), 5, InitialBall(g, 12, 0.0, 5), options, &r,
+                                 &error))
+      << error;
+  ASSERT_EQ(r.log_prob.size(), 100u * 12);
+  for (size_t i = 0; i < r.log_prob.size(); ++i) {
+    ASSERT_EQ(r.log_prob[i], g(&r.chain[i * 5])) << "entry " << i;
+  }
+}
+
+TEST(EnsembleSampler, ConvergesWithEnoughStepsAndSaysWhyNotOtherwise) {
+  const Gaussian g = Correlated2d();
+  const std::vector<double> initial = InitialBall(g, 16, 0.5, 6);
+  SamplerOptions options = QuietOptions(17);
+  options.target_ess = 2000;
+  SamplerResult r;
+  std::string error;
+  ASSERT_TRUE(RunEnsembleSampler(PerThread(g, 2), 2, initial, options, &r, &error)) << error;
+  ASSERT_TRUE(r.converged) << r.stop_reason;
+  EXPECT_LT(r.num_steps, options.max_steps);
+  EXPECT_EQ(r.num_steps % options.check_interval, 0);
+  double max_tau = 0.0;
+  for (int k = 0; k < 2; ++k) {
+    EXPECT_GE(r.ess[k], options.target_ess);
+    EXPECT_NEAR(r.ess[k], 16.0 * (r.num_steps - r.burn_in) / r.tau[k], 1e-9 * r.ess[k]);
+    max_tau = std::max(max_tau, r.tau[k]);
+  }
+  EXPECT_GT(r.num_steps - r.burn_in, options.min_tau_multiple * max_tau);
+  EXPECT_NE(r.stop_reason.find("converged after"), std::string::npos) << r.stop_reason;
+
+  // Too few steps for either criterion.
+  options.max_steps = 50;
+  ASSERT_TRUE(RunEnsembleSampler(PerThread(g, 2), 2, initial, options, &r, &error)) << error;
+  EXPECT_FALSE(r.converged);
+  EXPECT_EQ(r.num_steps, 50);
+  EXPECT_NE(r.stop_reason.find("not converged at max_steps = 50"), std::string::npos)
+      << r.stop_reason;
+  EXPECT_NE(r.stop_reason.find("<= 50 x max tau"), std::string::npos) << r.stop_reason;
+  EXPECT_NE(r.stop_reason.find("< target 2000"), std::string::npos) << r.stop_reason;
+
+  // Long enough relative to tau, but an unreachable ESS: only that criterion is blamed.
+  options.max_steps = 2000;
+  options.target_ess = 1e9;
+  ASSERT_TRUE(RunEnsembleSampler(PerThread(g, 2), 2, initial, options, &r, &error)) << error;
+  EXPECT_FALSE(r.converged);
+  EXPECT_NE(r.stop_reason.find("> 50 x max tau"), std::string::npos) << r.stop_reason;
+  EXPECT_NE(r.stop_reason.find("< target 1e+09"), std::string::npos) << r.stop_reason;
+}
+
+// A false return with a non-empty one-line message, and the result left alone.
+void ExpectRejected(const std::vector<LogDensity>& f, int dim, const std::vector<double>& initial,
+                    const SamplerOptions& options, const std::string& what) {
+  SamplerResult r;
+  r.num_steps = -7;
+  std::string error;
+  EXPECT_FALSE(RunEnsembleSampler(f, dim, initial, options, &r, &error)) << what;
+  EXPECT_FALSE(error.empty()) << what;
+  EXPECT_EQ(error.find('\n'), std::string::npos) << what << ": " << error;
+  EXPECT_EQ(r.num_steps, -7) << what;
+}
+
+TEST(EnsembleSampler, RejectsBadInput) {
+  const Gaussian g = Correlated2d();
+  const std::vector<LogDensity> f = PerThread(g, 2);
+  const SamplerOptions options = QuietOptions(18);
+  const std::vector<double> good = InitialBall(g, 8, 0.0, 7);
+  {
+    SamplerResult r;
+    std::string error;
+    SamplerOptions short_run = options;
+    short_run.max_steps = 5;
+    EXPECT_TRUE(RunEnsembleSampler(f, 2, good, short_run, &r, &error)) << error;
+  }
+  ExpectRejected(f, 2, InitialBall(g, 7, 0.0, 7), options, "odd walker count");
+  ExpectRejected(f, 2, InitialBall(g, 4, 0.0, 7), options, "4 walkers < 2 * 2 + 2");
+  const LogDensity half_plane = [&g](const double* x) { return x[0] > 5.0 ? -kInf : g(x); };
+  std::vector<double> one_outside = good;
+  one_outside[3 * 2] = 6.0;
+  ExpectRejected(PerThread(half_plane, 2), 2, one_outside, options, "-inf initial walker");
+  const LogDensity nan_density = [](const double*) { return std::nan(""); };
+  ExpectRejected(PerThread(nan_density, 2), 2, good, options, "NaN initial log-density");
+  std::vector<double> ragged = good;
+  ragged.push_back(0.0);
+  ExpectRejected(f, 2, ragged, options, "initial size not a multiple of dim");
+  ExpectRejected(f, 2, {}, options, "no walkers");
+  ExpectRejected({}, 2, good, options, "no log-density");
+  ExpectRejected({LogDensity()}, 2, good, options, "empty log-density function");
+  ExpectRejected(f, 0, good, options, "dim 0");
+  SamplerOptions bad = options;
+  bad.stretch_a = 1.0;
+  ExpectRejected(f, 2, good, bad, "stretch_a = 1");
+  bad = options;
+  bad.check_interval = 0;
+  ExpectRejected(f, 2, good, bad, "check_interval = 0");
+  // All walkers on one line through the mean: the ensemble could never leave it.
+  std::vector<double> line(good.size());
+  for (int w = 0; w < 8; ++w) {
+    line[w * 2] = 1.0 + 0.01 * w;
+    line[w * 2 + 1] = -2.0 + 0.03 * w;
+  }
+  ExpectRejected(f, 2, line, options, "degenerate initial ensemble");
+}
+
+}  // namespace
+}  // namespace ccdpsf::fit

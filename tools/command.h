@@ -1,0 +1,34 @@
+// The subcommands of the ccdpsf binary. Each lives in tools/<name>_command.cc, defines its
+// own gflags, and registers itself here; tools/ccdpsf.cc dispatches.
+#ifndef CCDPSF_TOOLS_COMMAND_H_
+#define CCDPSF_TOOLS_COMMAND_H_
+
+#include <string>
+#include <vector>
+
+namespace ccdpsf::tools {
+
+struct Command {
+  const char* name;
+  const char* synopsis;
+  const char* summary;
+  std::vector<const char*> flags;  // the gflags this command reads
+  // args: the positional arguments after flag parsing. Returns the exit code.
+  int (*run)(const std::vector<std::string>& args);
+};
+
+const std::vector<Command>& Commands();
+
+// The commands, defined in their files.
+Command SimulateCommand();
+Command FitCommand();
+
+// Prints "ccdpsf: error: <message>" on stderr and returns exit code 1.
+int Fail(const std::string& message);
+
+// True when --name was given on the command line.
+bool FlagGiven(const char* name);
+
+}  // namespace ccdpsf::tools
+
+#endif  // CCDPSF_TOOLS_COMMAND_H_
