@@ -37,8 +37,9 @@ struct Gaussian {
   Eigen::MatrixXd precision;
 
   Gaussian(const Eigen::VectorXd& m, const Eigen::MatrixXd& c)
-      : mean(m), covariance(c), precision(c.llt().solve(Eigen::MatrixXd::Identity(
-                                    m.size(), m.size()))) {}
+      : mean(m),
+        covariance(c),
+        precision(c.llt().solve(Eigen::MatrixXd::Identity(m.size(), m.size()))) {}
 
   double operator()(const double* theta) const {
     const Eigen::VectorXd d = Eigen::Map<const Eigen::VectorXd>(theta, mean.size()) - mean;
@@ -70,8 +71,7 @@ Gaussian Scaled5d() {
 
 // A tight ball (1e-3 sd) centred `offset_sd` standard deviations from the mean in every
 // coordinate, so the sampler has to travel and expand: what burn-in is for.
-std::vector<double> InitialBall(const Gaussian& g, int walkers, double offset_sd,
-                                uint64_t seed) {
+std::vector<double> InitialBall(const Gaussian& g, int walkers, double offset_sd, uint64_t seed) {
   const int dim = static_cast<int>(g.mean.size());
   std::mt19937_64 engine(seed);
   std::vector<double> initial(walkers * dim);
@@ -131,8 +131,7 @@ void ExpectGaussianMoments(const SamplerResult& r, const Gaussian& g) {
     EXPECT_NEAR(m.mean, g.mean(i), 5.0 * m.se) << "mean of parameter " << i;
     for (int j = i; j < dim; ++j) {
       const double mi = g.mean(i), mj = g.mean(j);
-      const McEstimate c =
-          Estimate(r, [=](const double* x) { return (x[i] - mi) * (x[j] - mj); });
+      const McEstimate c = Estimate(r, [=](const double* x) { return (x[i] - mi) * (x[j] - mj); });
       EXPECT_NEAR(c.mean, g.covariance(i, j), 5.0 * c.se) << "covariance " << i << "," << j;
     }
   }
@@ -156,8 +155,8 @@ TEST(EnsembleSampler, Correlated2dGaussianMoments) {
   SamplerOptions options = QuietOptions(11);
   SamplerResult r;
   std::string error;
-  ASSERT_TRUE(RunEnsembleSampler(PerThread(g, 2), 2, InitialBall(g, walkers, 2.0, 1), options,
-                                 &r, &error))
+  ASSERT_TRUE(
+      RunEnsembleSampler(PerThread(g, 2), 2, InitialBall(g, walkers, 2.0, 1), options, &r, &error))
       << error;
   ExpectConsistentShapes(r, walkers, 2);
   EXPECT_TRUE(r.converged) << r.stop_reason;
@@ -219,7 +218,8 @@ TEST(EnsembleSampler, UniformBoxMomentsAndSupport) {
     const double var = (hi[k] - lo[k]) * (hi[k] - lo[k]) / 12.0;
     const McEstimate m = Estimate(r, [k](const double* x) { return x[k]; });
     EXPECT_NEAR(m.mean, mu, 5.0 * m.se) << "mean of parameter " << k;
-    const McEstimate v = Estimate(r, [k, mu](const double* x) { return (x[k] - mu) * (x[k] - mu); });
+    const McEstimate v =
+        Estimate(r, [k, mu](const double* x) { return (x[k] - mu) * (x[k] - mu); });
     EXPECT_NEAR(v.mean, var, 5.0 * v.se) << "variance of parameter " << k;
   }
 }
@@ -264,8 +264,8 @@ TEST(EnsembleSampler, LogProbIsTheDensityOfTheChain) {
   options.max_steps = 100;
   SamplerResult r;
   std::string error;
-  ASSERT_TRUE(RunEnsembleSampler(PerThread(g, 3), 5, InitialBall(g, 12, 0.0, 5), options, &r,
-                                 &error))
+  ASSERT_TRUE(
+      RunEnsembleSampler(PerThread(g, 3), 5, InitialBall(g, 12, 0.0, 5), options, &r, &error))
       << error;
   ASSERT_EQ(r.log_prob.size(), 100u * 12);
   for (size_t i = 0; i < r.log_prob.size(); ++i) {

@@ -112,13 +112,12 @@ JacobianErrors CheckJacobian(const ModelOptions& options, const SpotParams& para
   numeric_options.ridders_relative_initial_step_size = 1e-4;
   const std::vector<const ceres::Manifold*>* no_manifolds = nullptr;
   ceres::GradientChecker checker(&cost, no_manifolds, numeric_options);
-  // The probe's Eigen matrices are allocated inside libceres, which Debian builds for generic
-  // x86-64 (16-byte Eigen alignment: plain malloc). This project compiles with -march=native
-  // (CCDPSF_NATIVE), where Eigen aligns to 32 or 64 bytes with its own malloc wrapper, so
-  // destroying a ProbeResults here would hand libceres' blocks to the wrong free() and crash.
-  // One ProbeResults is therefore kept for the whole run and never destroyed; Probe() clears
-  // and refills it from inside libceres, and this file only reads it (no Eigen temporaries
-  // that allocate).
+  // The probe's results are allocated inside Debian's libceres, which is built for generic
+  // x86-64; this project builds for x86-64-v3 (CCDPSF_NATIVE). Destroying a ProbeResults
+  // here crashed in free() even with Eigen's alignment pinned to 16 bytes (the cause is in
+  // the ABI between the two builds, not in this code). One ProbeResults is therefore kept
+  // for the whole run and never destroyed; Probe() clears and refills it from inside
+  // libceres, and this file only reads it.
   static ceres::GradientChecker::ProbeResults* const probe_results =
       new ceres::GradientChecker::ProbeResults;
   ceres::GradientChecker::ProbeResults& results = *probe_results;

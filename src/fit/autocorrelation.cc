@@ -171,8 +171,7 @@ std::vector<double> AutocorrelationFunction(const std::vector<double>& x) {
   return EnsembleAutocorrelationFunction(x.data(), static_cast<int>(x.size()), 1, 1, 0);
 }
 
-std::optional<AutocorrelationTime> IntegratedTimeFromAcf(const std::vector<double>& rho,
-                                                         double c) {
+std::optional<AutocorrelationTime> IntegratedTimeFromAcf(const std::vector<double>& rho, double c) {
   if (rho.size() < 2 || !(c > 0.0)) return std::nullopt;
   AutocorrelationTime result;
   double tau = 1.0;
@@ -193,8 +192,7 @@ std::optional<AutocorrelationTime> EnsembleIntegratedAutocorrelationTime(
     std::ptrdiff_t series_stride, double c) {
   if (num_steps < 2 || num_series < 1 || !(c > 0.0)) return std::nullopt;
   return IntegratedTimeFromAcf(
-      EnsembleAutocorrelationFunction(data, num_steps, num_series, step_stride, series_stride),
-      c);
+      EnsembleAutocorrelationFunction(data, num_steps, num_series, step_stride, series_stride), c);
 }
 
 std::optional<AutocorrelationTime> IntegratedAutocorrelationTime(const std::vector<double>& x,

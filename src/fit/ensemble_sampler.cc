@@ -137,9 +137,10 @@ bool SpansAllDirections(const std::vector<double>& initial, int num_walkers, int
   // Relative threshold well above rounding (~1e-16) but far below any deliberately spread
   // ensemble, whose columns are unit vectors in general position.
   if (singular(dim - 1) < 1e-9 * singular(0)) {
-    *error = "ensemble sampler: the initial walkers lie in a lower-dimensional affine "
-             "subspace (smallest/largest singular value " +
-             std::to_string(singular(dim - 1) / singular(0)) + ")";
+    *error =
+        "ensemble sampler: the initial walkers lie in a lower-dimensional affine "
+        "subspace (smallest/largest singular value " +
+        std::to_string(singular(dim - 1) / singular(0)) + ")";
     return false;
   }
   return true;
@@ -198,9 +199,8 @@ class EnsembleSampler {
     });
     for (int w = 0; w < num_walkers_; ++w) {
       if (!std::isfinite(log_prob_[w])) {
-        *error = "ensemble sampler: initial walker " + std::to_string(w) +
-                 " has log-density " + FormatNumber(log_prob_[w]) +
-                 " (every walker must start inside the support)";
+        *error = "ensemble sampler: initial walker " + std::to_string(w) + " has log-density " +
+                 FormatNumber(log_prob_[w]) + " (every walker must start inside the support)";
         return false;
       }
     }
@@ -277,9 +277,8 @@ struct Diagnostics {
 // tau of every parameter on chain steps [first, last); the default (tau = inf, no window)
 // where there is no estimate. Parameters are dealt out among the team's threads, each
 // writing only its own entries, so the result does not depend on the team size.
-std::vector<AutocorrelationTime> TauPerParameter(const std::vector<double>& chain,
-                                                 int num_walkers, int dim, int first, int last,
-                                                 ThreadTeam* team) {
+std::vector<AutocorrelationTime> TauPerParameter(const std::vector<double>& chain, int num_walkers,
+                                                 int dim, int first, int last, ThreadTeam* team) {
   std::vector<AutocorrelationTime> tau(dim);
   const int threads = team->size();
   const std::ptrdiff_t step_stride = static_cast<std::ptrdiff_t>(num_walkers) * dim;
@@ -329,8 +328,8 @@ Diagnostics Check(const std::vector<double>& chain, int num_walkers, int dim, in
   reason << kept << " post-burn-in steps " << (long_enough ? ">" : "<=") << " "
          << FormatNumber(options.min_tau_multiple) << " x max tau (" << FormatNumber(max_tau)
          << ") = " << FormatNumber(needed) << "; min ESS " << FormatNumber(min_ess)
-         << " (parameter " << min_ess_parameter << ") " << (enough_ess ? ">=" : "<")
-         << " target " << FormatNumber(options.target_ess);
+         << " (parameter " << min_ess_parameter << ") " << (enough_ess ? ">=" : "<") << " target "
+         << FormatNumber(options.target_ess);
   if (no_window_parameter >= 0) {
     reason << "; no tau estimate for parameter " << no_window_parameter
            << " (chain too short, or a walker never moved)";
@@ -365,11 +364,11 @@ class ProgressLine {
     line << "step " << steps << "/" << options_.max_steps << "  acceptance "
          << FormatNumber(acceptance, 2);
     if (last_check != nullptr && !last_check->tau.empty()) {
-      line << "  max tau " << FormatNumber(*std::max_element(last_check->tau.begin(),
-                                                              last_check->tau.end()))
+      line << "  max tau "
+           << FormatNumber(*std::max_element(last_check->tau.begin(), last_check->tau.end()))
            << "  min ESS "
-           << FormatNumber(*std::min_element(last_check->ess.begin(), last_check->ess.end()))
-           << "/" << FormatNumber(options_.target_ess);
+           << FormatNumber(*std::min_element(last_check->ess.begin(), last_check->ess.end())) << "/"
+           << FormatNumber(options_.target_ess);
     }
     line << "  " << FormatNumber(elapsed) << " s";
     // Trailing spaces clear what a longer previous line left behind.
@@ -467,9 +466,8 @@ bool RunEnsembleSampler(const std::vector<LogDensity>& log_density_per_thread, i
   }
   if (!SpansAllDirections(initial, num_walkers, dim, error)) return false;
 
-  const int wanted_threads =
-      std::min({options.num_threads, static_cast<int>(log_density_per_thread.size()),
-                num_walkers / 2});
+  const int wanted_threads = std::min(
+      {options.num_threads, static_cast<int>(log_density_per_thread.size()), num_walkers / 2});
   ThreadTeam team(wanted_threads);
   EnsembleSampler sampler(log_density_per_thread, dim, num_walkers, options, &team);
   if (!sampler.Initialise(initial, error)) return false;
@@ -494,8 +492,8 @@ bool RunEnsembleSampler(const std::vector<LogDensity>& log_density_per_thread, i
     ++steps;
     bool stop = steps == options.max_steps;
     if (steps == next_check) {
-      diag = Check(out.chain, num_walkers, dim, steps, have_check ? diag.max_tau : kInf,
-                   options, &team);
+      diag = Check(out.chain, num_walkers, dim, steps, have_check ? diag.max_tau : kInf, options,
+                   &team);
       have_check = true;
       stop = stop || diag.converged;
       next_check = NextCheck(steps, options);
@@ -515,10 +513,10 @@ bool RunEnsembleSampler(const std::vector<LogDensity>& log_density_per_thread, i
   out.tau = diag.tau;
   out.ess = diag.ess;
   out.converged = diag.converged;
-  out.stop_reason = (diag.converged ? "converged after " + std::to_string(steps) + " steps: "
-                                    : "not converged at max_steps = " + std::to_string(steps) +
-                                          ": ") +
-                    diag.reason;
+  out.stop_reason =
+      (diag.converged ? "converged after " + std::to_string(steps) + " steps: "
+                      : "not converged at max_steps = " + std::to_string(steps) + ": ") +
+      diag.reason;
   out.acceptance_fraction.resize(num_walkers);
   double sum = 0.0;
   for (int w = 0; w < num_walkers; ++w) {

@@ -1,5 +1,6 @@
 #include "ccdpsf/fit/map_fit.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <limits>
@@ -133,10 +134,93 @@ StartOutcome Solve(const FitModel& model, std::vector<double> theta, const MapOp
   StartOutcome out;
   out.theta = theta;
   out.cost = summary.final_cost;
-  out.usable = summary.IsSolutionUsable() && std::isfinite(summary.final_cost);
+  // Ceres calls a run that hit the iteration limit "usable"; it has not converged, so it
+  // does not count as a MAP point.
+  out.usable = summary.IsSolutionUsable() && summary.termination_type != ceres::NO_CONVERGENCE &&
+               std::isfinite(summary.final_cost);
   out.iterations = static_cast<int>(summary.iterations.size());
   out.message = summary.message;
   return out;
+}
+
+// Grid points ranked by log-likelihood (flux by least squares, positions at the centroids);
+// returns the best `keep` as starting vectors.
+std::vector<std::vector<double>> ScreenStarts(const FitModel& model, const MapOptions& options) {
+  std::unique_ptr<FitEvaluator> ev = model.NewEvaluator();
+  std::vector<double> base = model.MomentStart(0.5, 0.5);
+  std::vector<double> pixels;
+  // Least-squares flux for a shape, then the log-posterior.
+  auto score = [&](std::vector<double>* theta) -> double {
+    (*theta)[kFluxE] = 1.0;
+    double num = 0, den = 0;
+    for (int k = 0; k < model.num_exposures(); ++k) {
+      ev->ModelImage(theta->data(), k, &pixels, nullptr);
+      const Stamp& s = model.stamps()[k];
+      for (size_t q = 0; q < pixels.size(); ++q) {
+        if (!s.valid[q]) continue;
+        num += pixels[q] * s.electrons.data[q];
+        den += pixels[q] * pixels[q];
+      }
+    }
+    if (!(den > 0)) return -INFINITY;
+    (*theta)[kFluxE] = std::clamp(num / den, model.lower()[kFluxE], model.upper()[kFluxE]);
+    return ev->LogPosterior(theta->data());
+  };
+  // Positions first: the moment centroid is not the model's centre in pixel_centre sampling
+  // (its kernels shift the image; measured, the centroid sits about halfway between the
+  // spot and the stamp centre), and that likelihood is sharp in position. A grid of
+  // +-0.3 px in 0.025 px steps per exposure, each exposure on its own (the likelihood is a
+  // sum over exposures; the others stay put), with a mid-range shape.
+  base[kDefocusPx] = 0.4;
+  base[kCcdSigmaXPx] = base[kCcdSigmaYPx] = 0.3;
+  for (int k = 0; k < model.num_exposures(); ++k) {
+    const double cx = base[FitModel::XIndex(k)], cy = base[FitModel::YIndex(k)];
+    double best = -INFINITY, bx = cx, by = cy;
+    for (int i = -12; i <= 12; ++i) {
+      for (int j = -12; j <= 12; ++j) {
+        std::vector<double> theta = base;
+        theta[FitModel::XIndex(k)] = cx + 0.025 * i;
+        theta[FitModel::YIndex(k)] = cy + 0.025 * j;
+        const double ll = score(&theta);
+        if (ll > best) {
+          best = ll;
+          bx = theta[FitModel::XIndex(k)];
+          by = theta[FitModel::YIndex(k)];
+        }
+      }
+    }
+    base[FitModel::XIndex(k)] = bx;
+    base[FitModel::YIndex(k)] = by;
+  }
+  std::vector<std::pair<double, std::vector<double>>> scored;
+  for (double r : options.screen_airy_radii_px) {
+    for (double f : options.screen_defocus_px) {
+      for (double sx : options.screen_ccd_sigma_px) {
+        for (double sy : options.screen_ccd_sigma_px) {
+          std::vector<double> theta = base;
+          theta[kFluxE] = 1.0;
+          theta[kAiryRadiusPx] = r;
+          theta[kDefocusPx] = f;
+          theta[kCcdSigmaXPx] = sx;
+          theta[kCcdSigmaYPx] = sy;
+          bool inside = true;
+          for (int i = 1; i < kNumShared; ++i) {
+            inside &= theta[i] >= model.lower()[i] && theta[i] <= model.upper()[i];
+          }
+          if (!inside) continue;
+          const double ll = score(&theta);
+          if (std::isfinite(ll)) scored.push_back({ll, theta});
+        }
+      }
+    }
+  }
+  std::sort(scored.begin(), scored.end(),
+            [](const auto& a, const auto& b) { return a.first > b.first; });
+  std::vector<std::vector<double>> starts;
+  for (size_t i = 0; i < scored.size() && static_cast<int>(i) < options.screen_keep; ++i) {
+    starts.push_back(scored[i].second);
+  }
+  return starts;
 }
 
 }  // namespace
@@ -149,16 +233,25 @@ bool FindMap(const FitModel& model, const MapOptions& options, MapResult* result
              std::string* error) {
   const auto t0 = std::chrono::steady_clock::now();
   *result = MapResult();
-  StartOutcome best;
+  std::vector<std::vector<double>> starts;
   for (double r : options.start_airy_radii_px) {
-    for (double share : options.start_defocus_shares) {
-      const StartOutcome o = Solve(model, model.MomentStart(r, share), options);
-      ++result->num_starts;
-      result->start_costs.push_back(o.cost);
-      if (!o.usable) continue;
-      ++result->num_usable_starts;
-      if (o.cost < best.cost) best = o;
-    }
+    for (double share : options.start_defocus_shares) starts.push_back(model.MomentStart(r, share));
+  }
+  const bool screen =
+      options.screen == MapOptions::Screen::kAlways ||
+      (options.screen == MapOptions::Screen::kAuto &&
+       model.options().model.sampling == model::Sampling::kPixelCentre);
+  if (screen) {
+    for (auto& s : ScreenStarts(model, options)) starts.push_back(std::move(s));
+  }
+  StartOutcome best;
+  for (const std::vector<double>& start : starts) {
+    const StartOutcome o = Solve(model, start, options);
+    ++result->num_starts;
+    result->start_costs.push_back(o.cost);
+    if (!o.usable) continue;
+    ++result->num_usable_starts;
+    if (o.cost < best.cost) best = o;
   }
   if (!best.usable) {
     *error = "the fit did not converge from any of " + std::to_string(result->num_starts) +

@@ -57,7 +57,8 @@ struct AutocorrelationTime {
 // so the sampler's chain, laid out [(step * walkers + walker) * dim + k], is read for
 // parameter k with data = chain + k, step_stride = walkers * dim, series_stride = dim.
 // A constant series (zero variance; also one holding a non-finite value) contributes
-// rho(t) = 1 at every lag, the limit of perfect correlation. Returns an empty vector when num_steps < 1 or num_series < 1.
+// rho(t) = 1 at every lag, the limit of perfect correlation. Returns an empty vector when
+// num_steps < 1 or num_series < 1.
 std::vector<double> EnsembleAutocorrelationFunction(const double* data, int num_steps,
                                                     int num_series, std::ptrdiff_t step_stride,
                                                     std::ptrdiff_t series_stride);

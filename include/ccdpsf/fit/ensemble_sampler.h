@@ -92,7 +92,8 @@ struct SamplerResult {
   int num_steps = 0;  // steps taken; the chain holds one entry per step (not the initial state)
   int burn_in = 0;    // steps to discard [steps]
   int num_threads_used = 0;
-  // Positions after each step: chain[(step * num_walkers + walker) * dim + k].
+  // Positions after each step: chain[(step * num_walkers + walker) * dim + k]. The whole run
+  // is kept: 8 * num_steps * num_walkers * dim bytes (20000 x 32 x 7: 36 MB).
   std::vector<double> chain;
   // log p of those positions: log_prob[step * num_walkers + walker].
   std::vector<double> log_prob;
@@ -100,7 +101,8 @@ struct SamplerResult {
   std::vector<double> acceptance_fraction;
   double mean_acceptance = 0.0;
   // Per parameter, on steps [burn_in, num_steps): integrated autocorrelation time [steps]
-  // and effective sample size walkers * (num_steps - burn_in) / tau.
+  // (+inf where it could not be estimated) and effective sample size
+  // walkers * (num_steps - burn_in) / tau (0 there).
   std::vector<double> tau;
   std::vector<double> ess;
   bool converged = false;
