@@ -1,0 +1,195 @@
+// End-to-end tests of the ccdpsf binary: the interface users script against.
+#include <sys/wait.h>
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <string>
+
+#include "ccdpsf/fits_io.h"
+#include "gtest/gtest.h"
+#include "nlohmann/json.hpp"
+
+namespace ccdpsf {
+namespace {
+
+namespace fs = std::filesystem;
+
+struct RunResult {
+  int exit_code = -1;
+  std::string output;  // stdout and stderr together
+};
+
+RunResult RunCcdpsf(const std::string& args) {
+  const std::string command = std::string(CCDPSF_BINARY) + " " + args + " 2>&1";
+  RunResult r;
+  FILE* pipe = popen(command.c_str(), "r");
+  if (pipe == nullptr) return r;
+  char buffer[4096];
+  size_t n;
+  while ((n = fread(buffer, 1, sizeof(buffer), pipe)) > 0) r.output.append(buffer, n);
+  const int status = pclose(pipe);
+  r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  return r;
+}
+
+std::string Fresh(const std::string& name) {
+  const std::string dir = ::testing::TempDir() + "/ccdpsf_cli_" + name;
+  fs::remove_all(dir);
+  return dir;
+}
+
+int Lines(const std::string& s) {
+  int n = 0;
+  for (char c : s) n += c == '\n';
+  return n;
+}
+
+// Simulates the demo-like set once for all tests in this file.
+const std::string& SimulatedSet() {
+  static const std::string dir = [] {
+    const std::string d = Fresh("sim");
+    const RunResult r =
+        RunCcdpsf("simulate --config=" + std::string(CCDPSF_TESTDATA) + "/demo_simulation.json --out=" + d);
+    EXPECT_EQ(r.exit_code, 0) << r.output;
+    return d;
+  }();
+  return dir;
+}
+
+TEST(Cli, HelpListsCommandsAndOptions) {
+  RunResult r = RunCcdpsf("help");
+  EXPECT_EQ(r.exit_code, 0);
+  EXPECT_NE(r.output.find("simulate"), std::string::npos);
+  EXPECT_NE(r.output.find("fit"), std::string::npos);
+  r = RunCcdpsf("fit --help");
+  EXPECT_EQ(r.exit_code, 0);
+  EXPECT_NE(r.output.find("--joint"), std::string::npos);
+  EXPECT_NE(r.output.find("--sampling"), std::string::npos);
+}
+
+TEST(Cli, FitWritesTheDocumentedOutputs) {
+  const std::string out = Fresh("fit_mcmc");
+  const RunResult r = RunCcdpsf("fit --out=" + out +
+                          " --max_steps=600 --target_ess=100 --seed=4 " + SimulatedSet() +
+                          "/exposure_000.fits");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  for (const char* f : {"fit.json", "residuals.fits", "chain.fits", "run.json", "report.md",
+                        "residuals.gp", "corner.gp"}) {
+    EXPECT_TRUE(fs::exists(out + "/" + f)) << f;
+  }
+  std::ifstream in(out + "/fit.json");
+  const nlohmann::json j = nlohmann::json::parse(in);
+  for (const char* p : {"flux_e", "airy_radius_px", "defocus_sigma_px", "ccd_sigma_x_px",
+                        "ccd_sigma_y_px", "x_px.0", "y_px.0"}) {
+    ASSERT_TRUE(j["parameters"].contains(p)) << p;
+    for (const char* field : {"map", "laplace_sd", "median", "lo68", "hi68", "lo997", "hi997"}) {
+      EXPECT_TRUE(j["parameters"][p].contains(field)) << p << "." << field;
+    }
+  }
+  for (const char* d : {"fwhm_um", "fwhm_x_um", "fwhm_y_um", "r2_px2", "ellipticity",
+                        "total_sigma_x_px", "total_sigma_y_px", "peak_e"}) {
+    EXPECT_TRUE(j["derived"].contains(d)) << d;
+  }
+  EXPECT_TRUE(j["identifiability"]["null_directions"].is_array());
+  EXPECT_EQ(j["identifiability"]["null_directions"].size(), 1u);
+  EXPECT_TRUE(j["parameters"]["ccd_sigma_x_px"]["laplace_sd"].is_null());
+  for (const char* m : {"walkers", "steps", "acceptance_fraction", "tau", "ess", "converged"}) {
+    EXPECT_TRUE(j["mcmc"].contains(m)) << m;
+  }
+  for (const char* f : {"chi2", "dof", "loglike", "seconds"}) EXPECT_TRUE(j["fit"].contains(f));
+  // The chain table: walker, step, log_prob and one column per parameter.
+  std::string error;
+  EXPECT_TRUE(ReadFitsImage(out + "/residuals.fits", &error).has_value() ||
+              !error.empty());  // primary is empty; the reader moves to DATA_0
+  std::ifstream run(out + "/run.json");
+  const nlohmann::json rj = nlohmann::json::parse(run);
+  EXPECT_EQ(rj["seed"], 4);
+  EXPECT_TRUE(rj["software"].contains("ceres"));
+}
+
+TEST(Cli, SameSeedSameResults) {
+  const std::string a = Fresh("seed_a"), b = Fresh("seed_b");
+  const std::string common = " --max_steps=300 --target_ess=50 --seed=9 " + SimulatedSet() +
+                             "/exposure_001.fits";
+  ASSERT_EQ(RunCcdpsf("fit --out=" + a + common).exit_code, 0);
+  ASSERT_EQ(RunCcdpsf("fit --out=" + b + common).exit_code, 0);
+  std::ifstream ia(a + "/fit.json"), ib(b + "/fit.json");
+  nlohmann::json ja = nlohmann::json::parse(ia), jb = nlohmann::json::parse(ib);
+  // Timings differ run to run; everything else must not.
+  for (auto* j : {&ja, &jb}) {
+    (*j)["fit"].erase("seconds");
+    (*j)["fit"].erase("map_seconds");
+    (*j)["mcmc"].erase("seconds");
+  }
+  EXPECT_EQ(ja, jb);
+}
+
+TEST(Cli, SeparateFitsGetOneFolderEach) {
+  const std::string out = Fresh("separate");
+  const RunResult r = RunCcdpsf("fit --nomcmc --out=" + out + " " + SimulatedSet() +
+                          "/exposure_000.fits " + SimulatedSet() + "/exposure_001.fits");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_TRUE(fs::exists(out + "/exposure_000/fit.json"));
+  EXPECT_TRUE(fs::exists(out + "/exposure_001/fit.json"));
+}
+
+TEST(Cli, JointFitSharesThePsf) {
+  const std::string out = Fresh("joint");
+  const RunResult r = RunCcdpsf("fit --nomcmc --joint --out=" + out + " " + SimulatedSet() +
+                          "/exposure_000.fits " + SimulatedSet() + "/exposure_001.fits " +
+                          SimulatedSet() + "/exposure_002.fits");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  std::ifstream in(out + "/fit.json");
+  const nlohmann::json j = nlohmann::json::parse(in);
+  EXPECT_TRUE(j["parameters"].contains("x_px.2"));
+  EXPECT_FALSE(j["parameters"].contains("x_px.3"));
+  EXPECT_EQ(j["exposures"].size(), 3u);
+}
+
+// Bad input: a one-line reason, a non-zero exit, and no fit.json.
+TEST(Cli, BadInputGivesOneLineAndNoResults) {
+  const std::string dir = Fresh("bad");
+  fs::create_directories(dir);
+  // A frame too small for the stamp, and a frame with no spot. (Frames of different sizes
+  // are fine in a joint fit: every stamp is cut to one size. Stamps of different sizes are
+  // refused by FitModel::Create, tested in fit_test.cc.)
+  Image small(15, 15, 1000.0), flat(48, 48, 1000.0);
+  for (size_t q = 0; q < small.size(); ++q) small.data[q] += (q * 7919 % 13);
+  small(7, 7) = 40000;
+  for (size_t q = 0; q < flat.size(); ++q) flat.data[q] += (q * 7919 % 5);
+  FitsHeader h = {{"GAIN", 3.1, ""}, {"RDNOISE", 4.5, ""}, {"BIASLVL", 1000.0, ""}};
+  std::string error;
+  ASSERT_TRUE(WriteFitsImageU16(dir + "/small.fits", small, h, &error)) << error;
+  ASSERT_TRUE(WriteFitsImageU16(dir + "/flat.fits", flat, h, &error)) << error;
+  { std::ofstream(dir + "/text.fits") << "not a FITS file"; }
+  const std::string good = SimulatedSet() + "/exposure_000.fits";
+  struct Case {
+    std::string args;
+    std::string message;
+  };
+  const std::vector<Case> cases = {
+      {"fit --out=" + dir + "/o1", "at least one FITS file"},
+      {"fit --out=" + dir + "/o2 " + dir + "/missing.fits", "missing.fits"},
+      {"fit --out=" + dir + "/o3 " + dir + "/text.fits", "not a FITS file"},
+      {"fit --out=" + dir + "/o4 " + dir + "/flat.fits", "spot"},
+      {"fit --joint --nomcmc --out=" + dir + "/o5 " + good + " " + dir + "/small.fits",
+       "too close to the frame edge"},
+      {"fit --sampling=exact --out=" + dir + "/o6 " + good, "--sampling"},
+      {"fit --noiseless --out=" + dir + "/o7 " + good, "does not apply"},
+      {"fit --out=" + dir + "/o8 --config=" + dir + "/missing.json " + good, "missing.json"},
+      {"frobnicate", "unknown command"},
+  };
+  for (const Case& c : cases) {
+    const RunResult r = RunCcdpsf(c.args);
+    EXPECT_NE(r.exit_code, 0) << c.args;
+    EXPECT_NE(r.output.find(c.message), std::string::npos) << c.args << "\n" << r.output;
+    EXPECT_EQ(Lines(r.output), 1) << c.args << "\n" << r.output;
+  }
+  for (const char* o : {"o1", "o2", "o3", "o4", "o5", "o6", "o7", "o8"}) {
+    EXPECT_FALSE(fs::exists(dir + "/" + o + "/fit.json")) << o;
+  }
+}
+
+}  // namespace
+}  // namespace ccdpsf
