@@ -1,5 +1,7 @@
 #include "ccdpsf/fit/ensemble_sampler.h"
 
+#include <unistd.h>
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -346,7 +348,7 @@ class ProgressLine {
       : options_(options), start_(start), last_(start) {}
 
   ~ProgressLine() {
-    if (shown_) std::fputc('\n', stderr);
+    if (shown_ && terminal_) std::fputc('\n', stderr);
   }
 
   // last: the final update, drawn (if the line is shown at all) whatever the time since the
@@ -356,7 +358,10 @@ class ProgressLine {
     const auto now = std::chrono::steady_clock::now();
     const double elapsed = std::chrono::duration<double>(now - start_).count();
     if (elapsed <= 1.0) return;
-    if (!last && std::chrono::duration<double>(now - last_).count() < 0.25) return;
+    // On a terminal the line is rewritten 4 times a second; into a log file or pipe (CI,
+    // scripts) a new line is written only every 10 s, so logs stay readable.
+    const double every = terminal_ ? 0.25 : 10.0;
+    if (!last && std::chrono::duration<double>(now - last_).count() < every) return;
     last_ = now;
     shown_ = true;
     std::ostringstream line;
@@ -372,7 +377,11 @@ class ProgressLine {
     }
     line << "  " << FormatNumber(elapsed) << " s";
     // Trailing spaces clear what a longer previous line left behind.
-    std::fprintf(stderr, "\r%s     ", line.str().c_str());
+    if (terminal_) {
+      std::fprintf(stderr, "\r%s     ", line.str().c_str());
+    } else {
+      std::fprintf(stderr, "%s\n", line.str().c_str());
+    }
     std::fflush(stderr);
   }
 
@@ -381,6 +390,7 @@ class ProgressLine {
   const std::chrono::steady_clock::time_point start_;
   std::chrono::steady_clock::time_point last_;
   bool shown_ = false;
+  const bool terminal_ = ::isatty(STDERR_FILENO) != 0;
 };
 
 // The step of the check after one at `steps`: the first multiple of check_interval at least

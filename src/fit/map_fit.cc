@@ -143,62 +143,67 @@ StartOutcome Solve(const FitModel& model, std::vector<double> theta, const MapOp
   return out;
 }
 
-// Grid points ranked by log-likelihood (flux by least squares, positions at the centroids);
-// returns the best `keep` as starting vectors.
-std::vector<std::vector<double>> ScreenStarts(const FitModel& model, const MapOptions& options) {
-  std::unique_ptr<FitEvaluator> ev = model.NewEvaluator();
-  std::vector<double> base = model.MomentStart(0.5, 0.5);
+// Least-squares flux for the shape in *theta (set in place), then the log-posterior.
+double ScoreWithBestFlux(const FitModel& model, FitEvaluator* ev, std::vector<double>* theta) {
   std::vector<double> pixels;
-  // Least-squares flux for a shape, then the log-posterior.
-  auto score = [&](std::vector<double>* theta) -> double {
-    (*theta)[kFluxE] = 1.0;
-    double num = 0, den = 0;
-    for (int k = 0; k < model.num_exposures(); ++k) {
-      ev->ModelImage(theta->data(), k, &pixels, nullptr);
-      const Stamp& s = model.stamps()[k];
-      for (size_t q = 0; q < pixels.size(); ++q) {
-        if (!s.valid[q]) continue;
-        num += pixels[q] * s.electrons.data[q];
-        den += pixels[q] * pixels[q];
-      }
-    }
-    if (!(den > 0)) return -INFINITY;
-    (*theta)[kFluxE] = std::clamp(num / den, model.lower()[kFluxE], model.upper()[kFluxE]);
-    return ev->LogPosterior(theta->data());
-  };
-  // Positions first: the moment centroid is not the model's centre in pixel_centre sampling
-  // (its kernels shift the image; measured, the centroid sits about halfway between the
-  // spot and the stamp centre), and that likelihood is sharp in position. A grid of
-  // +-0.3 px in 0.025 px steps per exposure, each exposure on its own (the likelihood is a
-  // sum over exposures; the others stay put), with a mid-range shape.
-  base[kDefocusPx] = 0.4;
-  base[kCcdSigmaXPx] = base[kCcdSigmaYPx] = 0.3;
+  (*theta)[kFluxE] = 1.0;
+  double num = 0, den = 0;
   for (int k = 0; k < model.num_exposures(); ++k) {
-    const double cx = base[FitModel::XIndex(k)], cy = base[FitModel::YIndex(k)];
+    ev->ModelImage(theta->data(), k, &pixels, nullptr);
+    const Stamp& s = model.stamps()[k];
+    for (size_t q = 0; q < pixels.size(); ++q) {
+      if (!s.valid[q]) continue;
+      num += pixels[q] * s.electrons.data[q];
+      den += pixels[q] * pixels[q];
+    }
+  }
+  if (!(den > 0)) return -INFINITY;
+  (*theta)[kFluxE] = std::clamp(num / den, model.lower()[kFluxE], model.upper()[kFluxE]);
+  return ev->LogPosterior(theta->data());
+}
+
+// Positions by grid search, for pixel_centre sampling: there the moment centroid is not the
+// model's centre (its kernels shift the image; measured, the centroid sits about halfway
+// between the spot and the stamp centre) and the likelihood is sharp in position. +-0.3 px in
+// 0.025 px steps, one exposure at a time (the others stay put), with the shape in *theta.
+void RefinePositions(const FitModel& model, FitEvaluator* ev, std::vector<double>* theta) {
+  for (int k = 0; k < model.num_exposures(); ++k) {
+    const int ix = FitModel::XIndex(k), iy = FitModel::YIndex(k);
+    const double cx = (*theta)[ix], cy = (*theta)[iy];
     double best = -INFINITY, bx = cx, by = cy;
     for (int i = -12; i <= 12; ++i) {
       for (int j = -12; j <= 12; ++j) {
-        std::vector<double> theta = base;
-        theta[FitModel::XIndex(k)] = cx + 0.025 * i;
-        theta[FitModel::YIndex(k)] = cy + 0.025 * j;
-        const double ll = score(&theta);
+        std::vector<double> t = *theta;
+        t[ix] = cx + 0.025 * i;
+        t[iy] = cy + 0.025 * j;
+        const double ll = ScoreWithBestFlux(model, ev, &t);
         if (ll > best) {
           best = ll;
-          bx = theta[FitModel::XIndex(k)];
-          by = theta[FitModel::YIndex(k)];
+          bx = t[ix];
+          by = t[iy];
         }
       }
     }
-    base[FitModel::XIndex(k)] = bx;
-    base[FitModel::YIndex(k)] = by;
+    (*theta)[ix] = bx;
+    (*theta)[iy] = by;
   }
+  ScoreWithBestFlux(model, ev, theta);
+}
+
+// Grid points ranked by log-likelihood (flux by least squares, positions refined once for a
+// mid-range shape); returns the best `keep` as starting vectors.
+std::vector<std::vector<double>> ScreenStarts(const FitModel& model, const MapOptions& options) {
+  std::unique_ptr<FitEvaluator> ev = model.NewEvaluator();
+  std::vector<double> base = model.MomentStart(0.5, 0.5);
+  base[kDefocusPx] = 0.4;
+  base[kCcdSigmaXPx] = base[kCcdSigmaYPx] = 0.3;
+  RefinePositions(model, ev.get(), &base);
   std::vector<std::pair<double, std::vector<double>>> scored;
   for (double r : options.screen_airy_radii_px) {
     for (double f : options.screen_defocus_px) {
       for (double sx : options.screen_ccd_sigma_px) {
         for (double sy : options.screen_ccd_sigma_px) {
           std::vector<double> theta = base;
-          theta[kFluxE] = 1.0;
           theta[kAiryRadiusPx] = r;
           theta[kDefocusPx] = f;
           theta[kCcdSigmaXPx] = sx;
@@ -208,7 +213,7 @@ std::vector<std::vector<double>> ScreenStarts(const FitModel& model, const MapOp
             inside &= theta[i] >= model.lower()[i] && theta[i] <= model.upper()[i];
           }
           if (!inside) continue;
-          const double ll = score(&theta);
+          const double ll = ScoreWithBestFlux(model, ev.get(), &theta);
           if (std::isfinite(ll)) scored.push_back({ll, theta});
         }
       }
@@ -234,14 +239,41 @@ bool FindMap(const FitModel& model, const MapOptions& options, MapResult* result
   const auto t0 = std::chrono::steady_clock::now();
   *result = MapResult();
   std::vector<std::vector<double>> starts;
-  for (double r : options.start_airy_radii_px) {
-    for (double share : options.start_defocus_shares) starts.push_back(model.MomentStart(r, share));
+  if (model.num_exposures() > 1) {
+    // Joint fit: the multi-start search runs on the first exposure alone (12x cheaper for
+    // 12 exposures), and its PSF seeds the joint solve; positions start at the centroids.
+    // The moment start with the single fit's radius is kept as a second, independent seed.
+    std::string single_error;
+    auto single = FitModel::Create({model.stamps()[0]}, model.options(), &single_error);
+    MapResult single_map;
+    if (single && FindMap(*single, options, &single_map, &single_error)) {
+      const double r = single_map.theta[kAiryRadiusPx];
+      std::vector<double> seeded = model.MomentStart(r, 0.5);
+      for (int i = 0; i < kNumShared; ++i) {
+        seeded[i] = std::clamp(single_map.theta[i], model.lower()[i], model.upper()[i]);
+      }
+      if (model.options().model.sampling == model::Sampling::kPixelCentre) {
+        std::unique_ptr<FitEvaluator> ev = model.NewEvaluator();
+        RefinePositions(model, ev.get(), &seeded);
+      }
+      seeded[FitModel::XIndex(0)] = single_map.theta[FitModel::XIndex(0)];
+      seeded[FitModel::YIndex(0)] = single_map.theta[FitModel::YIndex(0)];
+      starts.push_back(seeded);
+      starts.push_back(model.MomentStart(r, 0.5));
+    }
+  }
+  if (starts.empty()) {
+    for (double r : options.start_airy_radii_px) {
+      for (double share : options.start_defocus_shares) {
+        starts.push_back(model.MomentStart(r, share));
+      }
+    }
   }
   const bool screen =
       options.screen == MapOptions::Screen::kAlways ||
       (options.screen == MapOptions::Screen::kAuto &&
        model.options().model.sampling == model::Sampling::kPixelCentre);
-  if (screen) {
+  if (screen && model.num_exposures() == 1) {
     for (auto& s : ScreenStarts(model, options)) starts.push_back(std::move(s));
   }
   StartOutcome best;

@@ -42,7 +42,8 @@ namespace ccdpsf::fit {
 constexpr double kSokalWindowC = 5.0;
 
 struct AutocorrelationTime {
-  // Integrated autocorrelation time tau(window) [steps]; >= 0 up to rounding.
+  // Integrated autocorrelation time tau(window) [steps]. Below 1 for anticorrelated series,
+  // and it can even be <= 0 for strongly alternating ones (then EffectiveSampleSize is 0).
   double tau = std::numeric_limits<double>::infinity();
   // Sokal window M [steps]: rho was summed over lags 1..M.
   int window = 0;

@@ -29,11 +29,13 @@ namespace ccdpsf::fit {
 struct MapOptions {
   // Starting points: every combination of these Airy radii [px] and shares of the Gaussian
   // width given to the defocus (moment starts, FitModel::MomentStart). Several starts make
-  // the answer independent of the luck of one.
+  // the answer independent of the luck of one. A joint fit runs this search on its first
+  // exposure and seeds the joint solve with the result.
   std::vector<double> start_airy_radii_px = {0.35, 0.6, 0.9};
   std::vector<double> start_defocus_shares = {0.25, 0.75};
   int max_iterations = 200;
-  int num_threads = 1;
+  // Threads for Ceres' residual evaluation (helps joint fits: one block per exposure).
+  int num_threads = 2;
   // Grid screening before the local solves: the log-likelihood is evaluated on a coarse grid
   // of (Airy radius, defocus, sigma_x, sigma_y) with the flux set by least squares, and the
   // best `screen_keep` grid points become extra starts. The pixel_centre likelihood is
