@@ -39,8 +39,11 @@ cmake --build build -j"$jobs"
 if [ "$mode" = demo ]; then
   rm -rf out/demo
   echo "== simulating a Table-1-like exposure set (800 nm, 5 exposures)"
-  ./build/ccdpsf simulate --config=testdata/demo_simulation.json --out=out/demo
-  echo "== done: exposures, truth.json and run.json are in $(pwd)/out/demo"
+  ./build/ccdpsf simulate --config=testdata/demo_simulation.json --out=out/demo/data
+  echo "== joint fit of the five exposures (MAP, Laplace, MCMC)"
+  ./build/ccdpsf fit --joint --out=out/demo/fit out/demo/data/exposure_00*.fits
+  echo "== done: the report is $(pwd)/out/demo/fit/report.md (fit.json and plots beside it;"
+  echo "   the simulation's truth is out/demo/data/truth.json)"
   exit 0
 fi
 
