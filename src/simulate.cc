@@ -1,11 +1,8 @@
 #include "ccdpsf/simulate.h"
 
-#include <unistd.h>
-
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
-#include <filesystem>
 #include <fstream>
 #include <sstream>
 
@@ -14,6 +11,7 @@
 #include "ccdpsf/model/renderer.h"
 #include "ccdpsf/provenance.h"
 #include "ccdpsf/random.h"
+#include "ccdpsf/staged_output.h"
 #include "glog/logging.h"
 #include "internal/json_reader.h"
 #include "nlohmann/json.hpp"
@@ -335,19 +333,10 @@ Image ObserveAdu(const SimulationConfig& c, const Image& expected_e, std::mt1993
 
 bool RunSimulation(const SimulationConfig& c, const std::string& out_dir, bool noiseless,
                    SimulationResult* result, std::string* error) {
-  namespace fs = std::filesystem;
-  if (!MakeDirectories(out_dir, error)) return false;
-  // Stage everything in a private folder, then move into place.
-  const std::string staging =
-      out_dir + "/.ccdpsf-staging-" + std::to_string(static_cast<long long>(::getpid()));
-  std::error_code ec;
-  fs::remove_all(staging, ec);
-  if (!fs::create_directory(staging, ec)) {
-    *error = "cannot create staging folder in '" + out_dir + "': " + ec.message();
-    return false;
-  }
-  auto cleanup = [&]() { fs::remove_all(staging, ec); };
-
+  // Everything is staged and moved into place at the end, truth.json last; on failure the
+  // staging folder is removed and nothing is left behind.
+  StagedOutput out;
+  if (!out.Begin(out_dir, error)) return false;
   json truth;
   truth["seed"] = c.seed;
   truth["noiseless"] = noiseless;
@@ -374,16 +363,12 @@ bool RunSimulation(const SimulationConfig& c, const std::string& out_dir, bool n
     const FitsHeader header = ExposureHeader(c, e, static_cast<int>(k), noiseless);
     bool ok;
     if (noiseless) {
-      ok = WriteFitsImageF64(staging + "/" + name, expected, header, error);
+      ok = WriteFitsImageF64(out.Path(name), expected, header, error);
     } else {
       std::mt19937_64 engine = ExposureEngine(c, static_cast<int>(k));
-      ok = WriteFitsImageU16(staging + "/" + name, ObserveAdu(c, expected, engine), header,
-                             error);
+      ok = WriteFitsImageU16(out.Path(name), ObserveAdu(c, expected, engine), header, error);
     }
-    if (!ok) {
-      cleanup();
-      return false;
-    }
+    if (!ok) return false;
     names.push_back(name);
     double peak = 0.0;
     for (double v : expected.data) peak = std::max(peak, v);
@@ -398,31 +383,13 @@ bool RunSimulation(const SimulationConfig& c, const std::string& out_dir, bool n
     truth["exposures"].push_back(ej);
   }
   truth["software"] = SoftwareVersions();
-  if (!WriteTextFileAtomically(staging + "/truth.json", truth.dump(2) + "\n", error)) {
-    cleanup();
+  if (!WriteTextFileAtomically(out.Path("truth.json"), truth.dump(2) + "\n", error)) {
     return false;
   }
-  // Move into place: a stale truth.json must not describe new images, so it goes first and
-  // the new one arrives last.
-  fs::remove(out_dir + "/truth.json", ec);
+  if (!out.Commit({"truth.json"}, error)) return false;
   result->files.clear();
-  for (const std::string& name : names) {
-    fs::rename(staging + "/" + name, out_dir + "/" + name, ec);
-    if (ec) {
-      *error = "cannot move '" + name + "' into '" + out_dir + "': " + ec.message();
-      cleanup();
-      return false;
-    }
-    result->files.push_back(out_dir + "/" + name);
-  }
-  fs::rename(staging + "/truth.json", out_dir + "/truth.json", ec);
-  if (ec) {
-    *error = "cannot move truth.json into '" + out_dir + "': " + ec.message();
-    cleanup();
-    return false;
-  }
+  for (const std::string& name : names) result->files.push_back(out_dir + "/" + name);
   result->truth_path = out_dir + "/truth.json";
-  cleanup();
   return true;
 }
 

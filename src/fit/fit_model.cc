@@ -222,23 +222,12 @@ std::vector<double> FitModel::MomentStart(double airy_radius_px, double defocus_
     theta[XIndex(k)] = centroid_x_[k];
     theta[YIndex(k)] = centroid_y_[k];
   }
-  // Flux: the least-squares scale of the unit-flux model to the data.
-  theta[kFluxE] = 1.0;
+  // Flux: the least-squares scale of the model to the data.
   for (int i = 0; i < kNumShared; ++i) theta[i] = std::clamp(theta[i], lower_[i], upper_[i]);
-  theta[kFluxE] = 1.0;
   FitEvaluator ev(*this);
-  double num = 0, den = 0;
-  std::vector<double> m;
-  for (int k = 0; k < num_exposures(); ++k) {
-    ev.ModelImage(theta.data(), k, &m, nullptr);
-    const Stamp& s = stamps_[k];
-    for (size_t q = 0; q < m.size(); ++q) {
-      if (!s.valid[q]) continue;
-      num += m[q] * s.electrons.data[q];
-      den += m[q] * m[q];
-    }
-  }
-  theta[kFluxE] = std::clamp(den > 0 ? num / den : signal_e_, lower_[kFluxE], upper_[kFluxE]);
+  const double flux = ev.LeastSquaresFlux(theta.data());
+  theta[kFluxE] = std::clamp(std::isfinite(flux) ? flux : signal_e_, lower_[kFluxE],
+                             upper_[kFluxE]);
   return theta;
 }
 
@@ -289,6 +278,22 @@ double FitEvaluator::LogPosterior(const double* theta) {
   if (!fit_model_.InsidePrior(theta)) return -INFINITY;
   const double ll = LogLikelihood(theta);
   return std::isfinite(ll) ? ll : -INFINITY;
+}
+
+double FitEvaluator::LeastSquaresFlux(const double* theta) {
+  std::vector<double> unit(theta, theta + fit_model_.dim());
+  unit[kFluxE] = 1.0;
+  double num = 0.0, den = 0.0;
+  for (int k = 0; k < fit_model_.num_exposures(); ++k) {
+    const Stamp& s = fit_model_.stamps()[k];
+    ModelImage(unit.data(), k, &pixels_, nullptr);
+    for (size_t q = 0; q < pixels_.size(); ++q) {
+      if (!s.valid[q]) continue;
+      num += pixels_[q] * s.electrons.data[q];
+      den += pixels_[q] * pixels_[q];
+    }
+  }
+  return den > 0 ? num / den : NAN;
 }
 
 double FitEvaluator::ChiSquare(const double* theta) {

@@ -145,20 +145,9 @@ StartOutcome Solve(const FitModel& model, std::vector<double> theta, const MapOp
 
 // Least-squares flux for the shape in *theta (set in place), then the log-posterior.
 double ScoreWithBestFlux(const FitModel& model, FitEvaluator* ev, std::vector<double>* theta) {
-  std::vector<double> pixels;
-  (*theta)[kFluxE] = 1.0;
-  double num = 0, den = 0;
-  for (int k = 0; k < model.num_exposures(); ++k) {
-    ev->ModelImage(theta->data(), k, &pixels, nullptr);
-    const Stamp& s = model.stamps()[k];
-    for (size_t q = 0; q < pixels.size(); ++q) {
-      if (!s.valid[q]) continue;
-      num += pixels[q] * s.electrons.data[q];
-      den += pixels[q] * pixels[q];
-    }
-  }
-  if (!(den > 0)) return -INFINITY;
-  (*theta)[kFluxE] = std::clamp(num / den, model.lower()[kFluxE], model.upper()[kFluxE]);
+  const double flux = ev->LeastSquaresFlux(theta->data());
+  if (!std::isfinite(flux)) return -INFINITY;
+  (*theta)[kFluxE] = std::clamp(flux, model.lower()[kFluxE], model.upper()[kFluxE]);
   return ev->LogPosterior(theta->data());
 }
 
@@ -242,7 +231,7 @@ bool FindMap(const FitModel& model, const MapOptions& options, MapResult* result
   if (model.num_exposures() > 1) {
     // Joint fit: the multi-start search runs on the first exposure alone (12x cheaper for
     // 12 exposures), and its PSF seeds the joint solve; positions start at the centroids.
-    // The moment start with the single fit's radius is kept as a second, independent seed.
+    // The moment start with the single fit's radius is kept as a fallback seed.
     std::string single_error;
     auto single = FitModel::Create({model.stamps()[0]}, model.options(), &single_error);
     MapResult single_map;
@@ -276,8 +265,12 @@ bool FindMap(const FitModel& model, const MapOptions& options, MapResult* result
   if (screen && model.num_exposures() == 1) {
     for (auto& s : ScreenStarts(model, options)) starts.push_back(std::move(s));
   }
+  // A joint fit's starts are a seeded start and a fallback: the fallback runs only if the
+  // seeded solve fails (the multi-start search already ran on the single exposure).
+  const bool fallback_only = model.num_exposures() > 1 && starts.size() == 2;
   StartOutcome best;
   for (const std::vector<double>& start : starts) {
+    if (fallback_only && best.usable) break;
     const StartOutcome o = Solve(model, start, options);
     ++result->num_starts;
     result->start_costs.push_back(o.cost);

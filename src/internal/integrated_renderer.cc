@@ -64,36 +64,45 @@ double KernelHalfWidthSigmas(double tolerance) {
 // Unit-flux Airy intensity at distance d [px] for wavenumber k = pi Rz / r [1/px], and its
 // derivative with respect to k. I = k^2 / (4 pi) a(k d)^2 integrates to 1 over the plane.
 inline void AiryIntensity(double d, double k, double* value, double* d_dk) {
+  static const double* const table = model::AiryTableCoefficients();
   double a, da;
-  model::AiryAmplitudeAndDerivative(k * d, &a, &da);
+  model::AiryAmplitudeAndDerivativeInline(k * d, table, &a, &da);
   const double norm = k * k / (4.0 * M_PI);
   *value = norm * a * a;
   *d_dk = k / (2.0 * M_PI) * (a * a + a * da * k * d);
 }
 
 // S for the Gaussian-defocus model: the Airy pattern itself.
-void FillAiryQuadrant(double k, double dk_dr, double hx, double hy,
+void FillAiryQuadrant(double k, double dk_dr, double hx, double hy, bool derivs,
                       Eigen::MatrixXd* q, Eigen::MatrixXd* q_dr) {
   // With equal spacings S(|i|, |j|) = S(|j|, |i|): compute the lower triangle, mirror the rest.
+  static const double* const table = model::AiryTableCoefficients();
   const bool mirror = hx == hy;
   const int rows = static_cast<int>(q->rows());
+  const double norm = k * k / (4.0 * M_PI);
   for (int ju = 0; ju < q->cols(); ++ju) {
     const double y2 = (ju * hy) * (ju * hy);
-    for (int iu = 0; iu < rows; ++iu) {
-      if (mirror && iu < ju && ju < rows) continue;
+    const int first = (mirror && ju < rows) ? ju : 0;
+    double* col = q->data() + static_cast<size_t>(ju) * rows;
+    double* col_dr = derivs ? q_dr->data() + static_cast<size_t>(ju) * rows : nullptr;
+    for (int iu = first; iu < rows; ++iu) {
       const double d = std::sqrt((iu * hx) * (iu * hx) + y2);
+      if (!derivs) {
+        const double a = model::AiryAmplitudeInline(k * d, table);
+        col[iu] = norm * a * a;
+        continue;
+      }
       double v, dv_dk;
       AiryIntensity(d, k, &v, &dv_dk);
-      (*q)(iu, ju) = v;
-      (*q_dr)(iu, ju) = dv_dk * dk_dr;
+      col[iu] = v;
+      col_dr[iu] = dv_dk * dk_dr;
     }
   }
   if (!mirror) return;
-  for (int ju = 0; ju < q->cols(); ++ju) {
-    for (int iu = 0; iu < std::min(ju, rows); ++iu) {
-      if (ju >= rows) break;
+  for (int ju = 1; ju < std::min<int>(q->cols(), rows); ++ju) {
+    for (int iu = 0; iu < ju; ++iu) {
       (*q)(iu, ju) = (*q)(ju, iu);
-      (*q_dr)(iu, ju) = (*q_dr)(ju, iu);
+      if (derivs) (*q_dr)(iu, ju) = (*q_dr)(ju, iu);
     }
   }
 }
@@ -151,13 +160,6 @@ void FillPillboxQuadrant(double k, double dk_dr, double rho_c, double radius, do
       (*q_dR)(iu, ju) = 2.0 / radius * (circle - s);
     }
   }
-}
-
-// The quadrant (rows |i|, cols |j|) expanded along j only: rows |i| = 0..iu_max, cols
-// j = j_lo..j_lo + cols - 1. The first pass runs on these rows only, since S(-i, j) = S(i, j)
-// makes B(-i, b) = B(i, b).
-void ExpandColumns(const Eigen::MatrixXd& q, int j_lo, Eigen::MatrixXd* half) {
-  for (int c = 0; c < half->cols(); ++c) half->col(c) = q.col(std::abs(j_lo + c));
 }
 
 // Kernel weights along one axis. With an integer node density Q = 1/h, the nodes seen by
@@ -257,19 +259,11 @@ void RenderIntegrated(const model::ModelOptions& options, const model::SpotParam
     FillPillboxQuadrant(k, dk_dr, rho_c, defocus, hx, hy, &ws->quadrant, &ws->quadrant_dr,
                         &ws->quadrant_dR);
   } else {
-    FillAiryQuadrant(k, dk_dr, hx, hy, &ws->quadrant, &ws->quadrant_dr);
+    FillAiryQuadrant(k, dk_dr, hx, hy, jacobian != nullptr, &ws->quadrant, &ws->quadrant_dr);
     // A pillbox of zero radius: S = Airy, and dS/dR = 0 there (S - Airy is O(R^2)).
     if (pillbox) ws->quadrant_dR.setZero(iu_max + 1, ju_max + 1);
   }
   const int nh = iu_max + 1;  // rows |i| of the half problem
-  ws->radial.resize(nh, nj);
-  ws->radial_dr.resize(nh, nj);
-  ExpandColumns(ws->quadrant, j_lo, &ws->radial);
-  ExpandColumns(ws->quadrant_dr, j_lo, &ws->radial_dr);
-  if (pillbox) {
-    ws->radial_dR.resize(nh, nj);
-    ExpandColumns(ws->quadrant_dR, j_lo, &ws->radial_dR);
-  }
 
   // First pass, along y: B(|i|, b) = hy sum_j S(|i|, j) ky(yb - cy - j hy), and the same
   // with d ky / d cy, d ky / d sY, and with dS / dr (and dS / dR): nr right-hand sides.
@@ -282,14 +276,15 @@ void RenderIntegrated(const model::ModelOptions& options, const model::SpotParam
   ws->row.resize(static_cast<size_t>(nr) * nh);
   ws->bt.resize(static_cast<size_t>(nr) * nh * ny);
   const int wy_size = static_cast<int>(wy.w.rows());
-  const double* s_val = ws->radial.data();
-  const double* s_dr = ws->radial_dr.data();
-  const double* s_dR = pillbox ? ws->radial_dR.data() : nullptr;
+  // Node column j of S is quadrant column |j| (S(i, -j) = S(i, j)), read in place.
+  const double* s_val = ws->quadrant.data();
+  const double* s_dr = ws->quadrant_dr.data();
+  const double* s_dR = pillbox ? ws->quadrant_dR.data() : nullptr;
   double* out = ws->row.data();
   for (int b = 0; b < ny; ++b) {
     std::fill(ws->row.begin(), ws->row.end(), 0.0);
     for (int m = 0; m < wy_size; ++m) {
-      const size_t col = static_cast<size_t>(qy * b + m) * nh;
+      const size_t col = static_cast<size_t>(std::abs(j_lo + qy * b + m)) * nh;
       const double* sv = s_val + col;
       const double w0 = wy.w(m, 0);
       if (!derivs) {

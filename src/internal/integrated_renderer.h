@@ -12,9 +12,8 @@ namespace ccdpsf::internal {
 
 // Scratch space reused between renders (sizes change with the parameters).
 struct IntegratedWorkspace {
-  Eigen::MatrixXd radial;     // radially symmetric image S at the quadrature nodes, unit flux
-  Eigen::MatrixXd radial_dr;  // dS / d(airy radius)
-  Eigen::MatrixXd radial_dR;  // dS / d(pillbox radius) (pillbox only)
+  // The radially symmetric image S (unit flux) at the nodes (|i|, |j|) of one quadrant, and
+  // its derivatives by the Airy radius and (pillbox only) the pillbox radius.
   Eigen::MatrixXd quadrant, quadrant_dr, quadrant_dR;
   std::vector<double> row;  // first pass: the right-hand sides of one output row, by |i|
   std::vector<double> bt;   // first pass output, [(rhs * n|i| + |i|) * ny + b]

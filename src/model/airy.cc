@@ -9,8 +9,8 @@ namespace {
 // Table spacing in v and range. Quintic Hermite interpolation has error
 // <= h^6 / 46080 * max|a^(6)|; |a^(6)| <= 1 (a is band-limited to unit angular frequency),
 // so h = 0.05 gives ~3e-13. Beyond kTableMax we fall back to the direct evaluation.
-constexpr double kTableStep = 0.05;
-constexpr double kTableMax = 1500.0;
+constexpr double kTableStep = kAiryTableStep;
+constexpr double kTableMax = kAiryTableMax;
 // Below this v the closed forms lose digits to cancellation; use the power series.
 constexpr double kSeriesLimit = 0.5;
 
@@ -104,6 +104,8 @@ void AiryAmplitudeAndDerivative(double v, double* a, double* da_dv) {
   *da_dv = (c[1] + u * (2 * c[2] + u * (3 * c[3] + u * (4 * c[4] + u * 5 * c[5])))) *
            (1.0 / kTableStep);
 }
+
+const double* AiryTableCoefficients() { return Table().coefficients.data(); }
 
 double AiryAmplitude(double v) {
   double a, da;

@@ -119,6 +119,11 @@ class FitEvaluator {
   // (= g where m > 0). dim x dim, row-major.
   std::vector<double> FisherInformation(const double* theta);
 
+  // The flux that best fits the data (unweighted least squares over valid pixels, every
+  // exposure) for the shape and positions in theta; theta[kFluxE] is ignored. The model is
+  // linear in the flux, so this is exact for that criterion. NaN if the model is all zero.
+  double LeastSquaresFlux(const double* theta);
+
   // Sum of squared normalised residuals (chi^2) over valid pixels.
   double ChiSquare(const double* theta);
 

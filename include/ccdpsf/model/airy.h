@@ -20,6 +20,37 @@ void AiryAmplitudeAndDerivative(double v, double* a, double* da_dv);
 // table's range. Slow (about a microsecond).
 void AiryAmplitudeDirect(double v, double* a, double* da_dv);
 
+// The table behind AiryAmplitudeAndDerivative, for the inline fast paths below: per-interval
+// quintic coefficients c0..c5 in u = (v - i h) / h, interval i at [6 i, 6 i + 6).
+constexpr double kAiryTableStep = 0.05;
+constexpr double kAiryTableMax = 1500.0;
+const double* AiryTableCoefficients();
+
+// Inline versions for the renderer's inner loop (a call per node costs more than the
+// polynomial). v >= 0. Same values as AiryAmplitudeAndDerivative.
+inline double AiryAmplitudeInline(double v, const double* table) {
+  if (v >= kAiryTableMax) return AiryAmplitude(v);
+  const double s = v * (1.0 / kAiryTableStep);
+  const int i = static_cast<int>(s);
+  const double u = s - i;
+  const double* c = table + 6 * static_cast<long>(i);
+  return c[0] + u * (c[1] + u * (c[2] + u * (c[3] + u * (c[4] + u * c[5]))));
+}
+inline void AiryAmplitudeAndDerivativeInline(double v, const double* table, double* a,
+                                             double* da_dv) {
+  if (v >= kAiryTableMax) {
+    AiryAmplitudeAndDerivative(v, a, da_dv);
+    return;
+  }
+  const double s = v * (1.0 / kAiryTableStep);
+  const int i = static_cast<int>(s);
+  const double u = s - i;
+  const double* c = table + 6 * static_cast<long>(i);
+  *a = c[0] + u * (c[1] + u * (c[2] + u * (c[3] + u * (c[4] + u * c[5]))));
+  *da_dv = (c[1] + u * (2 * c[2] + u * (3 * c[3] + u * (4 * c[4] + u * 5 * c[5])))) *
+           (1.0 / kAiryTableStep);
+}
+
 }  // namespace ccdpsf::model
 
 #endif  // CCDPSF_MODEL_AIRY_H_
