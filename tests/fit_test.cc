@@ -253,6 +253,7 @@ TEST(Fit, PixelCentreRecoversSeparateWidths) {
   std::string error;
   ASSERT_TRUE(RunFit(*model, NoMcmc(), &r, &error)) << error;
   EXPECT_TRUE(r.laplace.unconstrained.empty());
+  EXPECT_TRUE(r.laplace.at_bound.empty());  // peak_e's prior spans 8 decades: not "at" it
   const double truth[3] = {c.defocus_px, c.ccd_sigma_x_px, c.ccd_sigma_y_px};
   const int index[3] = {kDefocusPx, kCcdSigmaXPx, kCcdSigmaYPx};
   for (int j = 0; j < 3; ++j) {
@@ -296,6 +297,21 @@ TEST(Fit, McmcIsDeterministicAndAgreesWithLaplace) {
   // The unconstrained CCD width spreads over a large part of its prior.
   const Summary& sx = a.parameters[kCcdSigmaXPx];
   EXPECT_GT(sx.hi68 - sx.lo68, 0.1);
+}
+
+// DESIGN.md pitfall 4: a prior that excludes the truth pins the MAP to its bound; that must
+// be flagged (Ceres' covariance, and a Laplace approximation, ignore bounds).
+TEST(Fit, FlagsParametersAtABound) {
+  const SimulationConfig c = PaperConfig(model::Sampling::kIntegrated, 1, 19);
+  FitModelOptions options;
+  options.priors.airy_radius_px[0] = 0.6;  // truth 0.47
+  auto model = MustCreate(SimulateStamps(c, 20), options);
+  FitResult r;
+  std::string error;
+  ASSERT_TRUE(RunFit(*model, NoMcmc(), &r, &error)) << error;
+  ASSERT_EQ(r.laplace.at_bound.size(), 1u);
+  EXPECT_EQ(r.names[r.laplace.at_bound[0]], "airy_radius_px");
+  EXPECT_NEAR(r.map.theta[kAiryRadiusPx], 0.6, 1e-9);
 }
 
 TEST(Fit, BadInputIsReported) {

@@ -90,7 +90,10 @@ LaplaceResult ComputeLaplace(const std::vector<std::string>& names,
     out.constrained[a] = std::isfinite(out.sd[a]);
   }
   for (int i = 0; i < n; ++i) {
-    const double tol = kAtBoundFraction * w[i];
+    // Near a bound on the scale of the prior and of the posterior: a wide prior (e.g. the
+    // 2015 peak meta-parameter's eight decades) must not make a well-measured value count.
+    double tol = kAtBoundFraction * w[i];
+    if (std::isfinite(out.sd[i])) tol = std::min(tol, 2.0 * out.sd[i]);
     if (theta_map[i] - lower[i] < tol || upper[i] - theta_map[i] < tol) {
       out.at_bound.push_back(i);
     }

@@ -39,7 +39,8 @@ constexpr double kLoadingThreshold = 0.1;
 // the ridge's full length it spans 0.05-0.5.)
 constexpr double kUnconstrainedSpreadRatio = 0.5;
 // Distance from a bound, as a fraction of the prior width, within which a MAP value counts as
-// sitting at the bound (where the Gaussian approximation ignores the truncation).
+// sitting at the bound (where the Gaussian approximation ignores the truncation); capped at
+// two Laplace sd where that is finite.
 constexpr double kAtBoundFraction = 1e-3;
 
 struct UnconstrainedDirection {
