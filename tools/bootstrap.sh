@@ -40,10 +40,13 @@ if [ "$mode" = demo ]; then
   rm -rf out/demo
   echo "== simulating a Table-1-like exposure set (800 nm, 5 exposures)"
   ./build/ccdpsf simulate --config=testdata/demo_simulation.json --out=out/demo/data
-  echo "== joint fit of the five exposures (MAP, Laplace, MCMC)"
-  ./build/ccdpsf fit --joint --out=out/demo/fit out/demo/data/exposure_00*.fits
-  echo "== done: the report is $(pwd)/out/demo/fit/report.md (fit.json and plots beside it;"
-  echo "   the simulation's truth is out/demo/data/truth.json)"
+  echo "== joint fit of the five exposures (MAP and Laplace)"
+  ./build/ccdpsf fit --joint --nomcmc --out=out/demo/joint out/demo/data/exposure_00*.fits
+  echo "== complete fit of one exposure (MAP, Laplace and MCMC credible intervals)"
+  ./build/ccdpsf fit --out=out/demo/single out/demo/data/exposure_000.fits
+  echo "== done: reports are $(pwd)/out/demo/joint/report.md and"
+  echo "   $(pwd)/out/demo/single/report.md (fit.json and plots beside them; the"
+  echo "   simulation's truth is out/demo/data/truth.json)"
   exit 0
 fi
 
