@@ -1,5 +1,6 @@
 // End-to-end tests of the ccdpsf binary: the interface users script against.
 #include <sys/wait.h>
+#include <unistd.h>
 
 #include <cstdio>
 #include <filesystem>
@@ -33,8 +34,10 @@ RunResult RunCcdpsf(const std::string& args) {
   return r;
 }
 
+// Per process: ctest runs tests in parallel processes, each of which simulates its own set.
 std::string Fresh(const std::string& name) {
-  const std::string dir = ::testing::TempDir() + "/ccdpsf_cli_" + name;
+  const std::string dir = ::testing::TempDir() + "/ccdpsf_cli_" +
+                          std::to_string(static_cast<long>(::getpid())) + "_" + name;
   fs::remove_all(dir);
   return dir;
 }
