@@ -8,6 +8,7 @@
 #include <string>
 
 #include "ccdpsf/fits_io.h"
+#include "fitsio.h"
 #include "gtest/gtest.h"
 #include "nlohmann/json.hpp"
 
@@ -101,10 +102,33 @@ TEST(Cli, FitWritesTheDocumentedOutputs) {
     EXPECT_TRUE(j["mcmc"].contains(m)) << m;
   }
   for (const char* f : {"chi2", "dof", "loglike", "seconds"}) EXPECT_TRUE(j["fit"].contains(f));
-  // The chain table: walker, step, log_prob and one column per parameter.
-  std::string error;
-  EXPECT_TRUE(ReadFitsImage(out + "/residuals.fits", &error).has_value() ||
-              !error.empty());  // primary is empty; the reader moves to DATA_0
+  // residuals.fits: DATA/MODEL/RESID/NRESID extensions of 21 x 21 for exposure 0.
+  for (const char* ext : {"DATA_0", "MODEL_0", "RESID_0", "NRESID_0"}) {
+    fitsfile* f = nullptr;
+    int status = 0;
+    const std::string name = out + "/residuals.fits[" + ext + "]";
+    ASSERT_EQ(fits_open_file(&f, name.c_str(), READONLY, &status), 0) << ext;
+    long size[2] = {0, 0};
+    fits_get_img_size(f, 2, size, &status);
+    EXPECT_EQ(size[0], 21);
+    EXPECT_EQ(size[1], 21);
+    fits_close_file(f, &status);
+  }
+  // chain.fits: walker, step, log_prob and one column per parameter, walkers x steps rows.
+  fitsfile* f = nullptr;
+  int status = 0;
+  const std::string chain = out + "/chain.fits[CHAIN]";
+  ASSERT_EQ(fits_open_file(&f, chain.c_str(), READONLY, &status), 0);
+  for (const char* col : {"walker", "step", "log_prob", "flux_e", "ccd_sigma_y_px", "y_px.0"}) {
+    int number = 0;
+    EXPECT_EQ(fits_get_colnum(f, CASEINSEN, const_cast<char*>(col), &number, &status), 0)
+        << col;
+    status = 0;
+  }
+  long rows = 0;
+  fits_get_num_rows(f, &rows, &status);
+  EXPECT_EQ(rows, j["mcmc"]["walkers"].get<long>() * j["mcmc"]["steps"].get<long>());
+  fits_close_file(f, &status);
   std::ifstream run(out + "/run.json");
   const nlohmann::json rj = nlohmann::json::parse(run);
   EXPECT_EQ(rj["seed"], 4);
