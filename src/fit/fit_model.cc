@@ -259,18 +259,24 @@ void FitEvaluator::ModelImage(const double* theta, int k, std::vector<double>* m
   }
 }
 
-double FitEvaluator::LogLikelihood(const double* theta) {
-  const LikelihoodKind kind = fit_model_.options().likelihood;
-  double total = 0.0;
+template <typename Visit>
+void FitEvaluator::ForEachValidPixel(const double* theta, Visit visit) {
   for (int k = 0; k < fit_model_.num_exposures(); ++k) {
     const Stamp& s = fit_model_.stamps()[k];
     const CcdNoise noise = NoiseOf(s);
     ModelImage(theta, k, &pixels_, nullptr);
     for (size_t q = 0; q < pixels_.size(); ++q) {
-      if (!s.valid[q]) continue;
-      total += PixelLogLikelihood(kind, s.electrons.data[q], pixels_[q], noise);
+      if (s.valid[q]) visit(s.electrons.data[q], pixels_[q], noise);
     }
   }
+}
+
+double FitEvaluator::LogLikelihood(const double* theta) {
+  const LikelihoodKind kind = fit_model_.options().likelihood;
+  double total = 0.0;
+  ForEachValidPixel(theta, [&](double data_e, double model_e, const CcdNoise& noise) {
+    total += PixelLogLikelihood(kind, data_e, model_e, noise);
+  });
   return total;
 }
 
@@ -284,30 +290,19 @@ double FitEvaluator::LeastSquaresFlux(const double* theta) {
   std::vector<double> unit(theta, theta + fit_model_.dim());
   unit[kFluxE] = 1.0;
   double num = 0.0, den = 0.0;
-  for (int k = 0; k < fit_model_.num_exposures(); ++k) {
-    const Stamp& s = fit_model_.stamps()[k];
-    ModelImage(unit.data(), k, &pixels_, nullptr);
-    for (size_t q = 0; q < pixels_.size(); ++q) {
-      if (!s.valid[q]) continue;
-      num += pixels_[q] * s.electrons.data[q];
-      den += pixels_[q] * pixels_[q];
-    }
-  }
+  ForEachValidPixel(unit.data(), [&](double data_e, double model_e, const CcdNoise&) {
+    num += model_e * data_e;
+    den += model_e * model_e;
+  });
   return den > 0 ? num / den : NAN;
 }
 
 double FitEvaluator::ChiSquare(const double* theta) {
   double chi2 = 0.0;
-  for (int k = 0; k < fit_model_.num_exposures(); ++k) {
-    const Stamp& s = fit_model_.stamps()[k];
-    const CcdNoise noise = NoiseOf(s);
-    ModelImage(theta, k, &pixels_, nullptr);
-    for (size_t q = 0; q < pixels_.size(); ++q) {
-      if (!s.valid[q]) continue;
-      const double r = s.electrons.data[q] - pixels_[q];
-      chi2 += r * r / noise.VarianceE2(pixels_[q]);
-    }
-  }
+  ForEachValidPixel(theta, [&](double data_e, double model_e, const CcdNoise& noise) {
+    const double r = data_e - model_e;
+    chi2 += r * r / noise.VarianceE2(model_e);
+  });
   return chi2;
 }
 

@@ -128,6 +128,11 @@ class FitEvaluator {
   double ChiSquare(const double* theta);
 
  private:
+  // Renders every exposure at theta and calls visit(data_e, model_e, noise) for each valid
+  // pixel: the one loop behind the log-likelihood, chi^2 and least-squares flux.
+  template <typename Visit>
+  void ForEachValidPixel(const double* theta, Visit visit);
+
   const FitModel& fit_model_;
   model::SpotRenderer renderer_;
   std::vector<double> pixels_, spot_jacobian_;
