@@ -77,6 +77,11 @@ bool ParseExposure(const json& j, int index, const SimulationConfig& c, double w
     r.Number("focus_position_um", &focus);
     e->focus_position_um = focus;
   }
+  if (r.Has("defocus_px")) {
+    double defocus = 0.0;
+    r.Number("defocus_px", &defocus);
+    e->defocus_px = defocus;
+  }
   if (r.ok() && j.contains(peak ? "flux_e" : "peak_e")) {
     r.Fail("'" + r.Path(peak ? "flux_e" : "peak_e") + "' does not apply to " +
            model::ToString(c.model.sampling) + " sampling; use '" +
@@ -159,7 +164,7 @@ model::SpotParams SimulationConfig::Params(const SimulatedExposure& e) const {
   p[model::kCentreX] = e.x_px;
   p[model::kCentreY] = e.y_px;
   p[model::kAiryRadius] = airy_radius_px;
-  p[model::kDefocus] = defocus_px;
+  p[model::kDefocus] = e.defocus_px.value_or(defocus_px);
   p[model::kCcdSigmaX] = ccd_sigma_x_px;
   p[model::kCcdSigmaY] = ccd_sigma_y_px;
   return p;
@@ -380,6 +385,7 @@ bool RunSimulation(const SimulationConfig& c, const std::string& out_dir, bool n
                {"expected_peak_pixel_e", peak}};
     ej[c.model.sampling == model::Sampling::kPixelCentre ? "peak_e" : "flux_e"] = e.flux_e;
     if (e.focus_position_um) ej["focus_position_um"] = *e.focus_position_um;
+    if (e.defocus_px) ej["defocus_px"] = *e.defocus_px;
     truth["exposures"].push_back(ej);
   }
   truth["software"] = SoftwareVersions();

@@ -13,7 +13,9 @@
 //                               signal.
 //   "omit_keywords": [..]       header keywords not to write (e.g. "BIASLVL", "RDNOISE") so
 //                               the reader's estimators can be exercised.
-//   per exposure: "wavelength_nm", "exptime_s", "focus_position_um" override the top level.
+//   per exposure: "wavelength_nm", "exptime_s", "focus_position_um" override the top level,
+//                 and "defocus_px" (Gaussian sigma or pillbox radius) overrides the model's
+//                 defocus, for through-focus series.
 // Unknown keys are errors, so a typo never silently falls back to a default.
 #ifndef CCDPSF_SIMULATE_H_
 #define CCDPSF_SIMULATE_H_
@@ -38,6 +40,7 @@ struct SimulatedExposure {
   double wavelength_nm = 0.0;
   double exptime_s = 0.0;
   std::optional<double> focus_position_um;
+  std::optional<double> defocus_px;  // overrides SimulationConfig::defocus_px
 };
 
 struct SimulationConfig {
