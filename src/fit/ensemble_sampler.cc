@@ -118,11 +118,13 @@ void StaticBlock(int count, int parts, int t, int* begin, int* end) {
 // affine combinations of walkers, so a deficient ensemble could never leave its subspace.
 // Columns are scaled to unit RMS first, so parameters of very different units (a flux in
 // electrons beside a width in pixels) do not make the test scale-dependent.
-bool SpansAllDirections(const std::vector<double>& initial, int num_walkers, int dim,
-                        std::string* error) {
+// Only the first span_dim of each walker's `stride` coordinates are checked.
+bool SpansAllDirections(const std::vector<double>& initial, int num_walkers, int stride,
+                        int span_dim, std::string* error) {
+  const int dim = span_dim;
   Eigen::MatrixXd centred(num_walkers, dim);
   for (int w = 0; w < num_walkers; ++w) {
-    for (int k = 0; k < dim; ++k) centred(w, k) = initial[w * dim + k];
+    for (int k = 0; k < dim; ++k) centred(w, k) = initial[static_cast<size_t>(w) * stride + k];
   }
   for (int k = 0; k < dim; ++k) {
     centred.col(k).array() -= centred.col(k).mean();
@@ -166,10 +168,12 @@ std::string FormatNumber(double value, int precision = 3) {
 // The sampler's state and its two operations (a step, a convergence check).
 class EnsembleSampler {
  public:
-  EnsembleSampler(const std::vector<LogDensity>& log_density, int dim, int num_walkers,
+  EnsembleSampler(const BlockedTarget& target, int dim, int num_walkers,
                   const SamplerOptions& options, ThreadTeam* team)
-      : log_density_(log_density),
+      : target_(target),
         dim_(dim),
+        stretch_dim_(target.stretch_dim),
+        aux_dim_(target.aux_dim),
         num_walkers_(num_walkers),
         half_(num_walkers / 2),
         options_(options),
@@ -177,10 +181,14 @@ class EnsembleSampler {
         positions_(static_cast<size_t>(num_walkers) * dim),
         log_prob_(num_walkers),
         accepted_(num_walkers, 0),
+        conditional_acceptance_(num_walkers, 0.0),
+        aux_(static_cast<size_t>(num_walkers) * target.aux_dim),
         // Each thread's scratch starts on its own 64-byte cache line (8 doubles), so that
         // threads writing proposals do not invalidate each other's caches.
         proposal_stride_((dim + 7) / 8 * 8),
-        proposal_(static_cast<size_t>(team->size()) * proposal_stride_) {
+        proposal_(static_cast<size_t>(team->size()) * proposal_stride_),
+        aux_stride_((target.aux_dim + 7) / 8 * 8),
+        proposal_aux_(static_cast<size_t>(team->size()) * aux_stride_) {
     engines_.reserve(num_walkers);
     for (int w = 0; w < num_walkers; ++w) {
       engines_.emplace_back(DeriveSeed(options.seed, static_cast<uint64_t>(w)));
@@ -196,7 +204,7 @@ class EnsembleSampler {
       int begin, end;
       StaticBlock(num_walkers_, threads, t, &begin, &end);
       for (int w = begin; w < end; ++w) {
-        log_prob_[w] = log_density_[t](&positions_[static_cast<size_t>(w) * dim_]);
+        log_prob_[w] = target_.log_density[t](&positions_[static_cast<size_t>(w) * dim_], AuxOf(w));
       }
     });
     for (int w = 0; w < num_walkers_; ++w) {
@@ -214,13 +222,20 @@ class EnsembleSampler {
     for (int half = 0; half < 2; ++half) {
       team_->Run([this, half](int t) { UpdateHalf(half, t); });
     }
+    ++step_;
     chain->insert(chain->end(), positions_.begin(), positions_.end());
     log_prob->insert(log_prob->end(), log_prob_.begin(), log_prob_.end());
   }
 
   const std::vector<int64_t>& accepted() const { return accepted_; }
+  // Sum over steps of each walker's conditional-update acceptance fraction.
+  const std::vector<double>& conditional_acceptance() const { return conditional_acceptance_; }
 
  private:
+  double* AuxOf(int walker) {
+    return aux_dim_ == 0 ? nullptr : &aux_[static_cast<size_t>(walker) * aux_dim_];
+  }
+
   // Thread t's share of the walkers of half `half`.
   void UpdateHalf(int half, int t) {
     const double a = options_.stretch_a;
@@ -228,6 +243,7 @@ class EnsembleSampler {
     int begin, end;
     StaticBlock(half_, team_->size(), t, &begin, &end);
     double* y = &proposal_[static_cast<size_t>(t) * proposal_stride_];
+    double* y_aux = aux_dim_ == 0 ? nullptr : &proposal_aux_[static_cast<size_t>(t) * aux_stride_];
     for (int i = begin; i < end; ++i) {
       const int k = half * half_ + i;
       std::mt19937_64& engine = engines_[k];
@@ -241,29 +257,43 @@ class EnsembleSampler {
       const double z = root * root / a;
       const double* xk = &positions_[static_cast<size_t>(k) * dim_];
       const double* xj = &positions_[static_cast<size_t>(j) * dim_];
-      for (int d = 0; d < dim_; ++d) y[d] = xj[d] + z * (xk[d] - xj[d]);
-      const double log_prob_y = log_density_[t](y);
-      if (!std::isfinite(log_prob_y)) continue;
-      const double log_ratio = (dim_ - 1) * std::log(z) + log_prob_y - log_prob_[k];
-      if (std::log(u_accept) < log_ratio) {
-        std::copy(y, y + dim_, &positions_[static_cast<size_t>(k) * dim_]);
-        log_prob_[k] = log_prob_y;
-        ++accepted_[k];
+      for (int d = 0; d < stretch_dim_; ++d) y[d] = xj[d] + z * (xk[d] - xj[d]);
+      std::copy(xk + stretch_dim_, xk + dim_, y + stretch_dim_);
+      const double log_prob_y = target_.log_density[t](y, y_aux);
+      if (std::isfinite(log_prob_y)) {
+        const double log_ratio = (stretch_dim_ - 1) * std::log(z) + log_prob_y - log_prob_[k];
+        if (std::log(u_accept) < log_ratio) {
+          std::copy(y, y + dim_, &positions_[static_cast<size_t>(k) * dim_]);
+          if (aux_dim_ > 0) std::copy(y_aux, y_aux + aux_dim_, AuxOf(k));
+          log_prob_[k] = log_prob_y;
+          ++accepted_[k];
+        }
+      }
+      if (stretch_dim_ < dim_ && step_ % target_.conditional_every == 0) {
+        conditional_acceptance_[k] += target_.conditional[t](
+            &positions_[static_cast<size_t>(k) * dim_], AuxOf(k), &log_prob_[k], engine);
       }
     }
   }
 
-  const std::vector<LogDensity>& log_density_;
+  const BlockedTarget& target_;
   const int dim_;
+  const int stretch_dim_;
+  const int aux_dim_;
   const int num_walkers_;
   const int half_;
   const SamplerOptions& options_;
   ThreadTeam* team_;
-  std::vector<double> positions_;  // [walker * dim + k]
-  std::vector<double> log_prob_;   // [walker]
-  std::vector<int64_t> accepted_;  // [walker]
+  std::vector<double> positions_;               // [walker * dim + k]
+  std::vector<double> log_prob_;                // [walker]
+  std::vector<int64_t> accepted_;               // [walker]
+  int64_t step_ = 0;                            // steps completed
+  std::vector<double> conditional_acceptance_;  // [walker]
+  std::vector<double> aux_;                     // [walker * aux_dim + i]
   const int proposal_stride_;
   std::vector<double> proposal_;  // [thread * proposal_stride_ + k], per-thread scratch
+  const int aux_stride_;
+  std::vector<double> proposal_aux_;  // [thread * aux_stride_ + i], per-thread scratch
   std::vector<std::mt19937_64> engines_;
 };
 
@@ -434,6 +464,20 @@ bool SamplerOptions::IsValid(std::string* error) const {
 bool RunEnsembleSampler(const std::vector<LogDensity>& log_density_per_thread, int dim,
                         const std::vector<double>& initial, const SamplerOptions& options,
                         SamplerResult* result, std::string* error) {
+  BlockedTarget target;
+  target.stretch_dim = dim;
+  for (const LogDensity& f : log_density_per_thread) {
+    if (!f) {
+      *error = "ensemble sampler: an empty log-density function was given";
+      return false;
+    }
+    target.log_density.push_back([&f](const double* state, double*) { return f(state); });
+  }
+  return RunEnsembleSampler(target, dim, initial, options, result, error);
+}
+
+bool RunEnsembleSampler(const BlockedTarget& target, int dim, const std::vector<double>& initial,
+                        const SamplerOptions& options, SamplerResult* result, std::string* error) {
   CHECK(result != nullptr);
   CHECK(error != nullptr);
   const auto start = std::chrono::steady_clock::now();
@@ -442,13 +486,33 @@ bool RunEnsembleSampler(const std::vector<LogDensity>& log_density_per_thread, i
     *error = "ensemble sampler: dim must be >= 1, got " + std::to_string(dim);
     return false;
   }
+  const int stretch_dim = target.stretch_dim;
+  if (stretch_dim < 1 || stretch_dim > dim || target.aux_dim < 0) {
+    *error = "ensemble sampler: stretch block of " + std::to_string(stretch_dim) +
+             " coordinates and aux_dim " + std::to_string(target.aux_dim) +
+             " do not fit dim = " + std::to_string(dim);
+    return false;
+  }
+  const auto& log_density_per_thread = target.log_density;
   if (log_density_per_thread.empty()) {
     *error = "ensemble sampler: no log-density function given";
     return false;
   }
-  for (const LogDensity& f : log_density_per_thread) {
+  for (const BlockedTarget::Density& f : log_density_per_thread) {
     if (!f) {
       *error = "ensemble sampler: an empty log-density function was given";
+      return false;
+    }
+  }
+  if (target.conditional_every < 1) {
+    *error = "ensemble sampler: conditional_every must be >= 1";
+    return false;
+  }
+  if (stretch_dim < dim) {
+    bool ok = target.conditional.size() >= log_density_per_thread.size();
+    for (const BlockedTarget::Conditional& f : target.conditional) ok = ok && static_cast<bool>(f);
+    if (!ok) {
+      *error = "ensemble sampler: a blocked target needs a conditional update per thread";
       return false;
     }
   }
@@ -463,9 +527,9 @@ bool RunEnsembleSampler(const std::vector<LogDensity>& log_density_per_thread, i
     return false;
   }
   const int num_walkers = static_cast<int>(walkers_size);
-  if (num_walkers % 2 != 0 || num_walkers < 2 * dim + 2) {
+  if (num_walkers % 2 != 0 || num_walkers < 2 * stretch_dim + 2) {
     *error = "ensemble sampler: need an even number of walkers >= 2 * dim + 2 = " +
-             std::to_string(2 * dim + 2) + ", got " + std::to_string(num_walkers);
+             std::to_string(2 * stretch_dim + 2) + ", got " + std::to_string(num_walkers);
     return false;
   }
   for (double v : initial) {
@@ -474,12 +538,12 @@ bool RunEnsembleSampler(const std::vector<LogDensity>& log_density_per_thread, i
       return false;
     }
   }
-  if (!SpansAllDirections(initial, num_walkers, dim, error)) return false;
+  if (!SpansAllDirections(initial, num_walkers, dim, stretch_dim, error)) return false;
 
   const int wanted_threads = std::min(
       {options.num_threads, static_cast<int>(log_density_per_thread.size()), num_walkers / 2});
   ThreadTeam team(wanted_threads);
-  EnsembleSampler sampler(log_density_per_thread, dim, num_walkers, options, &team);
+  EnsembleSampler sampler(target, dim, num_walkers, options, &team);
   if (!sampler.Initialise(initial, error)) return false;
 
   SamplerResult out;
@@ -534,6 +598,12 @@ bool RunEnsembleSampler(const std::vector<LogDensity>& log_density_per_thread, i
     sum += out.acceptance_fraction[w];
   }
   out.mean_acceptance = sum / num_walkers;
+  if (stretch_dim < dim) {
+    double c = 0.0;
+    for (double a : sampler.conditional_acceptance()) c += a;
+    const int64_t updates = (steps + target.conditional_every - 1) / target.conditional_every;
+    out.conditional_acceptance = c / (static_cast<double>(updates) * num_walkers);
+  }
   out.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   *result = std::move(out);
   return true;

@@ -5,7 +5,7 @@
 #include <cmath>
 
 #include "ccdpsf/fit/autocorrelation.h"
-#include "ccdpsf/fit/sampling_coordinates.h"
+#include "ccdpsf/fit/posterior_target.h"
 #include "ccdpsf/metrics.h"
 #include "ccdpsf/random.h"
 
@@ -22,9 +22,9 @@ double Percentile(std::vector<double>& sorted, double q) {
 }
 
 void FillPosterior(std::vector<double> values, Summary* s) {
-  values.erase(std::remove_if(values.begin(), values.end(),
-                              [](double v) { return !std::isfinite(v); }),
-               values.end());
+  values.erase(
+      std::remove_if(values.begin(), values.end(), [](double v) { return !std::isfinite(v); }),
+      values.end());
   std::sort(values.begin(), values.end());
   // 68.27 % and 99.73 % central intervals (1 and 3 sigma of a Gaussian).
   s->median = Percentile(values, 0.5);
@@ -41,9 +41,9 @@ constexpr size_t kPeakIndex = 10;
 
 const std::vector<std::string>& DerivedNames() {
   static const std::vector<std::string> names = {
-      "fwhm_um",          "fwhm_x_um",        "fwhm_y_um",     "r2_px2",
-      "r2_arcsec2",       "ellipticity",      "total_sigma_x_px", "total_sigma_y_px",
-      "total_fwhm_um",    "total_ellipticity", "peak_e"};
+      "fwhm_um",     "fwhm_x_um",        "fwhm_y_um",        "r2_px2",        "r2_arcsec2",
+      "ellipticity", "total_sigma_x_px", "total_sigma_y_px", "total_fwhm_um", "total_ellipticity",
+      "peak_e"};
   return names;
 }
 
@@ -53,14 +53,22 @@ std::vector<double> DerivedAt(const FitModel& model, const double* theta) {
   // The identified (total) Gaussian widths: defocus and CCD widths in quadrature; a pillbox
   // of radius R contributes its second moment R^2 / 4 per axis.
   const double d = theta[kDefocusPx];
-  const double d2 = model.options().model.defocus == model::DefocusKind::kGaussian ? d * d
-                                                                                   : d * d / 4;
+  const double d2 =
+      model.options().model.defocus == model::DefocusKind::kGaussian ? d * d : d * d / 4;
   const double tx = std::sqrt(theta[kCcdSigmaXPx] * theta[kCcdSigmaXPx] + d2);
   const double ty = std::sqrt(theta[kCcdSigmaYPx] * theta[kCcdSigmaYPx] + d2);
   const PsfMetrics total = GaussianMetrics(tx, ty, pixel_um);
-  std::vector<double> out = {ccd.fwhm_um,   ccd.fwhm_x_um,     ccd.fwhm_y_um, ccd.r2_px2,
-                             ccd.r2_arcsec2, ccd.ellipticity,  tx,            ty,
-                             total.fwhm_um, total.ellipticity, NAN};
+  std::vector<double> out = {ccd.fwhm_um,
+                             ccd.fwhm_x_um,
+                             ccd.fwhm_y_um,
+                             ccd.r2_px2,
+                             ccd.r2_arcsec2,
+                             ccd.ellipticity,
+                             tx,
+                             ty,
+                             total.fwhm_um,
+                             total.ellipticity,
+                             NAN};
   return out;
 }
 
@@ -118,60 +126,62 @@ bool RunFit(const FitModel& model, const FitOptions& options, FitResult* result,
   }
 
   if (options.run_mcmc) {
-    // Sample in the coordinates where the defocus / CCD ridge is straight
-    // (sampling_coordinates.h), seeded from the Laplace approximation in those coordinates.
-    const SamplingCoordinates coords(model);
-    std::vector<double> phi_map(dim);
-    coords.ToSampling(theta_map.data(), phi_map.data());
-    const std::vector<double> jac = coords.Jacobian(phi_map.data());
-    const std::vector<double> fisher = evaluator->FisherInformation(theta_map.data());
-    std::vector<double> fisher_phi(static_cast<size_t>(dim) * dim, 0.0);
-    for (int a = 0; a < dim; ++a) {
-      for (int b = 0; b < dim; ++b) {
-        double sum = 0.0;
-        for (int i = 0; i < dim; ++i) {
-          for (int j = 0; j < dim; ++j) sum += jac[i * dim + a] * fisher[i * dim + j] * jac[j * dim + b];
-        }
-        fisher_phi[a * dim + b] = sum;
-      }
+    // The sampler walks the state of posterior_target.h (total widths, the defocus integrated
+    // out where the data cannot see it, positions by conditional moves in joint fits), seeded
+    // from the Laplace approximation in those coordinates.
+    const PosteriorTarget target(model, theta_map, evaluator->FisherInformation(theta_map.data()),
+                                 options.target);
+    // Default walkers: the sampler stops when the chain is min_tau_multiple taus long AND
+    // every ESS = walkers x steps / tau reaches target_ess; with target_ess / min_tau_multiple
+    // walkers (20 by default) both are met at once, and more walkers only add evaluations.
+    // The stretch move needs at least 2 x its dimension + 2.
+    int walkers = options.num_walkers;
+    if (walkers <= 0) {
+      walkers = std::max(2 * target.stretch_dim() + 2,
+                         static_cast<int>(std::ceil(options.mcmc.target_ess /
+                                                    std::max(1.0, options.mcmc.min_tau_multiple))));
     }
-    const LaplaceResult laplace_phi = ComputeLaplace(coords.names(), model.lower(), model.upper(),
-                                                     phi_map, fisher_phi, false);
-    auto density_for = [&coords, dim](FitEvaluator* ev) {
-      return [&coords, ev, dim](const double* phi) -> double {
-        thread_local std::vector<double> theta;
-        theta.resize(dim);
-        if (!coords.FromSampling(phi, theta.data())) return -INFINITY;
-        const double lp = ev->LogPosterior(theta.data());
-        return std::isfinite(lp) ? lp + coords.LogJacobian(phi) : -INFINITY;
-      };
-    };
-    int walkers = options.num_walkers > 0 ? options.num_walkers : std::max(32, 4 * dim);
     walkers += walkers % 2;
     std::mt19937_64 engine(DeriveSeed(options.mcmc.seed, 0xC0FFEEULL));
     std::vector<double> initial;
-    if (!SeedWalkers(laplace_phi, phi_map, walkers, engine, density_for(evaluator.get()),
-                     &initial, error)) {
-      return false;
+    {
+      FitEvaluator* ev = evaluator.get();
+      auto density = [&target, ev](const double* state) {
+        return target.LogDensity(ev, state, nullptr);
+      };
+      if (!SeedWalkers(target.laplace(), target.state_map(), walkers, engine, density, &initial,
+                       error)) {
+        return false;
+      }
     }
     const int threads = std::max(1, options.mcmc.num_threads);
     std::vector<std::unique_ptr<FitEvaluator>> evaluators;
-    std::vector<LogDensity> densities;
+    std::vector<FitEvaluator*> evaluator_ptrs;
     for (int t = 0; t < threads; ++t) {
       evaluators.push_back(model.NewEvaluator());
-      densities.push_back(density_for(evaluators.back().get()));
+      evaluator_ptrs.push_back(evaluators.back().get());
     }
-    if (!RunEnsembleSampler(densities, dim, initial, options.mcmc, &result->chain, error)) {
+    if (!RunEnsembleSampler(target.Make(evaluator_ptrs), target.dim(), initial, options.mcmc,
+                            &result->chain, error)) {
       return false;
     }
-    // Back to the fit parameters; autocorrelation times and sample sizes are then measured
-    // on the quantities reported.
+    // Back to the fit parameters (drawing the defocus from its exact conditional where it was
+    // integrated out); autocorrelation times and sample sizes are then measured on the
+    // quantities reported.
     SamplerResult& chain = result->chain;
-    std::vector<double> theta(dim);
-    for (size_t s = 0; s < chain.chain.size() / dim; ++s) {
-      double* state = &chain.chain[s * dim];
-      coords.FromSampling(state, theta.data());
-      std::copy(theta.begin(), theta.end(), state);
+    {
+      const int state_dim = target.dim();
+      const size_t states = chain.chain.size() / state_dim;
+      std::vector<double> theta_chain(states * dim);
+      std::mt19937_64 defocus_engine(DeriveSeed(options.mcmc.seed, 0xDEF0C05ULL));
+      for (size_t s = 0; s < states; ++s) {
+        const double u = target.marginal_defocus() ? Uniform01(defocus_engine) : 0.0;
+        target.ToTheta(&chain.chain[s * state_dim], u, &theta_chain[s * dim]);
+      }
+      chain.chain = std::move(theta_chain);
+      chain.dim = dim;
+      chain.tau.assign(dim, INFINITY);
+      chain.ess.assign(dim, 0.0);
     }
     const int kept_steps = chain.num_steps - chain.burn_in;
     if (kept_steps >= 2) {

@@ -80,8 +80,10 @@ bool ParseFitConfig(const std::string& text, FitConfig* c, std::string* error) {
   }
   if (r.Has("joint")) {
     const json& v = r.Get("joint");
-    if (!v.is_boolean()) r.Fail("'joint' must be true or false");
-    else c->joint = v.get<bool>();
+    if (!v.is_boolean())
+      r.Fail("'joint' must be true or false");
+    else
+      c->joint = v.get<bool>();
   }
   if (r.ok() && r.Has("priors")) {
     JsonReader p(r.Get("priors"), "priors", error);
@@ -101,8 +103,9 @@ bool ParseFitConfig(const std::string& text, FitConfig* c, std::string* error) {
         pr.ccd_sigma_x_px[0] < model::kMinGaussianWidthPx ||
         pr.ccd_sigma_y_px[0] < model::kMinGaussianWidthPx || pr.flux_lower_fraction <= 0 ||
         pr.position_halfwidth_px <= 0) {
-      *error = "priors: airy radius >= 0.05 px, ccd sigmas >= 0.05 px, defocus >= 0, flux "
-               "fraction > 0 and position half-width > 0 are required";
+      *error =
+          "priors: airy radius >= 0.05 px, ccd sigmas >= 0.05 px, defocus >= 0, flux "
+          "fraction > 0 and position half-width > 0 are required";
       return false;
     }
   }
@@ -120,8 +123,10 @@ bool ParseFitConfig(const std::string& text, FitConfig* c, std::string* error) {
     JsonReader m(r.Get("mcmc"), "mcmc", error);
     if (m.Has("enabled")) {
       const json& v = m.Get("enabled");
-      if (!v.is_boolean()) m.Fail("'mcmc.enabled' must be true or false");
-      else c->fit.run_mcmc = v.get<bool>();
+      if (!v.is_boolean())
+        m.Fail("'mcmc.enabled' must be true or false");
+      else
+        c->fit.run_mcmc = v.get<bool>();
     }
     long long walkers = c->fit.num_walkers, steps = c->fit.mcmc.max_steps,
               seed = static_cast<long long>(c->fit.mcmc.seed), threads = c->fit.mcmc.num_threads;
@@ -131,12 +136,27 @@ bool ParseFitConfig(const std::string& text, FitConfig* c, std::string* error) {
     m.Integer("threads", &threads);
     m.Number("target_ess", &c->fit.mcmc.target_ess);
     m.Number("min_tau_multiple", &c->fit.mcmc.min_tau_multiple);
+    for (const char* key : {"marginal_defocus", "positions_by_conditional"}) {
+      if (!m.Has(key)) continue;
+      const json& v = m.Get(key);
+      bool& field = std::string(key) == "marginal_defocus" ? c->fit.target.marginal_defocus
+                                                           : c->fit.target.positions_by_conditional;
+      if (!v.is_boolean())
+        m.Fail(std::string("'mcmc.") + key + "' must be true or false");
+      else
+        field = v.get<bool>();
+    }
+    long long every = c->fit.target.position_update_every;
+    m.Integer("position_update_every", &every);
     m.RejectUnknownKeys();
     if (!m.ok()) return false;
-    if (walkers < 0 || steps < 1 || seed < 0 || threads < 1) {
-      *error = "mcmc: walkers >= 0, max_steps >= 1, seed >= 0 and threads >= 1 are required";
+    if (walkers < 0 || steps < 1 || seed < 0 || threads < 1 || every < 1) {
+      *error =
+          "mcmc: walkers >= 0, max_steps >= 1, seed >= 0, threads >= 1 and "
+          "position_update_every >= 1 are required";
       return false;
     }
+    c->fit.target.position_update_every = static_cast<int>(every);
     c->fit.num_walkers = static_cast<int>(walkers);
     c->fit.mcmc.max_steps = static_cast<int>(steps);
     c->fit.mcmc.seed = static_cast<uint64_t>(seed);
@@ -201,6 +221,9 @@ json FitConfigJson(const FitConfig& c) {
             {"max_steps", c.fit.mcmc.max_steps},
             {"target_ess", c.fit.mcmc.target_ess},
             {"min_tau_multiple", c.fit.mcmc.min_tau_multiple},
+            {"marginal_defocus", c.fit.target.marginal_defocus},
+            {"positions_by_conditional", c.fit.target.positions_by_conditional},
+            {"position_update_every", c.fit.target.position_update_every},
             {"seed", c.fit.mcmc.seed},
             {"threads", c.fit.mcmc.num_threads}}},
           {"calibration",

@@ -14,13 +14,20 @@ using model::SpotParam;
 // theta index of each renderer parameter for exposure k.
 int ThetaIndex(int spot_param, int k) {
   switch (spot_param) {
-    case model::kFlux: return kFluxE;
-    case model::kCentreX: return FitModel::XIndex(k);
-    case model::kCentreY: return FitModel::YIndex(k);
-    case model::kAiryRadius: return kAiryRadiusPx;
-    case model::kDefocus: return kDefocusPx;
-    case model::kCcdSigmaX: return kCcdSigmaXPx;
-    case model::kCcdSigmaY: return kCcdSigmaYPx;
+    case model::kFlux:
+      return kFluxE;
+    case model::kCentreX:
+      return FitModel::XIndex(k);
+    case model::kCentreY:
+      return FitModel::YIndex(k);
+    case model::kAiryRadius:
+      return kAiryRadiusPx;
+    case model::kDefocus:
+      return kDefocusPx;
+    case model::kCcdSigmaX:
+      return kCcdSigmaXPx;
+    case model::kCcdSigmaY:
+      return kCcdSigmaYPx;
   }
   LOG(FATAL) << "bad spot parameter " << spot_param;
   return -1;
@@ -103,8 +110,8 @@ std::unique_ptr<FitModel> FitModel::Create(std::vector<Stamp> stamps,
     if (!(best > 5.0 * noise_e) || !(total > 0)) {
       std::ostringstream msg;
       msg << "exposure " << k << (s.info.source.empty() ? "" : " ('" + s.info.source + "')")
-          << " has no spot to fit: brightest pixel " << best << " e- against "
-          << noise_e << " e- of noise";
+          << " has no spot to fit: brightest pixel " << best << " e- against " << noise_e
+          << " e- of noise";
       *error = msg.str();
       return nullptr;
     }
@@ -226,8 +233,8 @@ std::vector<double> FitModel::MomentStart(double airy_radius_px, double defocus_
   for (int i = 0; i < kNumShared; ++i) theta[i] = std::clamp(theta[i], lower_[i], upper_[i]);
   FitEvaluator ev(*this);
   const double flux = ev.LeastSquaresFlux(theta.data());
-  theta[kFluxE] = std::clamp(std::isfinite(flux) ? flux : signal_e_, lower_[kFluxE],
-                             upper_[kFluxE]);
+  theta[kFluxE] =
+      std::clamp(std::isfinite(flux) ? flux : signal_e_, lower_[kFluxE], upper_[kFluxE]);
   return theta;
 }
 
@@ -260,8 +267,8 @@ void FitEvaluator::ModelImage(const double* theta, int k, std::vector<double>* m
 }
 
 template <typename Visit>
-void FitEvaluator::ForEachValidPixel(const double* theta, Visit visit) {
-  for (int k = 0; k < fit_model_.num_exposures(); ++k) {
+void FitEvaluator::ForEachValidPixel(const double* theta, int first, int last, Visit visit) {
+  for (int k = first; k < last; ++k) {
     const Stamp& s = fit_model_.stamps()[k];
     const CcdNoise noise = NoiseOf(s);
     ModelImage(theta, k, &pixels_, nullptr);
@@ -271,12 +278,18 @@ void FitEvaluator::ForEachValidPixel(const double* theta, Visit visit) {
   }
 }
 
-double FitEvaluator::LogLikelihood(const double* theta) {
+double FitEvaluator::ExposureLogLikelihood(const double* theta, int k) {
   const LikelihoodKind kind = fit_model_.options().likelihood;
   double total = 0.0;
-  ForEachValidPixel(theta, [&](double data_e, double model_e, const CcdNoise& noise) {
+  ForEachValidPixel(theta, k, k + 1, [&](double data_e, double model_e, const CcdNoise& noise) {
     total += PixelLogLikelihood(kind, data_e, model_e, noise);
   });
+  return total;
+}
+
+double FitEvaluator::LogLikelihood(const double* theta) {
+  double total = 0.0;
+  for (int k = 0; k < fit_model_.num_exposures(); ++k) total += ExposureLogLikelihood(theta, k);
   return total;
 }
 
@@ -290,19 +303,21 @@ double FitEvaluator::LeastSquaresFlux(const double* theta) {
   std::vector<double> unit(theta, theta + fit_model_.dim());
   unit[kFluxE] = 1.0;
   double num = 0.0, den = 0.0;
-  ForEachValidPixel(unit.data(), [&](double data_e, double model_e, const CcdNoise&) {
-    num += model_e * data_e;
-    den += model_e * model_e;
-  });
+  ForEachValidPixel(unit.data(), 0, fit_model_.num_exposures(),
+                    [&](double data_e, double model_e, const CcdNoise&) {
+                      num += model_e * data_e;
+                      den += model_e * model_e;
+                    });
   return den > 0 ? num / den : NAN;
 }
 
 double FitEvaluator::ChiSquare(const double* theta) {
   double chi2 = 0.0;
-  ForEachValidPixel(theta, [&](double data_e, double model_e, const CcdNoise& noise) {
-    const double r = data_e - model_e;
-    chi2 += r * r / noise.VarianceE2(model_e);
-  });
+  ForEachValidPixel(theta, 0, fit_model_.num_exposures(),
+                    [&](double data_e, double model_e, const CcdNoise& noise) {
+                      const double r = data_e - model_e;
+                      chi2 += r * r / noise.VarianceE2(model_e);
+                    });
   return chi2;
 }
 

@@ -35,8 +35,10 @@
 #ifndef CCDPSF_FIT_ENSEMBLE_SAMPLER_H_
 #define CCDPSF_FIT_ENSEMBLE_SAMPLER_H_
 
+#include <cmath>
 #include <cstdint>
 #include <functional>
+#include <random>
 #include <string>
 #include <vector>
 
@@ -86,6 +88,40 @@ struct SamplerOptions {
 // own scratch space (e.g. a SpotRenderer) without locking.
 using LogDensity = std::function<double(const double* theta)>;
 
+// A target whose coordinates split in two blocks (Metropolis-within-Gibbs around the
+// ensemble): coordinates [0, stretch_dim) take the stretch move above; after each of its
+// stretch updates, a walker's remaining coordinates [stretch_dim, dim) are updated by
+// `conditional`, a Markov kernel that must leave p(rest | first block) invariant. Each
+// half-step then still leaves the product of the walkers' densities invariant: the stretch
+// move is a valid Metropolis-Hastings update of walker k's first block for ANY target given
+// the other half's positions (here p(first block | walker k's own rest)).
+// Why: in a joint fit the per-exposure positions are nearly independent of each other given
+// the shared PSF parameters; sampling them by exact conditional moves keeps the ensemble's
+// dimension that of the shared block, and the stretch move's autocorrelation time grows with
+// that dimension.
+// aux: aux_dim numbers per walker that the density computes for a state and the conditional
+// update reads and keeps current (e.g. the log-likelihood of each exposure), so that a
+// conditional move need not recompute what it does not change.
+struct BlockedTarget {
+  int stretch_dim = 0;
+  int aux_dim = 0;
+  // log p(state) up to a constant; writes aux_dim values to aux (which may be nullptr when
+  // aux_dim == 0). Rules as for LogDensity. One per thread.
+  using Density = std::function<double(const double* state, double* aux)>;
+  // Updates state[stretch_dim..dim), *aux and *log_prob (the density of the new state) in
+  // place, drawing only from `engine`; returns the fraction of its sub-moves accepted. One
+  // per thread; empty when stretch_dim == dim.
+  using Conditional =
+      std::function<double(double* state, double* aux, double* log_prob, std::mt19937_64& engine)>;
+  std::vector<Density> log_density;
+  std::vector<Conditional> conditional;
+  // The conditional update follows the stretch update on steps 0, every, 2 every, ... only:
+  // when the second block mixes much faster than the first (e.g. positions drawn from a good
+  // proposal), updating it less often saves its cost and leaves the slow block's mixing as
+  // it was.
+  int conditional_every = 1;
+};
+
 struct SamplerResult {
   int num_walkers = 0;
   int dim = 0;
@@ -100,6 +136,8 @@ struct SamplerResult {
   // Accepted proposals / steps, per walker; and its mean over walkers.
   std::vector<double> acceptance_fraction;
   double mean_acceptance = 0.0;
+  // Blocked targets only: mean acceptance of the conditional updates (NaN otherwise).
+  double conditional_acceptance = NAN;
   // Per parameter, on steps [burn_in, num_steps): integrated autocorrelation time [steps]
   // (+inf where it could not be estimated) and effective sample size
   // walkers * (num_steps - burn_in) / tau (0 there).
@@ -121,6 +159,11 @@ struct SamplerResult {
 bool RunEnsembleSampler(const std::vector<LogDensity>& log_density_per_thread, int dim,
                         const std::vector<double>& initial, const SamplerOptions& options,
                         SamplerResult* result, std::string* error);
+
+// The same for a blocked target: walkers must number >= 2 * stretch_dim + 2 and span the
+// stretch block's directions; acceptance_fraction counts the stretch moves.
+bool RunEnsembleSampler(const BlockedTarget& target, int dim, const std::vector<double>& initial,
+                        const SamplerOptions& options, SamplerResult* result, std::string* error);
 
 }  // namespace ccdpsf::fit
 

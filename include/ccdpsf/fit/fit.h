@@ -12,15 +12,19 @@
 #include "ccdpsf/fit/fit_model.h"
 #include "ccdpsf/fit/laplace.h"
 #include "ccdpsf/fit/map_fit.h"
+#include "ccdpsf/fit/posterior_target.h"
 
 namespace ccdpsf::fit {
 
 struct FitOptions {
   MapOptions map;
   bool run_mcmc = true;
-  // Walkers: 0 picks max(32, 4 dim) rounded up to even.
+  // Walkers: 0 picks max(2 x stretch dimension + 2, target_ess / min_tau_multiple), even.
   int num_walkers = 0;
   SamplerOptions mcmc;
+  // What the sampler walks (posterior_target.h); both switches off gives the plain ensemble
+  // over all parameters in sampling coordinates.
+  PosteriorTargetOptions target;
   // Posterior draws (thinned from the chain after burn-in) used for the derived metrics;
   // the peak pixel, which needs a render per draw and exposure, uses at most peak_draws.
   int derived_draws = 4000;
@@ -44,7 +48,7 @@ struct FitResult {
   LaplaceResult laplace;
   bool have_mcmc = false;
   SamplerResult chain;
-  std::vector<Summary> parameters;                // in theta order
+  std::vector<Summary> parameters;                       // in theta order
   std::vector<std::pair<std::string, Summary>> derived;  // fixed order, see fit.cc
   double seconds = 0.0;
 };

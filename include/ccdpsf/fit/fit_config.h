@@ -7,7 +7,8 @@
 //               "position_halfwidth_px": 2.0, "flux_fraction": [0.2, 5.0]},
 //    "map":  {"start_airy_radii_px": [0.35, 0.6, 0.9], "start_defocus_shares": [0.25, 0.75]},
 //    "mcmc": {"enabled": true, "walkers": 0, "max_steps": 20000, "target_ess": 1000,
-//             "min_tau_multiple": 50, "seed": 1, "threads": 2},
+//             "min_tau_multiple": 50, "seed": 1, "threads": 2, "marginal_defocus": true,
+//             "positions_by_conditional": true, "position_update_every": 1},
 //    "calibration": {"gain_e_per_adu": 3.1, "read_noise_e": 4.5, "bias_adu": 1000,
 //                    "saturation_adu": 65535, "stamp_size": 21}}
 //

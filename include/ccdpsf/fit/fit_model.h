@@ -25,8 +25,13 @@
 namespace ccdpsf::fit {
 
 constexpr int kNumShared = 5;
-enum SharedParam { kFluxE = 0, kAiryRadiusPx = 1, kDefocusPx = 2, kCcdSigmaXPx = 3,
-                   kCcdSigmaYPx = 4 };
+enum SharedParam {
+  kFluxE = 0,
+  kAiryRadiusPx = 1,
+  kDefocusPx = 2,
+  kCcdSigmaXPx = 3,
+  kCcdSigmaYPx = 4
+};
 
 // Flat prior ranges. Defaults are physical limits for a CCD273-like spot projector:
 // the radius and widths span 0.1-1.5 px (the paper's values are 0.3-0.5 px); the CCD widths
@@ -59,8 +64,8 @@ class FitModel {
   // than one). Returns nullptr with a one-line reason on bad input: no stamps, stamps of
   // different sizes, a stamp with no valid pixel, no signal to fit, pixel_centre with a
   // pillbox.
-  static std::unique_ptr<FitModel> Create(std::vector<Stamp> stamps,
-                                          const FitModelOptions& options, std::string* error);
+  static std::unique_ptr<FitModel> Create(std::vector<Stamp> stamps, const FitModelOptions& options,
+                                          std::string* error);
 
   int dim() const { return static_cast<int>(names_.size()); }
   int num_exposures() const { return static_cast<int>(stamps_.size()); }
@@ -105,6 +110,8 @@ class FitEvaluator {
 
   // Log-likelihood of all stamps (without the prior). theta must be inside the prior.
   double LogLikelihood(const double* theta);
+  // ... of stamp k alone (LogLikelihood is the sum of these over k). Renders only stamp k.
+  double ExposureLogLikelihood(const double* theta, int k);
   // Log-posterior up to a constant: -infinity outside the prior, else the log-likelihood.
   double LogPosterior(const double* theta);
 
@@ -128,10 +135,10 @@ class FitEvaluator {
   double ChiSquare(const double* theta);
 
  private:
-  // Renders every exposure at theta and calls visit(data_e, model_e, noise) for each valid
-  // pixel: the one loop behind the log-likelihood, chi^2 and least-squares flux.
+  // Renders exposures [first, last) at theta and calls visit(data_e, model_e, noise) for each
+  // valid pixel: the one loop behind the log-likelihood, chi^2 and least-squares flux.
   template <typename Visit>
-  void ForEachValidPixel(const double* theta, Visit visit);
+  void ForEachValidPixel(const double* theta, int first, int last, Visit visit);
 
   const FitModel& fit_model_;
   model::SpotRenderer renderer_;

@@ -1,0 +1,99 @@
+// What the MCMC walks: the sampler's state for a fit, its two blocks, and the way back to the
+// fit parameters theta.
+//
+// State coordinates (in this order):
+//   the shared parameters in sampling coordinates (sampling_coordinates.h: the CCD widths
+//   replaced by the total widths t_x, t_y), without the defocus when it is integrated out
+//   (defocus_marginal.h: `integrated` sampling with a Gaussian defocus, where the data cannot
+//   tell the defocus from the CCD widths), then x_px.K, y_px.K per exposure.
+// Blocks: the shared parameters take the ensemble's stretch moves. The positions either join
+// them, or (positions_by_conditional) are updated exposure by exposure with an independence
+// Metropolis-Hastings move: the proposal is the Laplace approximation's conditional
+// N(p_k | shared), whose mean follows the shared parameters linearly,
+//   mean_k = p_k,map - P_k^-1 C_k (a - a_map),  covariance scale^2 P_k^-1,
+// with P_k the 2 x 2 Fisher block of exposure k's position and C_k its coupling to the shared
+// block a. Given the shared parameters the exposures are independent, so each move renders
+// only its own exposure; the acceptance ratio uses the exact likelihood, so the Gaussian is
+// only a proposal and any mismatch costs acceptance, not correctness.
+#ifndef CCDPSF_FIT_POSTERIOR_TARGET_H_
+#define CCDPSF_FIT_POSTERIOR_TARGET_H_
+
+#include <array>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "ccdpsf/fit/defocus_marginal.h"
+#include "ccdpsf/fit/ensemble_sampler.h"
+#include "ccdpsf/fit/fit_model.h"
+#include "ccdpsf/fit/laplace.h"
+#include "ccdpsf/fit/sampling_coordinates.h"
+
+namespace ccdpsf::fit {
+
+struct PosteriorTargetOptions {
+  // Integrate the defocus out where the model allows it (see above).
+  bool marginal_defocus = true;
+  // Update the positions by conditional moves instead of stretch moves (joint fits only).
+  bool positions_by_conditional = true;
+  // Width of the positions' proposal relative to the Laplace conditional: a little wider
+  // than the target keeps the independence sampler robust to tails the Gaussian misses.
+  double proposal_scale = 1.2;
+  // Positions are updated on every n-th step only (BlockedTarget::conditional_every).
+  int position_update_every = 1;
+};
+
+class PosteriorTarget {
+ public:
+  // theta_map and the Fisher information at it (theta coordinates, dim x dim).
+  PosteriorTarget(const FitModel& model, const std::vector<double>& theta_map,
+                  const std::vector<double>& fisher, const PosteriorTargetOptions& options);
+
+  int dim() const { return static_cast<int>(names_.size()); }
+  int stretch_dim() const { return stretch_dim_; }
+  bool marginal_defocus() const { return marginal_; }
+  bool positions_by_conditional() const { return stretch_dim_ < dim(); }
+  const std::vector<std::string>& names() const { return names_; }
+  const std::vector<double>& state_map() const { return state_map_; }
+  // The Laplace approximation in state coordinates, to seed the walkers.
+  const LaplaceResult& laplace() const { return laplace_; }
+
+  // theta of a state; with the defocus integrated out, u in [0, 1] is the quantile of the
+  // defocus drawn from its exact conditional. False when the state is outside the support.
+  bool ToTheta(const double* state, double u, double* theta) const;
+
+  // log posterior density of a state up to a constant (-infinity outside the support); writes
+  // each exposure's log-likelihood to aux (num_exposures values) unless aux is nullptr.
+  double LogDensity(FitEvaluator* evaluator, const double* state, double* aux) const;
+
+  // The sampler's target, thread t using evaluators[t] (which must outlive the run).
+  BlockedTarget Make(const std::vector<FitEvaluator*>& evaluators) const;
+
+ private:
+  // theta for a state with the lowest allowed defocus (the likelihood does not depend on
+  // it in marginal mode); false outside the support. *log_weight: log W or log Jacobian.
+  bool LikelihoodTheta(const double* state, double* theta, double* log_weight) const;
+  double ConditionalUpdate(FitEvaluator* evaluator, double* state, double* aux, double* log_prob,
+                           std::mt19937_64& engine) const;
+  int PhiIndex(int state_index) const;
+
+  const FitModel& model_;
+  SamplingCoordinates coords_;
+  WidthBounds bounds_;
+  bool marginal_ = false;
+  int num_shared_ = 0;  // shared parameters in the state
+  int stretch_dim_ = 0;
+  double proposal_scale_ = 1.0;
+  int position_update_every_ = 1;
+  std::vector<std::string> names_;
+  std::vector<double> state_map_;
+  LaplaceResult laplace_;
+  // Per exposure: the conditional proposal's mean offset matrix B_k (2 x num_shared_,
+  // row-major), the Cholesky factor L_k of P_k^-1 (lower, row-major 2 x 2) and its inverse.
+  std::vector<std::vector<double>> coupling_;
+  std::vector<std::array<double, 4>> chol_, chol_inverse_;
+};
+
+}  // namespace ccdpsf::fit
+
+#endif  // CCDPSF_FIT_POSTERIOR_TARGET_H_
