@@ -170,6 +170,12 @@ model::SpotParams SimulationConfig::Params(const SimulatedExposure& e) const {
   return p;
 }
 
+model::ExposureEffects SimulationConfig::EffectsFor(const SimulatedExposure& e) const {
+  model::ExposureEffects out = effects;
+  if (e.jitter) out.jitter = *e.jitter;
+  return out;
+}
+
 std::optional<SimulationConfig> ParseSimulationConfig(const std::string& text,
                                                       std::string* error) {
   json j = json::parse(text, nullptr, /*allow_exceptions=*/false, /*ignore_comments=*/true);
@@ -219,15 +225,9 @@ std::optional<SimulationConfig> ParseSimulationConfig(const std::string& text,
   }
   if (r.ok() && !r.Has("model")) r.Fail("'model' is required");
   if (r.ok() && !ParseModel(r.Get("model"), &c, error)) return std::nullopt;
-  if (r.ok() && r.Has("effects")) {
-    const json& effects = r.Get("effects");
-    if (!effects.is_object()) {
-      r.Fail("'effects' must be a JSON object");
-    } else if (!effects.empty()) {
-      r.Fail("effect '" + effects.begin().key() +
-             "' is not available in this version of ccdpsf (no injected effects yet)");
-    }
-  }
+  // Effects are parsed after the exposures: per-exposure lists must match their number.
+  const json* effects_json = nullptr;
+  if (r.ok() && r.Has("effects")) effects_json = &r.Get("effects");
   if (r.ok() && r.Has("omit_keywords")) {
     const json& omit = r.Get("omit_keywords");
     if (!omit.is_array()) {
@@ -263,6 +263,17 @@ std::optional<SimulationConfig> ParseSimulationConfig(const std::string& text,
   }
   r.RejectUnknownKeys();
   if (!r.ok()) return std::nullopt;
+  if (effects_json != nullptr) {
+    model::EffectsConfig effects;
+    if (!model::ParseEffectsConfig(*effects_json, static_cast<int>(c.exposures.size()),
+                                   c.model.sampling, &effects, error)) {
+      return std::nullopt;
+    }
+    c.effects = effects.common;
+    for (size_t k = 0; k < effects.jitter_per_exposure.size(); ++k) {
+      c.exposures[k].jitter = effects.jitter_per_exposure[k];
+    }
+  }
   if (c.model.sampling == model::Sampling::kPixelCentre &&
       c.model.defocus != model::DefocusKind::kGaussian) {
     *error = "pixel_centre sampling has only the Gaussian defocus of the 2015 code";
@@ -292,8 +303,10 @@ std::optional<SimulationConfig> LoadSimulationConfig(const std::string& path,
   return config;
 }
 
-Image ExpectedElectrons(const SimulationConfig& c, const SimulatedExposure& e) {
+Image ExpectedElectrons(const SimulationConfig& c, const SimulatedExposure& e,
+                        model::KernelEffectDetails* details) {
   Image frame(c.FrameNx(), c.ny, 0.0);
+  const model::ExposureEffects effects = c.EffectsFor(e);
   model::SpotRenderer renderer(c.model);
   model::SpotParams p = c.Params(e);
   model::PixelGrid grid;
@@ -312,9 +325,32 @@ Image ExpectedElectrons(const SimulationConfig& c, const SimulatedExposure& e) {
     grid.y0 = 0.0;
   }
   std::vector<double> model(grid.size());
-  renderer.Render(p, grid, model.data(), nullptr);
+  // Without kernel effects this is renderer.Render(p, ...) itself.
+  model::RenderSpotWithEffects(renderer, effects, p, grid, model.data(), details);
+  if (details != nullptr) {
+    details->centre_x_px += c.model.sampling == model::Sampling::kPixelCentre ? ox : 0;
+    details->centre_y_px += c.model.sampling == model::Sampling::kPixelCentre ? oy : 0;
+  }
   for (int j = 0; j < grid.ny; ++j) {
     for (int i = 0; i < grid.nx; ++i) frame(ox + i, oy + j) = model[j * grid.nx + i];
+  }
+  if (effects.HasImageEffects()) {
+    // On the image area (prescan columns hold no charge), in frame coordinates.
+    const model::PixelGrid area{c.nx, c.ny, static_cast<double>(c.prescan_x), 0.0};
+    std::vector<double> image(area.size());
+    for (int j = 0; j < c.ny; ++j) {
+      for (int i = 0; i < c.nx; ++i) image[j * c.nx + i] = frame(c.prescan_x + i, j);
+    }
+    model::SpotReference spot{e.flux_e, e.x_px, e.y_px};
+    if (c.model.sampling == model::Sampling::kPixelCentre) {
+      // m is not a flux: the halo takes its share of the stamp's electrons.
+      spot.flux_e = 0.0;
+      for (double v : model) spot.flux_e += v;
+    }
+    model::ApplyImageEffects(effects, area, spot, image.data());
+    for (int j = 0; j < c.ny; ++j) {
+      for (int i = 0; i < c.nx; ++i) frame(c.prescan_x + i, j) = image[j * c.nx + i];
+    }
   }
   return frame;
 }
@@ -326,9 +362,18 @@ std::mt19937_64 ExposureEngine(const SimulationConfig& c, int index) {
 Image ObserveAdu(const SimulationConfig& c, const Image& expected_e, std::mt19937_64& engine) {
   Image adu(expected_e.nx, expected_e.ny);
   const double ceiling = std::floor(std::min(c.saturation_adu, 65535.0));
+  const double pedestal_e = c.effects.background ? c.effects.background->pedestal_e : 0.0;
+  if (pedestal_e != 0.0) {
+    CHECK(expected_e.nx == c.FrameNx() && expected_e.ny == c.ny)
+        << "ObserveAdu: the image is not the configured frame";
+  }
   for (size_t q = 0; q < expected_e.size(); ++q) {
-    const double m = std::max(expected_e.data[q], 0.0);
-    const double photo_e = static_cast<double>(Poisson(m, engine));           // step 5
+    // The pedestal sits in the image area only, like ExpectedElectrons'.
+    const double bg =
+        static_cast<int>(q % static_cast<size_t>(expected_e.nx)) >= c.prescan_x ? pedestal_e
+                                                                                : 0.0;
+    const double m = std::max(expected_e.data[q] - bg, 0.0);
+    const double photo_e = static_cast<double>(Poisson(m, engine)) + bg;      // step 5
     const double read_e = c.read_noise_e * StandardNormal(engine);           // step 7
     const double value = c.bias_adu + (photo_e + read_e) / c.gain_e_per_adu;  // steps 6, 8
     adu.data[q] = std::clamp(std::nearbyint(value), 0.0, ceiling);            // step 9
@@ -359,11 +404,29 @@ bool RunSimulation(const SimulationConfig& c, const std::string& out_dir, bool n
                           c.defocus_px},
                          {"ccd_sigma_x_px", c.ccd_sigma_x_px},
                          {"ccd_sigma_y_px", c.ccd_sigma_y_px}};
+  {
+    // The injected effects as resolved (defaults filled in); jitter as lists when it varies
+    // per exposure. Absent when nothing is injected, so that such a truth.json is the same,
+    // byte for byte, as before effects existed.
+    model::EffectsConfig effects;
+    effects.common = c.effects;
+    bool per_exposure = false;
+    for (const SimulatedExposure& e : c.exposures) per_exposure |= e.jitter.has_value();
+    if (per_exposure) {
+      for (const SimulatedExposure& e : c.exposures) {
+        // An exposure without jitter (only possible in a config built in code) records zeros.
+        effects.jitter_per_exposure.push_back(c.EffectsFor(e).jitter.value_or(
+            model::JitterParams{0.0, 0.0, 0.0, 0.0}));
+      }
+    }
+    if (!effects.empty()) truth["effects"] = model::EffectsConfigToJson(effects);
+  }
   truth["exposures"] = json::array();
   std::vector<std::string> names;
   for (size_t k = 0; k < c.exposures.size(); ++k) {
     const SimulatedExposure& e = c.exposures[k];
-    const Image expected = ExpectedElectrons(c, e);
+    model::KernelEffectDetails details;
+    const Image expected = ExpectedElectrons(c, e, &details);
     const std::string name = IndexedName(noiseless ? "model" : "exposure", static_cast<int>(k));
     const FitsHeader header = ExposureHeader(c, e, static_cast<int>(k), noiseless);
     bool ok;
@@ -386,6 +449,32 @@ bool RunSimulation(const SimulationConfig& c, const std::string& out_dir, bool n
     ej[c.model.sampling == model::Sampling::kPixelCentre ? "peak_e" : "flux_e"] = e.flux_e;
     if (e.focus_position_um) ej["focus_position_um"] = *e.focus_position_um;
     if (e.defocus_px) ej["defocus_px"] = *e.defocus_px;
+    const model::ExposureEffects effects = c.EffectsFor(e);
+    if (!effects.empty()) {
+      // What the effects did to this exposure.
+      json applied = json::object();
+      if (effects.brighter_fatter) {
+        applied["brighter_fatter"] = {{"peak_e", details.peak_e},
+                                      {"ccd_sigma_x_px", details.ccd_sigma_x_px},
+                                      {"ccd_sigma_y_px", details.ccd_sigma_y_px}};
+      }
+      if (effects.jitter) {
+        applied["jitter"] = {{"sigma_x_px", effects.jitter->sigma_x_px},
+                             {"sigma_y_px", effects.jitter->sigma_y_px},
+                             {"motion_length_px", effects.jitter->motion_length_px},
+                             {"motion_angle_deg", effects.jitter->motion_angle_deg},
+                             {"motion_nodes", details.motion_nodes}};
+      }
+      if (effects.defocus_offset) {
+        applied["defocus_offset"] = {{"defocus_centre_x_px", details.centre_x_px},
+                                     {"defocus_centre_y_px", details.centre_y_px}};
+      }
+      if (effects.HasKernelEffects()) {
+        applied["rendered_ccd_sigma_x_px"] = details.rendered_sigma_x_px;
+        applied["rendered_ccd_sigma_y_px"] = details.rendered_sigma_y_px;
+      }
+      ej["effects"] = applied;
+    }
     truth["exposures"].push_back(ej);
   }
   truth["software"] = SoftwareVersions();

@@ -9,6 +9,7 @@
 #include <chrono>
 
 #include "ccdpsf/fits_io.h"
+#include "ccdpsf/model/effects.h"
 #include "ccdpsf/model/renderer.h"
 #include "gtest/gtest.h"
 #include "nlohmann/json.hpp"
@@ -250,7 +251,16 @@ TEST(Simulate, ConfigErrorsNameTheProblem) {
       {"\"gain_e_per_adu\": 3.1", "\"gain_e_per_adu\": -3.1", "gain"},
       {"\"x_px\": 7.07", "\"x_px\": 40.0", "outside the image area"},
       {"\"flux_e\": 3.0e5", "\"flux_e\": \"lots\"", "'exposures[0].flux_e' must be a finite"},
-      {"\"effects\": {}", "\"effects\": {\"ipc\": {\"alpha\": 0.01}}", "effect 'ipc'"},
+      {"\"effects\": {}", "\"effects\": {\"ipc\": {\"alpha\": 0.3}}",
+       "'effects.ipc.alpha' must be in [0, 0.25) (got 0.3)"},
+      {"\"effects\": {}", "\"effects\": {\"glow\": {}}", "unknown effect 'effects.glow'"},
+      {"\"effects\": {}", "\"effects\": {\"halo\": {\"width\": 2}}",
+       "unknown key 'effects.halo.width'"},
+      {"\"effects\": {}", "\"effects\": {\"defocus\": {\"sigma_px\": 0.3}}",
+       "'effects.defocus' cannot be injected"},
+      {"\"effects\": {}", "\"effects\": {\"jitter\": {\"sigma_x_px\": [0.1, 0.2]}}",
+       "'effects.jitter.sigma_x_px' must be a finite number or a list of 1"},
+      {"\"effects\": {}", "\"effects\": []", "'effects' must be a JSON object"},
       {"\"airy_radius_px\": 0.47", "\"airy_radius_px\": 0.0", "airy radius"},
   };
   for (const Case& c : cases) {
@@ -283,6 +293,228 @@ TEST(Simulate, FailureLeavesNothingBehind) {
   for (const auto& entry : fs::directory_iterator(dir)) {
     EXPECT_EQ(entry.path().filename().string().find(".ccdpsf-staging"), std::string::npos);
   }
+}
+
+// ------------------------------------------------------------------------------------------
+// Injected effects (model/effects.h; the effects themselves are tested in effects_test.cc).
+
+std::string WithEffects(const std::string& effects, const std::string& extra_exposure = "") {
+  std::string text = PaperConfig(extra_exposure);
+  text.replace(text.find("\"effects\": {}"), 13, "\"effects\": " + effects);
+  return text;
+}
+
+// "effects": {} is the same as no "effects" key: identical bytes, noisy and noiseless.
+TEST(Simulate, EmptyEffectsGiveTheSameBytesAsNoEffectsKey) {
+  std::string without = PaperConfig(R"(, {"flux_e": 2e5, "x_px": 7.0, "y_px": 6.1})");
+  const std::string with = without;
+  without.replace(without.find("\"effects\": {},"), 14, "");
+  ASSERT_EQ(without.find("effects"), std::string::npos);
+  for (const bool noiseless : {false, true}) {
+    SimulationResult a, b;
+    std::string error;
+    const std::string tag = noiseless ? "n" : "o";
+    ASSERT_TRUE(RunSimulation(MustParse(with), TempDir("fx_empty_" + tag), noiseless, &a, &error))
+        << error;
+    ASSERT_TRUE(
+        RunSimulation(MustParse(without), TempDir("fx_none_" + tag), noiseless, &b, &error))
+        << error;
+    ASSERT_EQ(a.files.size(), 2u);
+    for (size_t k = 0; k < a.files.size(); ++k) {
+      EXPECT_TRUE(ReadBytes(a.files[k]) == ReadBytes(b.files[k])) << a.files[k];
+    }
+    EXPECT_TRUE(ReadBytes(a.truth_path) == ReadBytes(b.truth_path));
+    std::ifstream in(a.truth_path);
+    EXPECT_FALSE(nlohmann::json::parse(in).contains("effects"));
+  }
+}
+
+// The expected image is the documented composition: kernel effects in the render, then halo,
+// nonlinearity, ipc, serial and parallel CTI and the pedestal on the image area only (prescan
+// columns stay empty). Built here from the individual effect functions, so it must agree to
+// the last bit; in pixel_centre sampling the halo takes its share of the stamp's sum.
+TEST(Simulate, ExpectedImageComposesTheEffectsInTheDocumentedOrder) {
+  const std::string effects = R"({"brighter_fatter": {}, "jitter": {"sigma_x_px": 0.1},
+      "halo": {"fraction": 0.04, "sigma_px": 2.0}, "nonlinearity": {"beta_per_e": 2e-7},
+      "ipc": {"alpha": 0.02}, "serial_cti": {"trail_fraction": 1e-3},
+      "parallel_cti": {"trail_fraction": 2e-3, "trail_length_px": 0.8},
+      "background": {"pedestal_e": 15}})";
+  for (const bool pixel_centre : {false, true}) {
+    SCOPED_TRACE(pixel_centre ? "pixel_centre" : "integrated");
+    std::string text = WithEffects(effects);
+    if (pixel_centre) {
+      text.replace(text.find("\"integrated\""), 12, "\"pixel_centre\"");
+      text.replace(text.find("\"flux_e\": 3.0e5"), 15, "\"peak_e\": 1.5e5");
+    }
+    SimulationConfig c = MustParse(text);
+    c.prescan_x = 3;
+    c.exposures[0].x_px += 3;
+    const SimulatedExposure& e = c.exposures[0];
+    const Image frame = ExpectedElectrons(c, e);
+    ASSERT_EQ(frame.nx, 18);
+
+    // The spot, on the image area (integrated) or the 13 x 13 stamp around the spot.
+    model::SpotRenderer renderer(c.model);
+    model::SpotParams p = c.Params(e);
+    model::PixelGrid grid{15, 13, 3.0, 0.0};
+    int ox = 3, oy = 0;
+    if (pixel_centre) {
+      ox = static_cast<int>(std::lround(e.x_px)) - 6;
+      oy = static_cast<int>(std::lround(e.y_px)) - 6;
+      grid = model::PixelGrid{13, 13, 0.0, 0.0};
+      p[model::kCentreX] -= ox;
+      p[model::kCentreY] -= oy;
+    }
+    model::ExposureEffects fx;
+    fx.jitter = model::JitterParams{0.1, 0.1, 0.0, 0.0};
+    const double peak = model::BrighterFatterSignal(renderer, fx, p, grid);
+    fx.brighter_fatter = model::BrighterFatterParams();
+    std::vector<double> stamp(grid.size());
+    model::RenderSpotWithKernelEffects(renderer, fx, p, grid, peak, stamp.data());
+    double stamp_sum = 0.0;
+    for (double v : stamp) stamp_sum += v;
+    std::vector<double> area(15 * 13, 0.0);
+    for (int j = 0; j < grid.ny; ++j) {
+      for (int i = 0; i < grid.nx; ++i) {
+        area[(oy + j) * 15 + (ox - 3 + i)] = stamp[j * grid.nx + i];
+      }
+    }
+    const model::PixelGrid area_grid{15, 13, 3.0, 0.0};
+    const model::SpotReference ref{pixel_centre ? stamp_sum : e.flux_e, e.x_px, e.y_px};
+    model::AddHalo({0.04, 2.0}, area_grid, ref, area.data());
+    model::ApplyNonlinearity({2e-7}, 15 * 13, area.data());
+    model::ApplyIpc({0.02}, 15, 13, area.data());
+    model::ApplySerialCti({1e-3, model::CtiParams().trail_length_px}, 15, 13, area.data());
+    model::ApplyParallelCti({2e-3, 0.8}, 15, 13, area.data());
+    for (double& v : area) v += 15.0;
+    for (int y = 0; y < 13; ++y) {
+      for (int x = 0; x < 3; ++x) EXPECT_EQ(frame(x, y), 0.0);
+      for (int x = 0; x < 15; ++x) EXPECT_EQ(frame(x + 3, y), area[y * 15 + x]) << x << "," << y;
+    }
+  }
+  // defocus_offset cannot be rendered in pixel_centre sampling.
+  std::string text = WithEffects(R"({"defocus_offset": {"dx_px": 0.2}})");
+  text.replace(text.find("\"integrated\""), 12, "\"pixel_centre\"");
+  text.replace(text.find("\"flux_e\""), 8, "\"peak_e\"");
+  std::string error;
+  EXPECT_FALSE(ParseSimulationConfig(text, &error).has_value());
+  EXPECT_NE(error.find("'effects.defocus_offset' needs integrated sampling"), std::string::npos)
+      << error;
+}
+
+// The pedestal shifts the mean of (ADU - bias) g by pedestal_e: over 15 x 13 pixels x 300
+// realisations the mean of (ADU - B) g - m_photo is compared with the pedestal within 4
+// standard errors, SE^2 = sum over values of (m_photo + RN^2 + g^2 / 12) / N^2 (shot noise,
+// read noise and rounding). It carries no shot noise: on a dark frame with a 200 e- pedestal
+// the variance in ADU stays RN^2 / g^2 + 1/12 (shot noise would add 200 / g^2 = 21 ADU^2),
+// within 5 standard errors var sqrt(2 / (N - 1)). Prescan columns get no pedestal.
+TEST(Simulate, BackgroundShiftsTheMeanByThePedestalWithoutShotNoise) {
+  SimulationConfig c = MustParse(WithEffects(R"({"background": {"pedestal_e": 20}})"));
+  const double g = c.gain_e_per_adu;
+  SimulationConfig plain = c;
+  plain.effects = model::ExposureEffects();
+  const Image photo = ExpectedElectrons(plain, c.exposures[0]);
+  const Image expected = ExpectedElectrons(c, c.exposures[0]);
+  for (size_t q = 0; q < photo.size(); ++q) EXPECT_EQ(expected.data[q], photo.data[q] + 20.0);
+  std::mt19937_64 engine(99);
+  const int n = 300;
+  double sum = 0.0, var_sum = 0.0;
+  for (int r = 0; r < n; ++r) {
+    const Image adu = ObserveAdu(c, expected, engine);
+    for (size_t q = 0; q < adu.size(); ++q) {
+      sum += (adu.data[q] - c.bias_adu) * g - photo.data[q];
+      var_sum += photo.data[q] + c.read_noise_e * c.read_noise_e + g * g / 12.0;
+    }
+  }
+  const double count = static_cast<double>(n) * photo.size();
+  EXPECT_NEAR(sum / count, 20.0, 4.0 * std::sqrt(var_sum) / count);
+
+  SimulationConfig dark = MustParse(WithEffects(R"({"background": {"pedestal_e": 200}})"));
+  dark.exposures[0].flux_e = 0.0;
+  dark.prescan_x = 3;
+  dark.exposures[0].x_px += 3;
+  const Image flat = ExpectedElectrons(dark, dark.exposures[0]);
+  std::mt19937_64 engine2(7);
+  double s1 = 0.0, s2 = 0.0, pre = 0.0;
+  int values = 0, pre_values = 0;
+  for (int r = 0; r < 100; ++r) {
+    const Image adu = ObserveAdu(dark, flat, engine2);
+    for (int y = 0; y < adu.ny; ++y) {
+      for (int x = 0; x < adu.nx; ++x) {
+        const double d = adu(x, y) - dark.bias_adu;
+        if (x < 3) {
+          pre += d;
+          ++pre_values;
+          continue;
+        }
+        s1 += d;
+        s2 += d * d;
+        ++values;
+      }
+    }
+  }
+  const double mean = s1 / values, var = (s2 - values * mean * mean) / (values - 1);
+  const double want_var = (4.5 / g) * (4.5 / g) + 1.0 / 12.0;
+  EXPECT_NEAR(mean, 200.0 / g, 4.0 * std::sqrt(want_var / values));
+  EXPECT_NEAR(var, want_var, 5.0 * want_var * std::sqrt(2.0 / (values - 1)));
+  EXPECT_NEAR(pre / pre_values, 0.0, 4.0 * std::sqrt(want_var / pre_values));
+}
+
+// truth.json records the effects with their resolved parameters and, per exposure, what they
+// did; noiseless output is ExpectedElectrons; the same seed gives the same bytes.
+TEST(Simulate, TruthRecordsTheInjectedEffects) {
+  const std::string effects = R"({"brighter_fatter": {"slope_y_px_per_e": 3e-7},
+      "jitter": {"sigma_x_px": [0.0, 0.2], "motion_length_px": [0.0, 0.5]},
+      "halo": {}, "serial_cti": {"trail_fraction": 1e-3}})";
+  const SimulationConfig c =
+      MustParse(WithEffects(effects, R"(, {"flux_e": 1e5, "x_px": 7.3, "y_px": 6.2})"));
+  ASSERT_TRUE(c.exposures[1].jitter.has_value());
+  EXPECT_EQ(c.exposures[1].jitter->sigma_x_px, 0.2);
+  EXPECT_EQ(c.exposures[1].jitter->sigma_y_px, 0.0);  // motion given: sigmas default to 0
+  SimulationResult r, r2;
+  std::string error;
+  ASSERT_TRUE(RunSimulation(c, TempDir("fx_truth"), true, &r, &error)) << error;
+  for (size_t k = 0; k < 2; ++k) {
+    auto image = ReadFitsImage(r.files[k], &error);
+    ASSERT_TRUE(image.has_value()) << error;
+    EXPECT_TRUE(image->pixels.data == ExpectedElectrons(c, c.exposures[k]).data) << k;
+  }
+  std::ifstream in(r.truth_path);
+  const nlohmann::json truth = nlohmann::json::parse(in);
+  const nlohmann::json& fx = truth["effects"];
+  EXPECT_EQ(fx["brighter_fatter"]["slope_x_px_per_e"], model::BrighterFatterParams().slope_x_px_per_e);
+  EXPECT_EQ(fx["brighter_fatter"]["slope_y_px_per_e"], 3e-7);
+  EXPECT_EQ(fx["halo"]["fraction"], model::HaloParams().fraction);
+  EXPECT_EQ(fx["serial_cti"]["trail_fraction"], 1e-3);
+  EXPECT_EQ(fx["jitter"]["sigma_x_px"], nlohmann::json({0.0, 0.2}));
+  EXPECT_EQ(fx["jitter"]["motion_length_px"], nlohmann::json({0.0, 0.5}));
+  EXPECT_FALSE(fx.contains("ipc"));
+  // Per exposure: the brighter-fatter signal is the peak of the spot rendered with the jitter
+  // alone; the widths follow from it.
+  model::SpotRenderer renderer(c.model);
+  const model::PixelGrid grid{15, 13, 0.0, 0.0};
+  for (size_t k = 0; k < 2; ++k) {
+    const nlohmann::json& ek = truth["exposures"][k]["effects"];
+    model::ExposureEffects jitter_only;
+    jitter_only.jitter = c.exposures[k].jitter;
+    std::vector<double> m(grid.size());
+    model::RenderSpotWithEffects(renderer, jitter_only, c.Params(c.exposures[k]), grid, m.data());
+    const double peak = *std::max_element(m.begin(), m.end());
+    EXPECT_EQ(ek["brighter_fatter"]["peak_e"].get<double>(), peak) << k;
+    EXPECT_DOUBLE_EQ(ek["brighter_fatter"]["ccd_sigma_x_px"].get<double>(),
+                     0.291 + model::BrighterFatterParams().slope_x_px_per_e * peak);
+    EXPECT_DOUBLE_EQ(ek["brighter_fatter"]["ccd_sigma_y_px"].get<double>(), 0.335 + 3e-7 * peak);
+    EXPECT_DOUBLE_EQ(ek["rendered_ccd_sigma_x_px"].get<double>(),
+                     std::hypot(0.291 + model::BrighterFatterParams().slope_x_px_per_e * peak,
+                                k == 0 ? 0.0 : 0.2));
+    EXPECT_EQ(ek["jitter"]["sigma_x_px"], k == 0 ? 0.0 : 0.2);
+    EXPECT_EQ(ek["jitter"]["motion_nodes"].get<int>() > 1, k == 1);
+  }
+  // Deterministic with effects too.
+  ASSERT_TRUE(RunSimulation(c, TempDir("fx_seed_a"), false, &r, &error)) << error;
+  ASSERT_TRUE(RunSimulation(c, TempDir("fx_seed_b"), false, &r2, &error)) << error;
+  for (size_t k = 0; k < 2; ++k) EXPECT_TRUE(ReadBytes(r.files[k]) == ReadBytes(r2.files[k]));
+  EXPECT_TRUE(ReadBytes(r.truth_path) == ReadBytes(r2.truth_path));
 }
 
 }  // namespace

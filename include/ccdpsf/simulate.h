@@ -3,6 +3,22 @@
 //   5    Poisson noise;  6 bias;  7 Gaussian read noise;  8 gain (e- -> ADU);
 //   9    round to whole ADU, clip to [0, min(65535, saturation)], store as 16-bit FITS.
 //
+// Injected effects ("effects", by catalogue name; model/effects.h has the catalogue, the
+// parameters with units and their semantics) enter in this order:
+//   render the spot with the kernel effects (brighter_fatter, jitter, defocus_offset)
+//   -> halo -> nonlinearity -> ipc -> serial_cti -> parallel_cti      (expected electrons)
+//   -> Poisson (step 5) -> background pedestal -> bias, read noise, gain, rounding (6-9).
+// The charge effects act on the expected image, before the Poisson step, which keeps the mean
+// exact (their correlation of the shot noise between neighbouring pixels is neglected). The
+// image effects and the pedestal act on the image area only (not on prescan columns); in
+// pixel_centre sampling they act on the whole image area around the stamp, so a halo or a
+// trail may extend beyond it, and the halo holds a fraction of the stamp's summed electrons.
+// Each jitter value is one number for every exposure or a list with one per exposure. The
+// brighter-fatter signal of an exposure is the peak pixel of its spot rendered with the other
+// kernel effects (model::BrighterFatterSignal, on the image area or the pixel_centre stamp).
+// "defocus" is the model's own component ("model.defocus") and cannot be injected;
+// "defocus_offset" needs integrated sampling. "effects": {} is the same as no "effects".
+//
 // The configuration is the JSON of DESIGN.md section 2. Extensions beyond it:
 //   "image": {"prescan_x": N}   N bias-only columns at the left of the frame (written as
 //                               BIASSEC) so readers can be tested on realistic frames; spot
@@ -27,6 +43,7 @@
 #include <vector>
 
 #include "ccdpsf/image.h"
+#include "ccdpsf/model/effects.h"
 #include "ccdpsf/model/spot_model.h"
 
 namespace ccdpsf {
@@ -41,6 +58,8 @@ struct SimulatedExposure {
   double exptime_s = 0.0;
   std::optional<double> focus_position_um;
   std::optional<double> defocus_px;  // overrides SimulationConfig::defocus_px
+  // Overrides SimulationConfig::effects.jitter (set when the config gives jitter per exposure).
+  std::optional<model::JitterParams> jitter;
 };
 
 struct SimulationConfig {
@@ -60,10 +79,14 @@ struct SimulationConfig {
   double ccd_sigma_y_px = 0.335;
   int stamp_size = 21;       // pixel_centre only
   std::vector<std::string> omit_keywords;
+  // Injected effects shared by every exposure (jitter may be overridden per exposure).
+  model::ExposureEffects effects;
   std::vector<SimulatedExposure> exposures;
 
   int FrameNx() const { return nx + prescan_x; }
   model::SpotParams Params(const SimulatedExposure& exposure) const;
+  // The effects injected into one exposure: `effects` with the exposure's jitter override.
+  model::ExposureEffects EffectsFor(const SimulatedExposure& exposure) const;
 };
 
 // Parses and validates a configuration. Returns nullopt with a one-line reason on malformed
@@ -73,11 +96,17 @@ std::optional<SimulationConfig> ParseSimulationConfig(const std::string& json_te
 std::optional<SimulationConfig> LoadSimulationConfig(const std::string& path,
                                                      std::string* error);
 
-// Steps 1-4: expected photo-electrons per pixel of one exposure over the whole frame
-// (prescan columns are zero).
-Image ExpectedElectrons(const SimulationConfig& config, const SimulatedExposure& exposure);
+// Steps 1-4 with the injected effects: the expected electrons per pixel of one exposure over
+// the whole frame (prescan columns are zero), background pedestal included: what --noiseless
+// writes. `details` (may be null) receives what the kernel effects did, centres in frame
+// coordinates.
+Image ExpectedElectrons(const SimulationConfig& config, const SimulatedExposure& exposure,
+                        model::KernelEffectDetails* details = nullptr);
 
-// Steps 5-9 applied to an expected image: the stored ADU values (whole numbers).
+// Steps 5-9 applied to an image of expected electrons as ExpectedElectrons returns it: the
+// stored ADU values (whole numbers). The background pedestal (config.effects.background),
+// which carries no shot noise, is taken out of the image area before the Poisson step and
+// added back after it.
 Image ObserveAdu(const SimulationConfig& config, const Image& expected_e,
                  std::mt19937_64& engine);
 
@@ -90,6 +119,10 @@ struct SimulationResult {
 };
 
 // Writes DIR/exposure_NNN.fits (or model_NNN.fits with `noiseless`) and DIR/truth.json.
+// truth.json records the injected effects with their resolved parameters ("effects", absent
+// when nothing is injected) and, per exposure with effects, what they did: the brighter-fatter signal and widths,
+// the jitter and motion-blur node count, the defocus-kernel centre and the CCD widths handed
+// to the renderer (exposures[k].effects).
 // All files are first written to a temporary folder inside DIR and moved into place only
 // when every one succeeded, truth.json last; on failure nothing is left behind.
 bool RunSimulation(const SimulationConfig& config, const std::string& out_dir, bool noiseless,

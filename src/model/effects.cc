@@ -1,0 +1,729 @@
+#include "ccdpsf/model/effects.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <sstream>
+
+#include "glog/logging.h"
+#include "internal/gauss_legendre.h"
+#include "internal/json_reader.h"
+
+namespace ccdpsf::model {
+
+using nlohmann::json;
+
+namespace {
+
+constexpr double kInf = std::numeric_limits<double>::infinity();
+
+struct KindName {
+  EffectKind kind;
+  const char* name;
+};
+constexpr KindName kKindNames[] = {
+    {EffectKind::kDefocus, "defocus"},
+    {EffectKind::kBrighterFatter, "brighter_fatter"},
+    {EffectKind::kSerialCti, "serial_cti"},
+    {EffectKind::kParallelCti, "parallel_cti"},
+    {EffectKind::kIpc, "ipc"},
+    {EffectKind::kJitter, "jitter"},
+    {EffectKind::kBackground, "background"},
+    {EffectKind::kNonlinearity, "nonlinearity"},
+    {EffectKind::kHalo, "halo"},
+    {EffectKind::kDefocusOffset, "defocus_offset"},
+};
+
+EffectParameterInfo Param(const std::string& name, const std::string& unit, double def,
+                          double prior_lo, double prior_hi, double dom_lo, bool lo_open,
+                          double dom_hi, bool hi_open, const std::string& description) {
+  return {name, unit, def, prior_lo, prior_hi, dom_lo, dom_hi, lo_open, hi_open, description};
+}
+
+// The catalogue. Defaults are "realistic" strengths for a CCD273 spot at 800 nm, chosen as
+// follows (priors are a flat range a few times wider than the plausible values, containing 0
+// wherever "no effect" is a value of the parameter):
+//
+// defocus: sigma 0.41 px, the paper's simulated value (DESIGN.md's example config).
+// brighter_fatter: paper section 4.3, 800 nm: FWHM = 6.61 um + 1.14e-5 um/e- x I, for both
+//   axes (slopes agree within errors). In pixels of 12 um and with FWHM = 2.3548 sigma:
+//   1.14e-5 / 12 / 2.3548 = 4.03e-7 px per e-, so sigma grows by 0.064 px at I = 160 ke-.
+//   The prior reaches 5x the paper's slope.
+// serial_cti / parallel_cti: f is the total fraction of a pixel's charge found in its trail
+//   (for a linear CTI of c per transfer after n transfers, f ~ n c). Irradiated CCD273s show
+//   trail fractions of 1e-4..1e-3 for spots near the readout; 5e-4 is the middle of that range
+//   in log. Traps with release times of one to a few transfer periods give trails of 1-2 px:
+//   1.5 px. Unirradiated devices (the paper's) show far less.
+// ipc: interpixel coupling is ~0.5-2 % per neighbour in hybrid CMOS arrays; in a CCD the
+//   analogous electrostatic coupling is expected to be smaller, so 1 % is a strong but
+//   realistic test injection.
+// jitter: the spot moves < 0.1 px between exposures (DESIGN.md); vibration of the projector
+//   within a 2.5 s exposure of a comparable 0.1 px (1.2 um) rms is the assumed default. No
+//   motion by default (a linear drift is the alternative).
+// background: a bias-subtraction residual of 20 e- (about 6 ADU at 3.1 e-/ADU): a few times
+//   the read noise, typical of a bias estimated from a drifting prescan.
+// nonlinearity: CCD273 output amplifiers are linear to 1-2 % up to 160 ke-;
+//   beta = 1e-7 / e- gives 1.6 % at 160 ke-.
+// halo: red light (800-900 nm) penetrates deep into the silicon and is partly reflected from
+//   the back, spreading a few % of the light over 2-3 px: fraction 3 %, sigma 2.5 px.
+// defocus_offset: a misaligned pinhole image (coma-like) shifting the defocus blur by a
+//   fraction of its width: 0.1 px along x.
+std::vector<EffectInfo> MakeCatalogue() {
+  const DefocusEffectParams defocus;
+  const BrighterFatterParams bf;
+  const CtiParams cti;
+  const IpcParams ipc;
+  const JitterParams jitter;
+  const BackgroundParams background;
+  const NonlinearityParams nl;
+  const HaloParams halo;
+  const DefocusOffsetParams offset;
+  std::vector<EffectInfo> c;
+  c.push_back({EffectKind::kDefocus, "defocus",
+               "Gaussian (or pillbox) blur of the spot projector out of focus; set in 'model', "
+               "never injected",
+               false, true,
+               {Param("sigma_px", "px", defocus.sigma_px, 0.0, 1.5, 0.0, false, kInf, true,
+                      "defocus Gaussian sigma (pillbox: radius)")}});
+  c.push_back({EffectKind::kBrighterFatter, "brighter_fatter",
+               "CCD widths grow linearly with the exposure's peak-pixel signal (paper 4.3)",
+               true, true,
+               {Param("slope_x_px_per_e", "px/e-", bf.slope_x_px_per_e, 0.0, 2.0e-6, 0.0, false,
+                      kInf, true, "growth of ccd_sigma_x per electron in the peak pixel"),
+                Param("slope_y_px_per_e", "px/e-", bf.slope_y_px_per_e, 0.0, 2.0e-6, 0.0, false,
+                      kInf, true, "growth of ccd_sigma_y per electron in the peak pixel")}});
+  for (const bool serial : {true, false}) {
+    c.push_back({serial ? EffectKind::kSerialCti : EffectKind::kParallelCti,
+                 serial ? "serial_cti" : "parallel_cti",
+                 serial ? "charge left behind in serial transfer: exponential trail along +x"
+                        : "charge left behind in parallel transfer: exponential trail along +y",
+                 true, false,
+                 {Param("trail_fraction", "", cti.trail_fraction, 0.0, 1.0e-2, 0.0, false, 1.0,
+                        false, "fraction of each pixel's charge moved into its trail"),
+                  Param("trail_length_px", "px", cti.trail_length_px, 0.2, 10.0, 0.0, true,
+                        kInf, true, "e-folding length of the trail")}});
+  }
+  c.push_back({EffectKind::kIpc, "ipc",
+               "coupling of each pixel to its four edge neighbours (3x3 kernel)", true, false,
+               {Param("alpha", "", ipc.alpha, 0.0, 0.05, 0.0, false, 0.25, true,
+                      "fraction of a pixel's charge seen by each edge neighbour")}});
+  c.push_back(
+      {EffectKind::kJitter, "jitter",
+       "extra blur per exposure: axis-aligned Gaussian and/or linear motion", true, true,
+       {Param("sigma_x_px", "px", jitter.sigma_x_px, 0.0, 1.0, 0.0, false, kInf, true,
+              "Gaussian blur sigma along x"),
+        Param("sigma_y_px", "px", jitter.sigma_y_px, 0.0, 1.0, 0.0, false, kInf, true,
+              "Gaussian blur sigma along y"),
+        Param("motion_length_px", "px", jitter.motion_length_px, 0.0, 2.0, 0.0, false, 20.0,
+              false, "length of a linear motion during the exposure"),
+        Param("motion_angle_deg", "deg", jitter.motion_angle_deg, -90.0, 90.0, -360.0, false,
+              360.0, false, "direction of the motion, from +x towards +y")}});
+  c.push_back({EffectKind::kBackground, "background",
+               "pedestal left after bias subtraction (no shot noise)", true, false,
+               {Param("pedestal_e", "e-", background.pedestal_e, -100.0, 100.0, -kInf, true,
+                      kInf, true, "electrons added to every pixel")}});
+  c.push_back({EffectKind::kNonlinearity, "nonlinearity",
+               "quadratic response near full well: out = in (1 - beta in)", true, false,
+               {Param("beta_per_e", "1/e-", nl.beta_per_e, 0.0, 5.0e-7, 0.0, false, kInf, true,
+                      "fractional loss per electron")}});
+  c.push_back({EffectKind::kHalo, "halo",
+               "broad Gaussian holding a fraction of the light (red-light diffusion tail)", true,
+               false,
+               {Param("fraction", "", halo.fraction, 0.0, 0.2, 0.0, false, 1.0, false,
+                      "fraction of the spot's light moved into the halo"),
+                Param("sigma_px", "px", halo.sigma_px, 1.0, 8.0, 0.0, true, kInf, true,
+                      "halo Gaussian sigma")}});
+  c.push_back({EffectKind::kDefocusOffset, "defocus_offset",
+               "defocus kernel centred away from the Airy centre (integrated sampling only)",
+               true, true,
+               {Param("dx_px", "px", offset.dx_px, -0.5, 0.5, -5.0, false, 5.0, false,
+                      "defocus-kernel centre minus Airy centre along x"),
+                Param("dy_px", "px", offset.dy_px, -0.5, 0.5, -5.0, false, 5.0, false,
+                      "defocus-kernel centre minus Airy centre along y")}});
+  return c;
+}
+
+std::string FormatNumber(double v) {
+  if (std::isinf(v)) return v > 0 ? "inf" : "-inf";
+  std::ostringstream s;
+  s << v;
+  return s.str();
+}
+
+std::string DomainText(const EffectParameterInfo& p) {
+  return std::string(p.lower_open ? "(" : "[") + FormatNumber(p.domain_lower) + ", " +
+         FormatNumber(p.domain_upper) + (p.upper_open ? ")" : "]");
+}
+
+// d_{n} = log of the motion-blur error bound of MotionBlurNodeCount (without the flux).
+double LogMotionBound(int n, double l_su, double sx, double sy) {
+  const double dn = n;
+  return 2.0 * dn * std::log(l_su) + 3.0 * std::lgamma(dn + 1.0) -
+         2.0 * std::lgamma(2.0 * dn + 1.0) - dn * std::log(2.0) - std::log(2.0 * dn + 1.0) -
+         std::log(2.0 * M_PI * sx * sy);
+}
+
+// One CTI pass along a line of `n` values spaced `stride` apart (see effects.h):
+//   out[i] = (1 - f) in[i] + f (1 - r) T[i],  T[0] = 0,  T[i + 1] = in[i] + r T[i].
+void CtiLine(double f, double r, int n, int stride, double* v) {
+  double trail = 0.0;
+  for (int i = 0; i < n; ++i) {
+    const double in = v[static_cast<size_t>(i) * stride];
+    v[static_cast<size_t>(i) * stride] = (1.0 - f) * in + f * (1.0 - r) * trail;
+    trail = in + r * trail;
+  }
+}
+
+}  // namespace
+
+std::string ToString(EffectKind kind) {
+  for (const KindName& k : kKindNames) {
+    if (k.kind == kind) return k.name;
+  }
+  LOG(FATAL) << "unknown EffectKind " << static_cast<int>(kind);
+  return "";
+}
+
+bool ParseEffectKind(const std::string& text, EffectKind* kind) {
+  for (const KindName& k : kKindNames) {
+    if (text == k.name) {
+      *kind = k.kind;
+      return true;
+    }
+  }
+  return false;
+}
+
+const std::vector<EffectKind>& AllEffectKinds() {
+  static const std::vector<EffectKind> kinds = [] {
+    std::vector<EffectKind> v;
+    for (const KindName& k : kKindNames) v.push_back(k.kind);
+    return v;
+  }();
+  return kinds;
+}
+
+bool ExposureEffects::Has(EffectKind kind) const {
+  switch (kind) {
+    case EffectKind::kDefocus: return false;
+    case EffectKind::kBrighterFatter: return brighter_fatter.has_value();
+    case EffectKind::kSerialCti: return serial_cti.has_value();
+    case EffectKind::kParallelCti: return parallel_cti.has_value();
+    case EffectKind::kIpc: return ipc.has_value();
+    case EffectKind::kJitter: return jitter.has_value();
+    case EffectKind::kBackground: return background.has_value();
+    case EffectKind::kNonlinearity: return nonlinearity.has_value();
+    case EffectKind::kHalo: return halo.has_value();
+    case EffectKind::kDefocusOffset: return defocus_offset.has_value();
+  }
+  return false;
+}
+
+std::vector<EffectKind> ExposureEffects::Kinds() const {
+  std::vector<EffectKind> kinds;
+  for (EffectKind k : AllEffectKinds()) {
+    if (Has(k)) kinds.push_back(k);
+  }
+  return kinds;
+}
+
+const std::vector<EffectInfo>& EffectCatalogue() {
+  static const std::vector<EffectInfo> catalogue = MakeCatalogue();
+  return catalogue;
+}
+
+const EffectInfo& DescribeEffect(EffectKind kind) {
+  for (const EffectInfo& e : EffectCatalogue()) {
+    if (e.kind == kind) return e;
+  }
+  LOG(FATAL) << "unknown EffectKind " << static_cast<int>(kind);
+  return EffectCatalogue().front();
+}
+
+std::string FormatEffectCatalogue() {
+  std::ostringstream s;
+  for (const EffectInfo& e : EffectCatalogue()) {
+    s << e.name << " (" << (e.kernel_effect ? "kernel" : "image")
+      << (e.injectable ? "" : ", not injectable") << "): " << e.description << "\n";
+    for (const EffectParameterInfo& p : e.parameters) {
+      s << "    " << p.name << (p.unit.empty() ? "" : " [" + p.unit + "]")
+        << "  default " << FormatNumber(p.default_value) << ", prior ["
+        << FormatNumber(p.prior_lower) << ", " << FormatNumber(p.prior_upper) << "], domain "
+        << DomainText(p) << ": " << p.description << "\n";
+    }
+  }
+  return s.str();
+}
+
+json EffectCatalogueJson() {
+  json list = json::array();
+  for (const EffectInfo& e : EffectCatalogue()) {
+    json params = json::array();
+    for (const EffectParameterInfo& p : e.parameters) {
+      // JSON has no infinity: open-ended domains are given as text only.
+      params.push_back({{"name", p.name},
+                        {"unit", p.unit},
+                        {"default", p.default_value},
+                        {"prior", {p.prior_lower, p.prior_upper}},
+                        {"domain", DomainText(p)},
+                        {"description", p.description}});
+    }
+    list.push_back({{"name", e.name},
+                    {"description", e.description},
+                    {"injectable", e.injectable},
+                    {"kind", e.kernel_effect ? "kernel" : "image"},
+                    {"parameters", params}});
+  }
+  return list;
+}
+
+bool CheckEffectParameter(EffectKind kind, int index, double value, const std::string& path,
+                          std::string* error) {
+  const EffectInfo& info = DescribeEffect(kind);
+  CHECK_GE(index, 0);
+  CHECK_LT(index, static_cast<int>(info.parameters.size()));
+  const EffectParameterInfo& p = info.parameters[index];
+  const bool low_ok = p.lower_open ? value > p.domain_lower : value >= p.domain_lower;
+  const bool high_ok = p.upper_open ? value < p.domain_upper : value <= p.domain_upper;
+  if (std::isfinite(value) && low_ok && high_ok) return true;
+  *error = "'" + path + "' must be in " + DomainText(p) + " (got " + FormatNumber(value) + ")";
+  return false;
+}
+
+std::vector<double> GetEffectParameters(const ExposureEffects& e, EffectKind kind) {
+  CHECK(kind == EffectKind::kDefocus || e.Has(kind))
+      << "effect " << ToString(kind) << " is not present";
+  switch (kind) {
+    case EffectKind::kDefocus: return {};
+    case EffectKind::kBrighterFatter:
+      return {e.brighter_fatter->slope_x_px_per_e, e.brighter_fatter->slope_y_px_per_e};
+    case EffectKind::kSerialCti:
+      return {e.serial_cti->trail_fraction, e.serial_cti->trail_length_px};
+    case EffectKind::kParallelCti:
+      return {e.parallel_cti->trail_fraction, e.parallel_cti->trail_length_px};
+    case EffectKind::kIpc: return {e.ipc->alpha};
+    case EffectKind::kJitter:
+      return {e.jitter->sigma_x_px, e.jitter->sigma_y_px, e.jitter->motion_length_px,
+              e.jitter->motion_angle_deg};
+    case EffectKind::kBackground: return {e.background->pedestal_e};
+    case EffectKind::kNonlinearity: return {e.nonlinearity->beta_per_e};
+    case EffectKind::kHalo: return {e.halo->fraction, e.halo->sigma_px};
+    case EffectKind::kDefocusOffset: return {e.defocus_offset->dx_px, e.defocus_offset->dy_px};
+  }
+  return {};
+}
+
+bool SetEffectParameters(EffectKind kind, const std::vector<double>& v, ExposureEffects* e,
+                         std::string* error) {
+  CHECK(kind != EffectKind::kDefocus) << "defocus is a SpotParams component, not an effect";
+  const EffectInfo& info = DescribeEffect(kind);
+  if (v.size() != info.parameters.size()) {
+    *error = "effect '" + info.name + "' has " + std::to_string(info.parameters.size()) +
+             " parameters (got " + std::to_string(v.size()) + ")";
+    return false;
+  }
+  for (size_t i = 0; i < v.size(); ++i) {
+    if (!CheckEffectParameter(kind, static_cast<int>(i), v[i],
+                              info.name + "." + info.parameters[i].name, error)) {
+      return false;
+    }
+  }
+  switch (kind) {
+    case EffectKind::kDefocus: break;
+    case EffectKind::kBrighterFatter: e->brighter_fatter = BrighterFatterParams{v[0], v[1]}; break;
+    case EffectKind::kSerialCti: e->serial_cti = CtiParams{v[0], v[1]}; break;
+    case EffectKind::kParallelCti: e->parallel_cti = CtiParams{v[0], v[1]}; break;
+    case EffectKind::kIpc: e->ipc = IpcParams{v[0]}; break;
+    case EffectKind::kJitter: e->jitter = JitterParams{v[0], v[1], v[2], v[3]}; break;
+    case EffectKind::kBackground: e->background = BackgroundParams{v[0]}; break;
+    case EffectKind::kNonlinearity: e->nonlinearity = NonlinearityParams{v[0]}; break;
+    case EffectKind::kHalo: e->halo = HaloParams{v[0], v[1]}; break;
+    case EffectKind::kDefocusOffset: e->defocus_offset = DefocusOffsetParams{v[0], v[1]}; break;
+  }
+  return true;
+}
+
+void AddDefaultEffect(EffectKind kind, ExposureEffects* effects) {
+  std::vector<double> defaults;
+  for (const EffectParameterInfo& p : DescribeEffect(kind).parameters) {
+    defaults.push_back(p.default_value);
+  }
+  std::string error;
+  CHECK(SetEffectParameters(kind, defaults, effects, &error)) << error;
+}
+
+// ---------------------------------------------------------------------------------------
+// Kernel effects.
+
+SpotParams AdjustSpotParams(const ModelOptions& options, const ExposureEffects& effects,
+                            const SpotParams& params, double peak_e) {
+  SpotParams p = params;
+  if (effects.brighter_fatter) {
+    p[kCcdSigmaX] += effects.brighter_fatter->slope_x_px_per_e * peak_e;
+    p[kCcdSigmaY] += effects.brighter_fatter->slope_y_px_per_e * peak_e;
+  }
+  if (effects.jitter) {
+    p[kCcdSigmaX] = std::hypot(p[kCcdSigmaX], effects.jitter->sigma_x_px);
+    p[kCcdSigmaY] = std::hypot(p[kCcdSigmaY], effects.jitter->sigma_y_px);
+  }
+  if (effects.defocus_offset) {
+    CHECK(options.sampling == Sampling::kIntegrated)
+        << "defocus_offset is available in integrated sampling only";
+    // A convolution with a shifted kernel is the unshifted convolution, shifted.
+    p[kCentreX] += effects.defocus_offset->dx_px;
+    p[kCentreY] += effects.defocus_offset->dy_px;
+  }
+  return p;
+}
+
+int MotionBlurNodeCount(double length_px, double angle_deg, double sx_px, double sy_px,
+                        double tolerance) {
+  CHECK_GE(length_px, 0.0);
+  CHECK_GT(sx_px, 0.0);
+  CHECK_GT(sy_px, 0.0);
+  CHECK_GT(tolerance, 0.0);
+  constexpr int kMaxNodes = 4096;
+  if (length_px == 0.0) return 1;
+  const double theta = angle_deg * M_PI / 180.0;
+  const double c = std::cos(theta), s = std::sin(theta);
+  const double s_u = std::sqrt(c * c / (sx_px * sx_px) + s * s / (sy_px * sy_px));
+  const double l_su = length_px * s_u;
+  const double log_tol = std::log(tolerance);
+  for (int n = 1; n < kMaxNodes; ++n) {
+    if (LogMotionBound(n, l_su, sx_px, sy_px) <= log_tol) return n;
+  }
+  return kMaxNodes;
+}
+
+std::vector<MotionNode> MotionBlurNodes(const JitterParams& jitter, int n) {
+  CHECK_GE(n, 1);
+  const internal::GaussLegendreRule& rule = internal::GaussLegendre(n);
+  const double theta = jitter.motion_angle_deg * M_PI / 180.0;
+  const double half = 0.5 * jitter.motion_length_px;
+  std::vector<MotionNode> nodes(n);
+  for (int i = 0; i < n; ++i) {
+    const double t = half * rule.nodes[i];
+    nodes[i] = {t * std::cos(theta), t * std::sin(theta), 0.5 * rule.weights[i]};
+  }
+  if (n == 1) nodes[0].weight = 1.0;  // 0.5 * 2, exactly; stated so it is visibly exact
+  return nodes;
+}
+
+double BrighterFatterSignal(const SpotRenderer& renderer, const ExposureEffects& effects,
+                            const SpotParams& params, const PixelGrid& grid) {
+  ExposureEffects without = effects;
+  without.brighter_fatter.reset();
+  std::vector<double> model(grid.size());
+  RenderSpotWithKernelEffects(renderer, without, params, grid, 0.0, model.data());
+  return *std::max_element(model.begin(), model.end());
+}
+
+void RenderSpotWithKernelEffects(const SpotRenderer& renderer, const ExposureEffects& effects,
+                                 const SpotParams& params, const PixelGrid& grid,
+                                 double peak_e, double* model, KernelEffectDetails* details,
+                                 int motion_nodes) {
+  const ModelOptions& options = renderer.options();
+  const SpotParams centre = AdjustSpotParams(options, effects, params, peak_e);
+  const bool motion = effects.jitter && effects.jitter->motion_length_px > 0.0;
+  int n = 1;
+  if (motion) {
+    n = motion_nodes;
+    if (n <= 0) {
+      // Total Gaussian smoothing per axis: the Gaussian defocus merges with the CCD kernel
+      // (and pixel_centre sampling only has the Gaussian defocus).
+      const bool gaussian_defocus = options.defocus == DefocusKind::kGaussian;
+      const double f = gaussian_defocus ? centre[kDefocus] : 0.0;
+      n = MotionBlurNodeCount(effects.jitter->motion_length_px,
+                              effects.jitter->motion_angle_deg,
+                              std::hypot(f, centre[kCcdSigmaX]),
+                              std::hypot(f, centre[kCcdSigmaY]), options.relative_tolerance);
+    }
+  }
+  if (n == 1) {
+    renderer.Render(centre, grid, model, nullptr);
+  } else {
+    std::fill(model, model + grid.size(), 0.0);
+    std::vector<double> one(grid.size());
+    for (const MotionNode& node : MotionBlurNodes(*effects.jitter, n)) {
+      SpotParams p = centre;
+      p[kCentreX] += node.dx_px;
+      p[kCentreY] += node.dy_px;
+      renderer.Render(p, grid, one.data(), nullptr);
+      for (int q = 0; q < grid.size(); ++q) model[q] += node.weight * one[q];
+    }
+  }
+  if (details != nullptr) {
+    details->peak_e = effects.brighter_fatter ? peak_e : 0.0;
+    ExposureEffects bf_only;
+    bf_only.brighter_fatter = effects.brighter_fatter;
+    const SpotParams bf = AdjustSpotParams(options, bf_only, params, peak_e);
+    details->ccd_sigma_x_px = bf[kCcdSigmaX];
+    details->ccd_sigma_y_px = bf[kCcdSigmaY];
+    details->rendered_sigma_x_px = centre[kCcdSigmaX];
+    details->rendered_sigma_y_px = centre[kCcdSigmaY];
+    details->centre_x_px = centre[kCentreX];
+    details->centre_y_px = centre[kCentreY];
+    details->motion_nodes = n;
+  }
+}
+
+void RenderSpotWithEffects(const SpotRenderer& renderer, const ExposureEffects& effects,
+                           const SpotParams& params, const PixelGrid& grid, double* model,
+                           KernelEffectDetails* details) {
+  const double peak =
+      effects.brighter_fatter ? BrighterFatterSignal(renderer, effects, params, grid) : 0.0;
+  RenderSpotWithKernelEffects(renderer, effects, params, grid, peak, model, details);
+}
+
+// ---------------------------------------------------------------------------------------
+// Image effects.
+
+double GaussianIntervalIntegral(double a, double b, double sigma) {
+  CHECK_GT(sigma, 0.0);
+  const double k = 1.0 / (sigma * M_SQRT2);
+  if (a >= 0.0) return 0.5 * (std::erfc(a * k) - std::erfc(b * k));   // right tail
+  if (b <= 0.0) return 0.5 * (std::erfc(-b * k) - std::erfc(-a * k));  // left tail
+  return 0.5 * (std::erf(b * k) - std::erf(a * k));
+}
+
+void AddHalo(const HaloParams& halo, const PixelGrid& grid, const SpotReference& spot,
+             double* image) {
+  std::vector<double> hx(grid.nx), hy(grid.ny);
+  for (int i = 0; i < grid.nx; ++i) {
+    const double left = grid.x0 + i - 0.5 - spot.x_px;
+    hx[i] = GaussianIntervalIntegral(left, left + 1.0, halo.sigma_px);
+  }
+  for (int j = 0; j < grid.ny; ++j) {
+    const double bottom = grid.y0 + j - 0.5 - spot.y_px;
+    hy[j] = GaussianIntervalIntegral(bottom, bottom + 1.0, halo.sigma_px);
+  }
+  const double keep = 1.0 - halo.fraction;
+  const double moved = halo.fraction * spot.flux_e;
+  for (int j = 0; j < grid.ny; ++j) {
+    double* row = image + static_cast<size_t>(j) * grid.nx;
+    for (int i = 0; i < grid.nx; ++i) row[i] = keep * row[i] + moved * hx[i] * hy[j];
+  }
+}
+
+void ApplyNonlinearity(const NonlinearityParams& nl, int size, double* image) {
+  const double beta = nl.beta_per_e;
+  if (beta == 0.0) return;
+  const double turning = 0.5 / beta;
+  for (int q = 0; q < size; ++q) {
+    const double in = image[q];
+    image[q] = in >= turning ? 0.25 / beta : in * (1.0 - beta * in);
+  }
+}
+
+void ApplyIpc(const IpcParams& ipc, int nx, int ny, double* image) {
+  const double a = ipc.alpha;
+  const std::vector<double> in(image, image + static_cast<size_t>(nx) * ny);
+  for (int j = 0; j < ny; ++j) {
+    for (int i = 0; i < nx; ++i) {
+      const size_t q = static_cast<size_t>(j) * nx + i;
+      double neighbours = 0.0;
+      if (i > 0) neighbours += in[q - 1];
+      if (i + 1 < nx) neighbours += in[q + 1];
+      if (j > 0) neighbours += in[q - nx];
+      if (j + 1 < ny) neighbours += in[q + nx];
+      image[q] = (1.0 - 4.0 * a) * in[q] + a * neighbours;
+    }
+  }
+}
+
+void ApplySerialCti(const CtiParams& cti, int nx, int ny, double* image) {
+  const double r = std::exp(-1.0 / cti.trail_length_px);
+  for (int j = 0; j < ny; ++j) {
+    CtiLine(cti.trail_fraction, r, nx, 1, image + static_cast<size_t>(j) * nx);
+  }
+}
+
+void ApplyParallelCti(const CtiParams& cti, int nx, int ny, double* image) {
+  const double r = std::exp(-1.0 / cti.trail_length_px);
+  for (int i = 0; i < nx; ++i) CtiLine(cti.trail_fraction, r, ny, nx, image + i);
+}
+
+void AddBackground(const BackgroundParams& background, int size, double* image) {
+  for (int q = 0; q < size; ++q) image[q] += background.pedestal_e;
+}
+
+void ApplyChargeEffects(const ExposureEffects& e, const PixelGrid& grid,
+                        const SpotReference& spot, double* image) {
+  if (e.halo) AddHalo(*e.halo, grid, spot, image);
+  if (e.nonlinearity) ApplyNonlinearity(*e.nonlinearity, grid.size(), image);
+  if (e.ipc) ApplyIpc(*e.ipc, grid.nx, grid.ny, image);
+  if (e.serial_cti) ApplySerialCti(*e.serial_cti, grid.nx, grid.ny, image);
+  if (e.parallel_cti) ApplyParallelCti(*e.parallel_cti, grid.nx, grid.ny, image);
+}
+
+void ApplyImageEffects(const ExposureEffects& e, const PixelGrid& grid,
+                       const SpotReference& spot, double* image) {
+  ApplyChargeEffects(e, grid, spot, image);
+  if (e.background) AddBackground(*e.background, grid.size(), image);
+}
+
+// ---------------------------------------------------------------------------------------
+// Configuration.
+
+ExposureEffects EffectsConfig::ForExposure(int k) const {
+  ExposureEffects e = common;
+  if (!jitter_per_exposure.empty()) {
+    CHECK_GE(k, 0);
+    CHECK_LT(k, static_cast<int>(jitter_per_exposure.size()));
+    e.jitter = jitter_per_exposure[k];
+  }
+  return e;
+}
+
+namespace {
+
+// Reads jitter, whose values may be numbers or per-exposure lists.
+bool ParseJitter(const json& object, int num_exposures, EffectsConfig* out,
+                 std::string* error) {
+  const EffectInfo& info = DescribeEffect(EffectKind::kJitter);
+  const int np = static_cast<int>(info.parameters.size());
+  // values[p] holds one number (shared) or num_exposures numbers.
+  std::vector<std::vector<double>> values(np);
+  bool any_list = false, any_motion = false;
+  for (int p = 0; p < np; ++p) {
+    const EffectParameterInfo& pi = info.parameters[p];
+    const std::string path = "effects.jitter." + pi.name;
+    if (!object.contains(pi.name)) continue;
+    const json& v = object.at(pi.name);
+    auto finite = [](const json& x) { return x.is_number() && std::isfinite(x.get<double>()); };
+    if (finite(v)) {
+      values[p] = {v.get<double>()};
+    } else if (v.is_array() && static_cast<int>(v.size()) == num_exposures &&
+               std::all_of(v.begin(), v.end(), finite)) {
+      for (const json& x : v) values[p].push_back(x.get<double>());
+      any_list = true;
+    } else {
+      *error = "'" + path + "' must be a finite number or a list of " +
+               std::to_string(num_exposures) + " finite numbers (one per exposure)";
+      return false;
+    }
+    for (double x : values[p]) {
+      if (!CheckEffectParameter(EffectKind::kJitter, p, x, path, error)) return false;
+    }
+    if (p >= 2) any_motion = true;
+  }
+  for (auto it = object.begin(); it != object.end(); ++it) {
+    bool known = false;
+    for (const EffectParameterInfo& pi : info.parameters) known |= pi.name == it.key();
+    if (!known) {
+      *error = "unknown key 'effects.jitter." + it.key() + "'";
+      return false;
+    }
+  }
+  if (object.contains("motion_angle_deg") && !object.contains("motion_length_px")) {
+    *error = "'effects.jitter.motion_angle_deg' needs 'effects.jitter.motion_length_px'";
+    return false;
+  }
+  // With a motion, a Gaussian width is only there when asked for.
+  const double sigma_default = any_motion ? 0.0 : info.parameters[0].default_value;
+  const int count = any_list ? num_exposures : 1;
+  std::vector<JitterParams> list(count);
+  for (int k = 0; k < count; ++k) {
+    double x[4];
+    for (int p = 0; p < np; ++p) {
+      const double def = p < 2 ? sigma_default : info.parameters[p].default_value;
+      x[p] = values[p].empty() ? def : values[p][values[p].size() == 1 ? 0 : k];
+    }
+    list[k] = JitterParams{x[0], x[1], x[2], x[3]};
+  }
+  if (any_list) {
+    out->jitter_per_exposure = list;
+    out->common.jitter.reset();
+  } else {
+    out->common.jitter = list[0];
+  }
+  return true;
+}
+
+}  // namespace
+
+bool ParseEffectsConfig(const json& effects, int num_exposures, Sampling sampling,
+                        EffectsConfig* out, std::string* error) {
+  if (!effects.is_object()) {
+    *error = "'effects' must be a JSON object of effects by catalogue name";
+    return false;
+  }
+  EffectsConfig config;
+  for (auto it = effects.begin(); it != effects.end(); ++it) {
+    const std::string path = "effects." + it.key();
+    EffectKind kind;
+    if (!ParseEffectKind(it.key(), &kind)) {
+      std::string names;
+      for (const EffectInfo& e : EffectCatalogue()) {
+        if (e.injectable) names += (names.empty() ? "" : ", ") + e.name;
+      }
+      *error = "unknown effect '" + path + "' (injectable effects: " + names + ")";
+      return false;
+    }
+    if (kind == EffectKind::kDefocus) {
+      *error = "'effects.defocus' cannot be injected: the simulated defocus is the model's own, "
+               "set in 'model.defocus' (and per exposure with 'defocus_px')";
+      return false;
+    }
+    if (!it.value().is_object()) {
+      *error = "'" + path + "' must be a JSON object of parameters ({} for the defaults)";
+      return false;
+    }
+    if (kind == EffectKind::kDefocusOffset && sampling != Sampling::kIntegrated) {
+      *error = "'effects.defocus_offset' needs integrated sampling: the pixel_centre renderer "
+               "(the 2015 recipe) centres its defocus kernel on the Airy centre";
+      return false;
+    }
+    if (kind == EffectKind::kJitter) {
+      if (!ParseJitter(it.value(), num_exposures, &config, error)) return false;
+      continue;
+    }
+    const EffectInfo& info = DescribeEffect(kind);
+    internal::JsonReader r(it.value(), path, error);
+    std::vector<double> values;
+    for (const EffectParameterInfo& p : info.parameters) {
+      double v = p.default_value;
+      r.Number(p.name, &v);
+      values.push_back(v);
+    }
+    r.RejectUnknownKeys();
+    if (!r.ok()) return false;
+    for (size_t p = 0; p < values.size(); ++p) {
+      if (!CheckEffectParameter(kind, static_cast<int>(p), values[p],
+                                path + "." + info.parameters[p].name, error)) {
+        return false;
+      }
+    }
+    CHECK(SetEffectParameters(kind, values, &config.common, error)) << *error;
+  }
+  *out = std::move(config);
+  return true;
+}
+
+json EffectsConfigToJson(const EffectsConfig& config) {
+  json out = json::object();
+  ExposureEffects e = config.common;
+  if (!config.jitter_per_exposure.empty()) e.jitter = config.jitter_per_exposure.front();
+  for (EffectKind kind : e.Kinds()) {
+    const EffectInfo& info = DescribeEffect(kind);
+    const std::vector<double> values = GetEffectParameters(e, kind);
+    json params = json::object();
+    for (size_t p = 0; p < values.size(); ++p) {
+      if (kind == EffectKind::kJitter && !config.jitter_per_exposure.empty()) {
+        json list = json::array();
+        for (const JitterParams& j : config.jitter_per_exposure) {
+          ExposureEffects one;
+          one.jitter = j;
+          list.push_back(GetEffectParameters(one, kind)[p]);
+        }
+        params[info.parameters[p].name] = list;
+      } else {
+        params[info.parameters[p].name] = values[p];
+      }
+    }
+    out[info.name] = params;
+  }
+  return out;
+}
+
+}  // namespace ccdpsf::model
