@@ -1,6 +1,10 @@
-// ccdpsf simulate: the paper's 9-step simulator.
+// ccdpsf simulate: the paper's 9-step simulator, for one set of exposures or (a config whose
+// top level has the key "campaign") a whole characterisation campaign with a known truth.
 #include <cstdio>
+#include <fstream>
+#include <sstream>
 
+#include "ccdpsf/campaign_simulation.h"
 #include "ccdpsf/provenance.h"
 #include "ccdpsf/simulate.h"
 #include "command.h"
@@ -15,19 +19,44 @@ DEFINE_bool(noiseless, false,
 namespace ccdpsf::tools {
 namespace {
 
+nlohmann::json RunOptions() {
+  return {{"config", FLAGS_config}, {"out", FLAGS_out}, {"noiseless", FLAGS_noiseless}};
+}
+
+int RunCampaignSimulation() {
+  std::string error;
+  auto config = LoadCampaignConfig(FLAGS_config, &error);
+  if (!config) return Fail(error);
+  CampaignResult result;
+  if (!RunCampaign(*config, FLAGS_out, FLAGS_noiseless, &result, &error)) return Fail(error);
+  if (!WriteRunRecord(FLAGS_out, "simulate", RunOptions(), config->seed, &error)) {
+    return Fail(error);
+  }
+  std::printf("simulated a campaign of %d groups, %d %s into %s (manifest: %s)\n", result.groups,
+              result.exposures, FLAGS_noiseless ? "noiseless models" : "exposures",
+              FLAGS_out.c_str(), result.manifest_path.c_str());
+  return 0;
+}
+
 int RunSimulate(const std::vector<std::string>& args) {
   if (!args.empty()) return Fail("simulate takes no file arguments (got '" + args[0] + "')");
   if (FLAGS_config.empty()) return Fail("simulate needs --config=SIM.json");
   if (FLAGS_out.empty()) return Fail("simulate needs --out=DIR");
+  {
+    std::ifstream in(FLAGS_config);
+    if (!in) return Fail("cannot read simulation config '" + FLAGS_config + "'");
+    std::stringstream text;
+    text << in.rdbuf();
+    if (IsCampaignConfig(text.str())) return RunCampaignSimulation();
+  }
   std::string error;
   auto config = LoadSimulationConfig(FLAGS_config, &error);
   if (!config) return Fail(error);
   SimulationResult result;
   if (!RunSimulation(*config, FLAGS_out, FLAGS_noiseless, &result, &error)) return Fail(error);
-  nlohmann::json options = {{"config", FLAGS_config},
-                            {"out", FLAGS_out},
-                            {"noiseless", FLAGS_noiseless}};
-  if (!WriteRunRecord(FLAGS_out, "simulate", options, config->seed, &error)) return Fail(error);
+  if (!WriteRunRecord(FLAGS_out, "simulate", RunOptions(), config->seed, &error)) {
+    return Fail(error);
+  }
   std::printf("simulated %zu %s into %s (truth: %s)\n", result.files.size(),
               FLAGS_noiseless ? "noiseless models" : "exposures", FLAGS_out.c_str(),
               result.truth_path.c_str());
@@ -38,7 +67,8 @@ int RunSimulate(const std::vector<std::string>& args) {
 
 Command SimulateCommand() {
   return {"simulate", "ccdpsf simulate --config=SIM.json --out=DIR [--noiseless]",
-          "Simulate spot-projection exposures with the paper's 9-step procedure.",
+          "Simulate spot-projection exposures (the paper's 9-step procedure), or a whole "
+          "campaign with a known truth.",
           {"config", "out", "noiseless"}, RunSimulate};
 }
 
