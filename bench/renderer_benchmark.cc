@@ -49,12 +49,18 @@ void BM_PixelCentreWithJacobian(benchmark::State& state) {
   options.sampling = Sampling::kPixelCentre;
   Render(state, options, {1.5e5, 10.07, 9.96, 0.47, 0.41, 0.291, 0.335}, true);
 }
+void BM_PixelCentreValuesOnly(benchmark::State& state) {
+  ModelOptions options;
+  options.sampling = Sampling::kPixelCentre;
+  Render(state, options, {1.5e5, 10.07, 9.96, 0.47, 0.41, 0.291, 0.335}, false);
+}
 
 BENCHMARK(BM_IntegratedWithJacobian)->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_IntegratedValuesOnly)->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_IntegratedNarrowestWithJacobian)->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_IntegratedPillboxWithJacobian)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_PixelCentreWithJacobian)->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_PixelCentreValuesOnly)->Unit(benchmark::kMicrosecond);
 
 }  // namespace
 

@@ -19,10 +19,11 @@ namespace {
 // Tolerance, relative to the stamp's largest value. Both computations evaluate the same
 // closed-form expression; they differ only by rounding. Every term of both convolutions is
 // non-negative, so each output carries a relative rounding error below (terms summed) x eps
-// ~ 441 x 1.1e-16 ~ 5e-14 per convolution; J1 implementations (Cephes in scipy) agree to
-// ~1e-16 absolute on profile values, which the normalisation amp = m / profile(c, c)
-// amplifies by at most 1 / 0.017 in these cases (the fixture generator asserts
-// profile(c, c) > 1e-3). Together well under 1e-12; 1e-10 leaves a wide margin, while any
+// ~ 441 x 1.1e-16 ~ 5e-14 per convolution. Our a(v) = 2 J1(v) / v comes from the quintic
+// table of model/airy.h (error ~1e-12 at worst, usually far less) where scipy calls Cephes'
+// J1, and the normalisation amp = m / profile(c, c) amplifies profile errors by at most
+// 1 / 0.017 in these cases (the fixture generator asserts profile(c, c) > 1e-3). 1e-10 is
+// about that worst case and still five orders below what any
 // difference in the model itself (normalising pixel, kernel orientation, 'same' offset for
 // even n, Gaussian centring) changes the stamp by 1e-3 of its maximum or much more.
 constexpr double kRelativeTolerance = 1e-10;
