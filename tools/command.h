@@ -6,6 +6,8 @@
 #include <string>
 #include <vector>
 
+#include "ccdpsf/fit/fit_config.h"
+
 namespace ccdpsf::tools {
 
 struct Command {
@@ -22,6 +24,12 @@ const std::vector<Command>& Commands();
 // The commands, defined in their files.
 Command SimulateCommand();
 Command FitCommand();
+Command TrendCommand();
+Command DiagnoseCommand();
+
+// The fit options of `fit` and `trend`: defaults <- --config=FIT.json <- the fit flags given
+// (defined in fit_command.cc). False with a one-line reason on bad values.
+bool ResolveFitConfig(fit::FitConfig* config, std::string* error);
 
 // Prints "ccdpsf: error: <message>" on stderr and returns exit code 1.
 int Fail(const std::string& message);

@@ -1,4 +1,5 @@
 // ccdpsf fit: MAP, Laplace and MCMC for one exposure, several separately, or jointly.
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -18,11 +19,17 @@ DECLARE_string(defocus);
 DEFINE_bool(joint, false,
             "fit: one joint fit of all files (CCD widths, intensity, defocus and Airy radius "
             "shared; a position per exposure) instead of one fit per file");
+DEFINE_bool(through_focus, false,
+            "fit: with --joint, fit the files as a through-focus series: Gaussian defocus "
+            "sigma = rate x |FOCUSPOS - z0| per exposure (rate and best focus z0 fitted), CCD "
+            "kernel shared; identifies the CCD widths. Default: on when every file has "
+            "FOCUSPOS with >= 3 distinct values (integrated sampling, Gaussian defocus)");
 DEFINE_string(likelihood, "gaussian",
               "fit: gaussian (the paper's, with model-dependent variance) or poisson_normal "
               "(exact, for low signal)");
 DEFINE_uint64(seed, 1, "fit: random seed of the MCMC");
-DEFINE_int32(walkers, 0, "fit: MCMC walkers (0: max(32, 4 x parameters))");
+DEFINE_int32(walkers, 0,
+             "fit: MCMC walkers (0: max(2 x ensemble dimension + 2, target_ess / 50))");
 DEFINE_int32(max_steps, 20000, "fit: MCMC step limit");
 DEFINE_double(target_ess, 1000, "fit: effective sample size every parameter must reach");
 DEFINE_int32(threads, 2, "fit: threads for the MCMC");
@@ -36,12 +43,9 @@ DEFINE_double(spot_x_px, 0, "fit: spot x (frame pixels); with --spot_y_px skips 
 DEFINE_double(spot_y_px, 0, "fit: spot y (frame pixels)");
 
 namespace ccdpsf::tools {
-namespace {
-
-namespace fs = std::filesystem;
 
 // Defaults <- FIT.json <- flags given on the command line.
-bool ResolveConfig(fit::FitConfig* c, std::string* error) {
+bool ResolveFitConfig(fit::FitConfig* c, std::string* error) {
   c->fit.mcmc.seed = FLAGS_seed;
   if (!FLAGS_config.empty() && !fit::LoadFitConfig(FLAGS_config, c, error)) return false;
   if (FlagGiven("sampling") && !model::ParseSampling(FLAGS_sampling, &c->model.model.sampling)) {
@@ -57,6 +61,10 @@ bool ResolveConfig(fit::FitConfig* c, std::string* error) {
     return false;
   }
   if (FlagGiven("joint")) c->joint = FLAGS_joint;
+  if (FlagGiven("through_focus")) {
+    c->model.through_focus = FLAGS_through_focus;
+    c->through_focus_given = true;
+  }
   if (FlagGiven("seed")) c->fit.mcmc.seed = FLAGS_seed;
   if (FlagGiven("walkers")) c->fit.num_walkers = FLAGS_walkers;
   if (FlagGiven("max_steps")) c->fit.mcmc.max_steps = FLAGS_max_steps;
@@ -84,6 +92,10 @@ bool ResolveConfig(fit::FitConfig* c, std::string* error) {
   }
   return true;
 }
+
+namespace {
+
+namespace fs = std::filesystem;
 
 // One fit (single exposure or joint set) into out_dir. Returns the exit code.
 int FitInto(const std::string& out_dir, const std::vector<Exposure>& exposures,
@@ -124,12 +136,44 @@ int RunFit(const std::vector<std::string>& files) {
   if (files.empty()) return Fail("fit needs at least one FITS file");
   fit::FitConfig config;
   std::string error;
-  if (!ResolveConfig(&config, &error)) return Fail(error);
+  if (!ResolveFitConfig(&config, &error)) return Fail(error);
   std::vector<Exposure> exposures;
   for (const std::string& f : files) {
     auto e = LoadExposure(f, config.calibration, &error);
     if (!e) return Fail(error);
     exposures.push_back(std::move(*e));
+  }
+  if (config.model.through_focus && !config.joint && files.size() > 1) {
+    return Fail("through_focus fits a series jointly: add --joint");
+  }
+  if (config.joint && files.size() > 1 && !config.through_focus_given) {
+    // A joint set that is a through-focus series is fitted as one unless told otherwise.
+    std::vector<Stamp> stamps;
+    std::vector<double> z;
+    for (const Exposure& e : exposures) {
+      stamps.push_back(e.stamp);
+      z.push_back(e.stamp.info.focus_position_um);
+    }
+    std::string why;
+    if (fit::IsFocusSeries(stamps, &why)) {
+      std::sort(z.begin(), z.end());
+      const long distinct = std::unique(z.begin(), z.end()) - z.begin();
+      if (config.model.model.sampling == model::Sampling::kIntegrated &&
+          config.model.model.defocus == model::DefocusKind::kGaussian) {
+        config.model.through_focus = true;
+        std::fprintf(stderr,
+                     "ccdpsf: note: the %zu files carry FOCUSPOS with %ld distinct values: "
+                     "fitting them as a through-focus series (defocus = rate x |z - z0|, CCD "
+                     "kernel fixed; --nothrough_focus to turn off)\n",
+                     files.size(), distinct);
+      } else {
+        std::fprintf(stderr,
+                     "ccdpsf: note: the %zu files carry FOCUSPOS with %ld distinct values, but "
+                     "the through-focus model needs integrated sampling and a Gaussian "
+                     "defocus: fitting them with one shared defocus\n",
+                     files.size(), distinct);
+      }
+    }
   }
   if (config.joint || files.size() == 1) return FitInto(FLAGS_out, exposures, config, files);
   // Separate fits: one folder per file, named after it.
@@ -155,7 +199,7 @@ Command FitCommand() {
   return {"fit",
           "ccdpsf fit --out=DIR [--joint] [--config=FIT.json] [options] FILE.fits...",
           "Fit the spot model: MAP (Ceres), Laplace covariance, MCMC credible intervals.",
-          {"out", "config", "joint", "sampling", "defocus", "likelihood", "seed", "walkers",
+          {"out", "config", "joint", "through_focus", "sampling", "defocus", "likelihood", "seed", "walkers",
            "max_steps", "target_ess", "threads", "mcmc", "gain_e_per_adu", "read_noise_e",
            "bias_adu", "saturation_adu", "stamp_size", "spot_x_px", "spot_y_px"},
           RunFit};

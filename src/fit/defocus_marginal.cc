@@ -18,8 +18,16 @@ struct Integrand {
   }
 };
 
+// The two rules used, looked up once: GaussLegendre() takes a lock, and the weight is
+// computed at every MCMC evaluation on every thread.
+const internal::GaussLegendreRule& Rule(int n) {
+  static const internal::GaussLegendreRule& rule3 = internal::GaussLegendre(3);
+  static const internal::GaussLegendreRule& rule64 = internal::GaussLegendre(64);
+  return n == 3 ? rule3 : n == 64 ? rule64 : internal::GaussLegendre(n);
+}
+
 double IntegrateGL(const Integrand& f, double a, double b, int n) {
-  const internal::GaussLegendreRule& rule = internal::GaussLegendre(n);
+  const internal::GaussLegendreRule& rule = Rule(n);
   const double half = 0.5 * (b - a), mid = 0.5 * (a + b);
   double sum = 0.0;
   for (size_t i = 0; i < rule.nodes.size(); ++i)

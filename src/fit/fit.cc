@@ -51,8 +51,11 @@ std::vector<double> DerivedAt(const FitModel& model, const double* theta) {
   const double pixel_um = model.stamps()[0].info.pixel_um;
   const PsfMetrics ccd = GaussianMetrics(theta[kCcdSigmaXPx], theta[kCcdSigmaYPx], pixel_um);
   // The identified (total) Gaussian widths: defocus and CCD widths in quadrature; a pillbox
-  // of radius R contributes its second moment R^2 / 4 per axis.
-  const double d = theta[kDefocusPx];
+  // of radius R contributes its second moment R^2 / 4 per axis. A through-focus fit
+  // identifies the CCD widths themselves and has a defocus per exposure: its total widths
+  // (and total_fwhm_um, total_ellipticity) are those at best focus, where the defocus is
+  // zero, i.e. the CCD widths.
+  const double d = model.through_focus() ? 0.0 : theta[kDefocusPx];
   const double d2 =
       model.options().model.defocus == model::DefocusKind::kGaussian ? d * d : d * d / 4;
   const double tx = std::sqrt(theta[kCcdSigmaXPx] * theta[kCcdSigmaXPx] + d2);

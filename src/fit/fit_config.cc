@@ -85,6 +85,15 @@ bool ParseFitConfig(const std::string& text, FitConfig* c, std::string* error) {
     else
       c->joint = v.get<bool>();
   }
+  if (r.Has("through_focus")) {
+    const json& v = r.Get("through_focus");
+    if (!v.is_boolean()) {
+      r.Fail("'through_focus' must be true or false");
+    } else {
+      c->model.through_focus = v.get<bool>();
+      c->through_focus_given = true;
+    }
+  }
   if (r.ok() && r.Has("priors")) {
     JsonReader p(r.Get("priors"), "priors", error);
     PriorRanges& pr = c->model.priors;
@@ -113,11 +122,25 @@ bool ParseFitConfig(const std::string& text, FitConfig* c, std::string* error) {
     JsonReader m(r.Get("map"), "map", error);
     NumberList(&m, "start_airy_radii_px", &c->fit.map.start_airy_radii_px);
     NumberList(&m, "start_defocus_shares", &c->fit.map.start_defocus_shares);
+    NumberList(&m, "start_ccd_variance_scales", &c->fit.map.start_ccd_variance_scales);
+    NumberList(&m, "start_best_focus_fractions", &c->fit.map.start_best_focus_fractions);
     long long it = c->fit.map.max_iterations;
     m.Integer("max_iterations", &it);
     c->fit.map.max_iterations = static_cast<int>(it);
     m.RejectUnknownKeys();
     if (!m.ok()) return false;
+    for (double v : c->fit.map.start_ccd_variance_scales) {
+      if (!(v > 0 && v <= 1)) {
+        *error = "map: start_ccd_variance_scales must lie in (0, 1]";
+        return false;
+      }
+    }
+    for (double v : c->fit.map.start_best_focus_fractions) {
+      if (!(v >= 0 && v <= 1)) {
+        *error = "map: start_best_focus_fractions must lie in [0, 1]";
+        return false;
+      }
+    }
   }
   if (r.ok() && r.Has("mcmc")) {
     JsonReader m(r.Get("mcmc"), "mcmc", error);
@@ -204,6 +227,7 @@ json FitConfigJson(const FitConfig& c) {
           {"defocus", model::ToString(c.model.model.defocus)},
           {"likelihood", ToString(c.model.likelihood)},
           {"joint", c.joint},
+          {"through_focus", c.model.through_focus},
           {"priors",
            {{"airy_radius_px", {p.airy_radius_px[0], p.airy_radius_px[1]}},
             {"defocus_px", {p.defocus_px[0], p.defocus_px[1]}},
@@ -214,6 +238,8 @@ json FitConfigJson(const FitConfig& c) {
           {"map",
            {{"start_airy_radii_px", c.fit.map.start_airy_radii_px},
             {"start_defocus_shares", c.fit.map.start_defocus_shares},
+            {"start_ccd_variance_scales", c.fit.map.start_ccd_variance_scales},
+            {"start_best_focus_fractions", c.fit.map.start_best_focus_fractions},
             {"max_iterations", c.fit.map.max_iterations}}},
           {"mcmc",
            {{"enabled", c.fit.run_mcmc},

@@ -42,6 +42,28 @@ CcdNoise NoiseOf(const Stamp& s) {
 
 }  // namespace
 
+bool IsFocusSeries(const std::vector<Stamp>& stamps, std::string* why) {
+  std::vector<double> z;
+  for (size_t k = 0; k < stamps.size(); ++k) {
+    const double v = stamps[k].info.focus_position_um;
+    if (!std::isfinite(v)) {
+      *why = "exposure " + std::to_string(k) +
+             (stamps[k].info.source.empty() ? "" : " ('" + stamps[k].info.source + "')") +
+             " has no focus position (FOCUSPOS keyword)";
+      return false;
+    }
+    z.push_back(v);
+  }
+  std::sort(z.begin(), z.end());
+  const int distinct = static_cast<int>(std::unique(z.begin(), z.end()) - z.begin());
+  if (distinct < 3) {
+    *why = "the exposures have " + std::to_string(distinct) +
+           " distinct focus position(s) (FOCUSPOS); a through-focus series needs at least 3";
+    return false;
+  }
+  return true;
+}
+
 std::unique_ptr<FitModel> FitModel::Create(std::vector<Stamp> stamps,
                                            const FitModelOptions& options, std::string* error) {
   if (stamps.empty()) {
@@ -52,6 +74,21 @@ std::unique_ptr<FitModel> FitModel::Create(std::vector<Stamp> stamps,
       options.model.defocus != model::DefocusKind::kGaussian) {
     *error = "pixel_centre sampling has only the Gaussian defocus of the 2015 code";
     return nullptr;
+  }
+  if (options.through_focus &&
+      (options.model.sampling != model::Sampling::kIntegrated ||
+       options.model.defocus != model::DefocusKind::kGaussian)) {
+    *error = "through_focus needs integrated sampling and a Gaussian defocus (got " +
+             model::ToString(options.model.sampling) + " sampling, " +
+             model::ToString(options.model.defocus) + " defocus)";
+    return nullptr;
+  }
+  if (options.through_focus) {
+    std::string why;
+    if (!IsFocusSeries(stamps, &why)) {
+      *error = "through_focus: " + why;
+      return nullptr;
+    }
   }
   for (size_t k = 0; k < stamps.size(); ++k) {
     const Stamp& s = stamps[k];
@@ -83,9 +120,12 @@ std::unique_ptr<FitModel> FitModel::Create(std::vector<Stamp> stamps,
   const PriorRanges& pr = options.priors;
   const bool peak = options.model.sampling == model::Sampling::kPixelCentre;
   const bool pillbox = options.model.defocus == model::DefocusKind::kPillbox;
+  const bool focus = options.through_focus;
   m->names_ = {peak ? "peak_e" : "flux_e", "airy_radius_px",
-               pillbox ? "defocus_radius_px" : "defocus_sigma_px", "ccd_sigma_x_px",
-               "ccd_sigma_y_px"};
+               focus     ? "defocus_rate_px_per_um"
+               : pillbox ? "defocus_radius_px"
+                         : "defocus_sigma_px",
+               "ccd_sigma_x_px", "ccd_sigma_y_px"};
 
   // Signal and centroid of each stamp: first moments of the positive signal in a 5 x 5 box
   // around the brightest valid pixel.
@@ -148,6 +188,20 @@ std::unique_ptr<FitModel> FitModel::Create(std::vector<Stamp> stamps,
     m->lower_.push_back(m->centroid_y_[k] - pr.position_halfwidth_px);
     m->upper_.push_back(m->centroid_y_[k] + pr.position_halfwidth_px);
   }
+  if (focus) {
+    // Rate: the prior's largest defocus reached half the scanned range from best focus;
+    // best focus inside the scanned range (fit_model.h).
+    double z_min = INFINITY, z_max = -INFINITY;
+    for (const Stamp& s : m->stamps_) {
+      z_min = std::min(z_min, s.info.focus_position_um);
+      z_max = std::max(z_max, s.info.focus_position_um);
+    }
+    m->lower_[kDefocusPx] = 0.0;
+    m->upper_[kDefocusPx] = pr.defocus_px[1] / (0.5 * (z_max - z_min));
+    m->names_.push_back("best_focus_um");
+    m->lower_.push_back(z_min);
+    m->upper_.push_back(z_max);
+  }
   for (int i = 0; i < m->dim(); ++i) {
     if (!(m->lower_[i] < m->upper_[i])) {
       *error = "empty prior range for " + m->names_[i];
@@ -170,11 +224,32 @@ bool FitModel::InsidePrior(const double* theta) const {
   return true;
 }
 
+std::vector<int> FitModel::SharedIndices() const {
+  std::vector<int> out;
+  for (int i = 0; i < kNumShared; ++i) out.push_back(i);
+  if (through_focus()) out.push_back(FocusIndex());
+  return out;
+}
+
+double FitModel::DefocusFor(const double* theta, int k, double* d_rate, double* d_z0) const {
+  if (!through_focus()) {
+    if (d_rate != nullptr) *d_rate = 0.0;
+    if (d_z0 != nullptr) *d_z0 = 0.0;
+    return theta[kDefocusPx];
+  }
+  const double rate = theta[kDefocusPx];
+  const double dz = FocusPositionUm(k) - theta[FocusIndex()];
+  // sigma_f = rate |dz|: d/d rate = |dz|, d/d z0 = -rate sign(dz) (sign(0) = 0).
+  if (d_rate != nullptr) *d_rate = std::fabs(dz);
+  if (d_z0 != nullptr) *d_z0 = dz > 0 ? -rate : dz < 0 ? rate : 0.0;
+  return rate * std::fabs(dz);
+}
+
 model::SpotParams FitModel::SpotFor(const double* theta, int k) const {
   model::SpotParams p;
   p[model::kFlux] = theta[kFluxE];
   p[model::kAiryRadius] = theta[kAiryRadiusPx];
-  p[model::kDefocus] = theta[kDefocusPx];
+  p[model::kDefocus] = DefocusFor(theta, k);
   p[model::kCcdSigmaX] = theta[kCcdSigmaXPx];
   p[model::kCcdSigmaY] = theta[kCcdSigmaYPx];
   p[model::kCentreX] = theta[XIndex(k)];
@@ -197,10 +272,11 @@ model::PixelGrid FitModel::GridFor(int k) const {
   return g;
 }
 
-std::vector<double> FitModel::MomentStart(double airy_radius_px, double defocus_share) const {
+std::vector<double> FitModel::MomentGaussianVariances(double airy_radius_px) const {
   // Width of the signal from second moments in a 5 x 5 box about the centroid, less the
   // pixel (1/12 px^2) and the Airy core (a Gaussian of sigma ~ 0.34 r has the same FWHM).
-  double var_sum = 0.0;
+  const double airy_sigma = 0.34 * airy_radius_px;
+  std::vector<double> out;
   for (int k = 0; k < num_exposures(); ++k) {
     const Stamp& s = stamps_[k];
     const double cx = centroid_x_[k] - s.origin_x, cy = centroid_y_[k] - s.origin_y;
@@ -215,10 +291,15 @@ std::vector<double> FitModel::MomentStart(double airy_radius_px, double defocus_
         wyy += v * (y - cy) * (y - cy);
       }
     }
-    var_sum += 0.5 * (wxx + wyy) / w;
+    out.push_back(0.5 * (wxx + wyy) / w - 1.0 / 12.0 - airy_sigma * airy_sigma);
   }
-  const double airy_sigma = 0.34 * airy_radius_px;
-  double gauss_var = var_sum / num_exposures() - 1.0 / 12.0 - airy_sigma * airy_sigma;
+  return out;
+}
+
+std::vector<double> FitModel::MomentStart(double airy_radius_px, double defocus_share) const {
+  const std::vector<double> variances = MomentGaussianVariances(airy_radius_px);
+  double gauss_var = 0.0;
+  for (double v : variances) gauss_var += v / num_exposures();
   gauss_var = std::clamp(gauss_var, 0.15 * 0.15, 1.2 * 1.2);
   const double sg = std::sqrt(gauss_var);
   std::vector<double> theta(dim());
@@ -229,8 +310,15 @@ std::vector<double> FitModel::MomentStart(double airy_radius_px, double defocus_
     theta[XIndex(k)] = centroid_x_[k];
     theta[YIndex(k)] = centroid_y_[k];
   }
+  if (through_focus()) {
+    // A crude focus start (map_fit.cc builds better ones): best focus mid-range, the mean
+    // defocus reached at the mean distance from it, a quarter of the range.
+    const int f = FocusIndex();
+    theta[f] = 0.5 * (lower_[f] + upper_[f]);
+    theta[kDefocusPx] /= 0.25 * (upper_[f] - lower_[f]);
+  }
   // Flux: the least-squares scale of the model to the data.
-  for (int i = 0; i < kNumShared; ++i) theta[i] = std::clamp(theta[i], lower_[i], upper_[i]);
+  for (int i : SharedIndices()) theta[i] = std::clamp(theta[i], lower_[i], upper_[i]);
   FitEvaluator ev(*this);
   const double flux = ev.LeastSquaresFlux(theta.data());
   theta[kFluxE] =
@@ -258,10 +346,18 @@ void FitEvaluator::ModelImage(const double* theta, int k, std::vector<double>* m
   renderer_.Render(fit_model_.SpotFor(theta, k), grid, model->data(), spot_jacobian_.data());
   const int dim = fit_model_.dim();
   jacobian->assign(static_cast<size_t>(n) * dim, 0.0);
+  // Focus mode: the defocus column is split by the chain rule into the rate (theta index
+  // kDefocusPx) and best-focus columns.
+  const int focus = fit_model_.FocusIndex();
+  double d_rate = 1.0, d_z0 = 0.0;
+  if (focus >= 0) fit_model_.DefocusFor(theta, k, &d_rate, &d_z0);
   for (int q = 0; q < n; ++q) {
-    for (int p = 0; p < model::kNumSpotParams; ++p) {
-      (*jacobian)[static_cast<size_t>(q) * dim + ThetaIndex(p, k)] =
-          spot_jacobian_[static_cast<size_t>(q) * model::kNumSpotParams + p];
+    const double* g = &spot_jacobian_[static_cast<size_t>(q) * model::kNumSpotParams];
+    double* row = &(*jacobian)[static_cast<size_t>(q) * dim];
+    for (int p = 0; p < model::kNumSpotParams; ++p) row[ThetaIndex(p, k)] = g[p];
+    if (focus >= 0) {
+      row[kDefocusPx] = g[model::kDefocus] * d_rate;
+      row[focus] = g[model::kDefocus] * d_z0;
     }
   }
 }

@@ -51,7 +51,8 @@ json FitJson(const FitModel& model, const FitResult& r,
   j["model"] = {{"sampling", model::ToString(model.options().model.sampling)},
                 {"defocus", model::ToString(model.options().model.defocus)},
                 {"likelihood", ToString(model.options().likelihood)},
-                {"joint", model.num_exposures() > 1}};
+                {"joint", model.num_exposures() > 1},
+                {"through_focus", model.through_focus()}};
   json params = json::object();
   json priors = json::object();
   for (int i = 0; i < model.dim(); ++i) {
@@ -123,7 +124,10 @@ json FitJson(const FitModel& model, const FitResult& r,
               {"wavelength_nm", Num(s.info.wavelength_nm)},
               {"exptime_s", Num(s.info.exptime_s)},
               {"pixel_um", s.info.pixel_um},
+              {"focus_position_um", Num(s.info.focus_position_um)},
               {"masked_pixels", s.nx() * s.ny() - s.NumValid()}};
+    // Through-focus fits: this exposure's defocus at the MAP, rate |z_k - z0| [px].
+    if (model.through_focus()) e["map_defocus_sigma_px"] = model.DefocusFor(r.map.theta.data(), k);
     if (k < static_cast<int>(calibration.size())) {
       const CalibrationReport& c = calibration[k];
       e["calibration"] = {{"gain", c.gain_source},
@@ -215,14 +219,24 @@ bool WriteFitReport(const std::string& out_dir, const FitModel& model, const Fit
                      {"CONVERGD", c.converged, "sampler convergence criteria met"}};
     if (!WriteFitsTable(out.Path("chain.fits"), ch, "CHAIN", cols, error)) return false;
 
+    // The corner plot shows the shared parameters (best_focus_um included in a through-focus
+    // fit) and the first exposure's position: in a joint fit of many exposures a panel for
+    // every pair of positions would bury the PSF.
+    std::vector<int> picked = model.SharedIndices();
+    picked.push_back(FitModel::XIndex(0));
+    picked.push_back(FitModel::YIndex(0));
+    const int shown = static_cast<int>(picked.size());
     CornerPlotInput corner;
-    corner.names = r.names;
-    corner.map = r.map.theta;
-    corner.laplace_covariance = r.laplace.covariance;
-    for (int a = 0; a < dim; ++a) {
-      for (int b = 0; b < dim; ++b) {
-        if (!r.laplace.constrained[a] || !r.laplace.constrained[b]) {
-          corner.laplace_covariance[a * dim + b] = NAN;
+    for (int i : picked) {
+      corner.names.push_back(r.names[i]);
+      corner.map.push_back(r.map.theta[i]);
+    }
+    corner.laplace_covariance.assign(static_cast<size_t>(shown) * shown, NAN);
+    for (int a = 0; a < shown; ++a) {
+      for (int b = 0; b < shown; ++b) {
+        const int pa = picked[a], pb = picked[b];
+        if (r.laplace.constrained[pa] && r.laplace.constrained[pb]) {
+          corner.laplace_covariance[a * shown + b] = r.laplace.covariance[pa * dim + pb];
         }
       }
     }
@@ -230,8 +244,7 @@ bool WriteFitReport(const std::string& out_dir, const FitModel& model, const Fit
     const size_t n = std::min<size_t>(kept, 5000);
     for (size_t t = 0; t < n; ++t) {
       const size_t s = static_cast<size_t>(c.burn_in) * c.num_walkers + t * kept / n;
-      corner.samples.insert(corner.samples.end(), c.chain.begin() + s * dim,
-                            c.chain.begin() + (s + 1) * dim);
+      for (int i : picked) corner.samples.push_back(c.chain[s * dim + i]);
     }
     corner.num_samples = static_cast<int>(n);
     corner.title = "posterior (MCMC), MAP and Laplace 68/95 % ellipses";
@@ -245,7 +258,12 @@ bool WriteFitReport(const std::string& out_dir, const FitModel& model, const Fit
   md << "Model: " << model::ToString(model.options().model.sampling) << " sampling, "
      << model::ToString(model.options().model.defocus) << " defocus, "
      << ToString(model.options().likelihood) << " likelihood; " << model.num_exposures()
-     << (model.num_exposures() > 1 ? " exposures (joint fit)" : " exposure") << ".\n\n";
+     << (model.num_exposures() > 1 ? " exposures (joint fit)" : " exposure")
+     << (model.through_focus()
+             ? "; through-focus series: defocus sigma = defocus_rate_px_per_um x |FOCUSPOS - "
+               "best_focus_um|, CCD kernel fixed (total widths are those at best focus)"
+             : "")
+     << ".\n\n";
   md << "chi2 / dof = " << Fmt(r.map.chi2) << " / " << r.map.dof << " = "
      << Fmt(r.map.chi2 / std::max(1, r.map.dof), 4) << "; MAP from " << r.map.num_usable_starts
      << " of " << r.map.num_starts << " starts in " << Fmt(r.map.seconds, 3) << " s.\n\n";

@@ -11,8 +11,10 @@ namespace ccdpsf::fit {
 
 LaplaceResult ComputeLaplace(const FitModel& model, const std::vector<double>& theta_map,
                              const std::vector<double>& fisher) {
+  // A through-focus series has no such degeneracy (its defocus varies per exposure).
   const bool explain = model.options().model.sampling == model::Sampling::kIntegrated &&
-                       model.options().model.defocus == model::DefocusKind::kGaussian;
+                       model.options().model.defocus == model::DefocusKind::kGaussian &&
+                       !model.through_focus();
   return ComputeLaplace(model.names(), model.lower(), model.upper(), theta_map, fisher, explain);
 }
 

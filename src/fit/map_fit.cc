@@ -27,6 +27,7 @@ class ExposureCost : public ceres::CostFunction {
     noise_.read_noise_e = s.read_noise_e;
     mutable_parameter_block_sizes()->push_back(kNumShared);
     mutable_parameter_block_sizes()->push_back(2);
+    if (model.through_focus()) mutable_parameter_block_sizes()->push_back(1);
     set_num_residuals(2 * static_cast<int>(pixels_.size()));
   }
 
@@ -36,6 +37,8 @@ class ExposureCost : public ceres::CostFunction {
     for (int i = 0; i < kNumShared; ++i) theta[i] = parameters[0][i];
     theta[FitModel::XIndex(k_)] = parameters[1][0];
     theta[FitModel::YIndex(k_)] = parameters[1][1];
+    const int focus = model_.FocusIndex();
+    if (focus >= 0) theta[focus] = parameters[2][0];
     model::SpotParams p = model_.SpotFor(theta.data(), k_);
     std::string why;
     // Ceres may probe outside the bounds during a line search; an invalid point is reported
@@ -47,6 +50,9 @@ class ExposureCost : public ceres::CostFunction {
     if (want_jacobian) spot_jacobian_.resize(grid.size() * model::kNumSpotParams);
     renderer_.Render(p, grid, model_pixels_.data(),
                      want_jacobian ? spot_jacobian_.data() : nullptr);
+    // Focus mode: d sigma_f / d rate and d sigma_f / d z0 (the chain rule below).
+    double d_rate = 1.0, d_z0 = 0.0;
+    if (focus >= 0) model_.DefocusFor(theta.data(), k_, &d_rate, &d_z0);
     const Stamp& s = model_.stamps()[k_];
     const double var0 = noise_.VarianceE2(0.0);
     const int n = static_cast<int>(pixels_.size());
@@ -70,9 +76,14 @@ class ExposureCost : public ceres::CostFunction {
         for (int sp = 0; sp < model::kNumSpotParams; ++sp) {
           const int j = kSharedIndexOfSpot[sp];
           if (j < 0) continue;
-          jacobians[0][i * kNumShared + j] = dr1 * g[sp];
-          jacobians[0][(n + i) * kNumShared + j] = dr2 * g[sp];
+          const double dm = sp == model::kDefocus ? g[sp] * d_rate : g[sp];
+          jacobians[0][i * kNumShared + j] = dr1 * dm;
+          jacobians[0][(n + i) * kNumShared + j] = dr2 * dm;
         }
+      }
+      if (focus >= 0 && jacobians[2] != nullptr) {
+        jacobians[2][i] = dr1 * g[model::kDefocus] * d_z0;
+        jacobians[2][n + i] = dr2 * g[model::kDefocus] * d_z0;
       }
       if (jacobians[1] != nullptr) {
         jacobians[1][i * 2 + 0] = dr1 * g[model::kCentreX];
@@ -106,13 +117,23 @@ StartOutcome Solve(const FitModel& model, std::vector<double> theta, const MapOp
   problem_options.cost_function_ownership = ceres::TAKE_OWNERSHIP;
   ceres::Problem problem(problem_options);
   double* shared = theta.data();
+  const int f = model.FocusIndex();
+  double* focus = f >= 0 ? theta.data() + f : nullptr;
   for (int k = 0; k < model.num_exposures(); ++k) {
     double* position = theta.data() + FitModel::XIndex(k);
-    problem.AddResidualBlock(NewExposureCost(model, k), nullptr, shared, position);
+    if (focus != nullptr) {
+      problem.AddResidualBlock(NewExposureCost(model, k), nullptr, shared, position, focus);
+    } else {
+      problem.AddResidualBlock(NewExposureCost(model, k), nullptr, shared, position);
+    }
   }
   for (int i = 0; i < kNumShared; ++i) {
     problem.SetParameterLowerBound(shared, i, model.lower()[i]);
     problem.SetParameterUpperBound(shared, i, model.upper()[i]);
+  }
+  if (focus != nullptr) {
+    problem.SetParameterLowerBound(focus, 0, model.lower()[f]);
+    problem.SetParameterUpperBound(focus, 0, model.upper()[f]);
   }
   for (int k = 0; k < model.num_exposures(); ++k) {
     double* position = theta.data() + FitModel::XIndex(k);
@@ -217,6 +238,148 @@ std::vector<std::vector<double>> ScreenStarts(const FitModel& model, const MapOp
   return starts;
 }
 
+// Focus mode: sigma_ccd^2 = a and rate^2 = c fitted to the Gaussian variances v_k at
+// distances dz_k from a trial best focus, v_k ~ a + c dz_k^2 (least squares, a >= a_min,
+// c >= 0). With fixed_a >= 0, a is held there and only c is fitted. Returns the residual
+// sum of squares.
+double FitVarianceLaw(const std::vector<double>& v, const std::vector<double>& dz2, double a_min,
+                      double fixed_a, double* a, double* c) {
+  const size_t n = v.size();
+  auto rss = [&](double aa, double cc) {
+    double sum = 0.0;
+    for (size_t k = 0; k < n; ++k) sum += std::pow(v[k] - aa - cc * dz2[k], 2);
+    return sum;
+  };
+  auto c_given_a = [&](double aa) {
+    double num = 0.0, den = 0.0;
+    for (size_t k = 0; k < n; ++k) {
+      num += (v[k] - aa) * dz2[k];
+      den += dz2[k] * dz2[k];
+    }
+    return den > 0 ? std::max(0.0, num / den) : 0.0;
+  };
+  if (fixed_a >= 0) {
+    *a = fixed_a;
+    *c = c_given_a(fixed_a);
+    return rss(*a, *c);
+  }
+  double s1 = 0, sx = 0, sxx = 0, sy = 0, sxy = 0;
+  for (size_t k = 0; k < n; ++k) {
+    s1 += 1;
+    sx += dz2[k];
+    sxx += dz2[k] * dz2[k];
+    sy += v[k];
+    sxy += v[k] * dz2[k];
+  }
+  const double det = s1 * sxx - sx * sx;
+  double aa = det > 0 ? (sxx * sy - sx * sxy) / det : sy / s1;
+  double cc = det > 0 ? (s1 * sxy - sx * sy) / det : 0.0;
+  if (cc < 0) {  // the widths do not grow away from z0: no defocus
+    cc = 0.0;
+    aa = sy / s1;
+  }
+  if (aa < a_min) {
+    aa = a_min;
+    cc = c_given_a(aa);
+  }
+  *a = aa;
+  *c = cc;
+  return rss(aa, cc);
+}
+
+// The starting points of a through-focus fit (MapOptions).
+std::vector<std::vector<double>> FocusStarts(const FitModel& model, const MapOptions& options) {
+  const int n = model.num_exposures();
+  const int f = model.FocusIndex();
+  const double z_min = model.lower()[f], z_max = model.upper()[f];
+  // The exposure nearest best focus: the smallest moment width.
+  std::vector<double> v = model.MomentGaussianVariances(0.5);
+  const int best = static_cast<int>(std::min_element(v.begin(), v.end()) - v.begin());
+  // Its normal (single-focus) fit: Airy radius, flux, total widths and position there.
+  double radius = 0.5, tx2 = NAN, ty2 = NAN;
+  std::vector<double> single_theta;
+  {
+    FitModelOptions single_options = model.options();
+    single_options.through_focus = false;
+    std::string error;
+    auto single = FitModel::Create({model.stamps()[best]}, single_options, &error);
+    MapResult single_map;
+    if (single && FindMap(*single, options, &single_map, &error)) {
+      single_theta = single_map.theta;
+      radius = single_theta[kAiryRadiusPx];
+      const double d2 = single_theta[kDefocusPx] * single_theta[kDefocusPx];
+      tx2 = single_theta[kCcdSigmaXPx] * single_theta[kCcdSigmaXPx] + d2;
+      ty2 = single_theta[kCcdSigmaYPx] * single_theta[kCcdSigmaYPx] + d2;
+    }
+  }
+  // Moment variances for that radius, pinned to the fitted total variance at `best` (the
+  // moments in a 5 x 5 box are biased; the offset removes most of it).
+  v = model.MomentGaussianVariances(radius);
+  double half_ellipticity = 0.0;  // (t_x^2 - t_y^2) / 2, carried into the CCD widths
+  if (std::isfinite(tx2) && std::isfinite(ty2)) {
+    const double offset = 0.5 * (tx2 + ty2) - v[best];
+    for (double& x : v) x += offset;
+    half_ellipticity = 0.5 * (tx2 - ty2);
+  }
+  const double a_min = 0.06 * 0.06;
+  auto dz2_for = [&](double z0) {
+    std::vector<double> dz2(n);
+    for (int k = 0; k < n; ++k) dz2[k] = std::pow(model.FocusPositionUm(k) - z0, 2);
+    return dz2;
+  };
+  // Best focus that best explains the widths: a grid over the scanned range.
+  // (81 points: a step of 1/80 of the range, well inside the solve's reach.)
+  double z_best = 0.5 * (z_min + z_max), rss_best = INFINITY;
+  for (int i = 0; i <= 80; ++i) {
+    const double z0 = z_min + (z_max - z_min) * i / 80.0;
+    double a, c;
+    const double rss = FitVarianceLaw(v, dz2_for(z0), a_min, -1.0, &a, &c);
+    if (rss < rss_best) {
+      rss_best = rss;
+      z_best = z0;
+    }
+  }
+  std::unique_ptr<FitEvaluator> ev = model.NewEvaluator();
+  auto make = [&](double z0, double ccd_scale) {
+    // sigma_ccd^2 and rate^2 for this best focus; with ccd_scale < 1 the CCD variance is
+    // scaled down (more of each width given to the defocus) and the rate refitted.
+    const std::vector<double> dz2 = dz2_for(z0);
+    double a, c;
+    FitVarianceLaw(v, dz2, a_min, -1.0, &a, &c);
+    if (ccd_scale != 1.0) FitVarianceLaw(v, dz2, a_min, std::max(a_min, ccd_scale * a), &a, &c);
+    std::vector<double> theta(model.dim());
+    theta[kFluxE] = single_theta.empty() ? 0.0 : single_theta[kFluxE];
+    theta[kAiryRadiusPx] = radius;
+    // A rate of zero would leave z0 without a gradient: start with some defocus.
+    theta[kDefocusPx] = std::max(std::sqrt(c), 0.05 * model.upper()[kDefocusPx]);
+    theta[kCcdSigmaXPx] = std::sqrt(std::max(a_min, a + half_ellipticity));
+    theta[kCcdSigmaYPx] = std::sqrt(std::max(a_min, a - half_ellipticity));
+    theta[f] = z0;
+    for (int k = 0; k < n; ++k) {
+      theta[FitModel::XIndex(k)] = model.CentroidX(k);
+      theta[FitModel::YIndex(k)] = model.CentroidY(k);
+    }
+    if (!single_theta.empty()) {
+      theta[FitModel::XIndex(best)] = single_theta[FitModel::XIndex(0)];
+      theta[FitModel::YIndex(best)] = single_theta[FitModel::YIndex(0)];
+    }
+    for (int i = 0; i < model.dim(); ++i) {
+      theta[i] = std::clamp(theta[i], model.lower()[i], model.upper()[i]);
+    }
+    // The flux: least squares for this shape (the single fit's flux is the fallback).
+    const double flux = ev->LeastSquaresFlux(theta.data());
+    if (std::isfinite(flux)) theta[kFluxE] = flux;
+    theta[kFluxE] = std::clamp(theta[kFluxE], model.lower()[kFluxE], model.upper()[kFluxE]);
+    return theta;
+  };
+  std::vector<std::vector<double>> starts;
+  for (double scale : options.start_ccd_variance_scales) starts.push_back(make(z_best, scale));
+  for (double fraction : options.start_best_focus_fractions) {
+    starts.push_back(make(z_min + std::clamp(fraction, 0.0, 1.0) * (z_max - z_min), 1.0));
+  }
+  return starts;
+}
+
 }  // namespace
 
 ceres::CostFunction* NewExposureCost(const FitModel& model, int k) {
@@ -228,7 +391,9 @@ bool FindMap(const FitModel& model, const MapOptions& options, MapResult* result
   const auto t0 = std::chrono::steady_clock::now();
   *result = MapResult();
   std::vector<std::vector<double>> starts;
-  if (model.num_exposures() > 1) {
+  if (model.through_focus()) {
+    starts = FocusStarts(model, options);
+  } else if (model.num_exposures() > 1) {
     // Joint fit: the multi-start search runs on the first exposure alone (12x cheaper for
     // 12 exposures), and its PSF seeds the joint solve; positions start at the centroids.
     // The moment start with the single fit's radius is kept as a fallback seed.
@@ -251,7 +416,7 @@ bool FindMap(const FitModel& model, const MapOptions& options, MapResult* result
       starts.push_back(model.MomentStart(r, 0.5));
     }
   }
-  if (starts.empty()) {
+  if (starts.empty() && !model.through_focus()) {
     for (double r : options.start_airy_radii_px) {
       for (double share : options.start_defocus_shares) {
         starts.push_back(model.MomentStart(r, share));
@@ -267,7 +432,8 @@ bool FindMap(const FitModel& model, const MapOptions& options, MapResult* result
   }
   // A joint fit's starts are a seeded start and a fallback: the fallback runs only if the
   // seeded solve fails (the multi-start search already ran on the single exposure).
-  const bool fallback_only = model.num_exposures() > 1 && starts.size() == 2;
+  const bool fallback_only =
+      !model.through_focus() && model.num_exposures() > 1 && starts.size() == 2;
   StartOutcome best;
   for (const std::vector<double>& start : starts) {
     if (fallback_only && best.usable) break;

@@ -24,8 +24,8 @@ PosteriorTarget::PosteriorTarget(const FitModel& model, const std::vector<double
   marginal_ = options.marginal_defocus &&
               model.options().model.sampling == model::Sampling::kIntegrated &&
               model.options().model.defocus == model::DefocusKind::kGaussian &&
-              bounds_.sigma_x_lower > 0 && bounds_.sigma_y_lower > 0;
-  num_shared_ = kNumShared - (marginal_ ? 1 : 0);
+              !model.through_focus() && bounds_.sigma_x_lower > 0 && bounds_.sigma_y_lower > 0;
+  num_shared_ = model.NumSharedParams() - (marginal_ ? 1 : 0);
   const int dim = theta_dim - (marginal_ ? 1 : 0);
 
   std::vector<double> phi_map(theta_dim);
@@ -55,7 +55,8 @@ PosteriorTarget::PosteriorTarget(const FitModel& model, const std::vector<double
       f_state[a * dim + b] = sum;
     }
   }
-  laplace_ = ComputeLaplace(names_, lower, upper, state_map_, f_state, !marginal_);
+  laplace_ = ComputeLaplace(names_, lower, upper, state_map_, f_state,
+                            !marginal_ && !model.through_focus());
 
   stretch_dim_ = dim;
   // With one exposure a conditional move costs a second render per step for only two
@@ -87,7 +88,14 @@ PosteriorTarget::PosteriorTarget(const FitModel& model, const std::vector<double
   stretch_dim_ = num_shared_;
 }
 
-int PosteriorTarget::PhiIndex(int i) const { return marginal_ && i >= kDefocusPx ? i + 1 : i; }
+int PosteriorTarget::PhiIndex(int i) const {
+  if (model_.through_focus()) {
+    // State [shared (5) | best_focus_um | positions], theta [shared | positions | focus].
+    if (i < kNumShared) return i;
+    return i == kNumShared ? model_.FocusIndex() : i - 1;
+  }
+  return marginal_ && i >= kDefocusPx ? i + 1 : i;
+}
 
 bool PosteriorTarget::LikelihoodTheta(const double* state, double* theta,
                                       double* log_weight) const {

@@ -7,7 +7,9 @@ namespace ccdpsf::fit {
 SamplingCoordinates::SamplingCoordinates(const FitModel& model)
     : dim_(model.dim()),
       pillbox_(model.options().model.defocus == model::DefocusKind::kPillbox),
+      identity_(model.through_focus()),
       names_(model.names()) {
+  if (identity_) return;
   names_[kCcdSigmaXPx] = "total_sigma_x_px";
   names_[kCcdSigmaYPx] = "total_sigma_y_px";
 }
@@ -22,6 +24,7 @@ double SamplingCoordinates::DefocusVarianceDerivative(double d) const {
 
 void SamplingCoordinates::ToSampling(const double* theta, double* phi) const {
   for (int i = 0; i < dim_; ++i) phi[i] = theta[i];
+  if (identity_) return;
   const double v = DefocusVariance(theta[kDefocusPx]);
   phi[kCcdSigmaXPx] = std::sqrt(theta[kCcdSigmaXPx] * theta[kCcdSigmaXPx] + v);
   phi[kCcdSigmaYPx] = std::sqrt(theta[kCcdSigmaYPx] * theta[kCcdSigmaYPx] + v);
@@ -29,6 +32,7 @@ void SamplingCoordinates::ToSampling(const double* theta, double* phi) const {
 
 bool SamplingCoordinates::FromSampling(const double* phi, double* theta) const {
   for (int i = 0; i < dim_; ++i) theta[i] = phi[i];
+  if (identity_) return true;
   const double v = DefocusVariance(phi[kDefocusPx]);
   const double sx2 = phi[kCcdSigmaXPx] * phi[kCcdSigmaXPx] - v;
   const double sy2 = phi[kCcdSigmaYPx] * phi[kCcdSigmaYPx] - v;
@@ -39,6 +43,7 @@ bool SamplingCoordinates::FromSampling(const double* phi, double* theta) const {
 }
 
 double SamplingCoordinates::LogJacobian(const double* phi) const {
+  if (identity_) return 0.0;
   const double v = DefocusVariance(phi[kDefocusPx]);
   const double sx2 = phi[kCcdSigmaXPx] * phi[kCcdSigmaXPx] - v;
   const double sy2 = phi[kCcdSigmaYPx] * phi[kCcdSigmaYPx] - v;
@@ -49,6 +54,7 @@ double SamplingCoordinates::LogJacobian(const double* phi) const {
 std::vector<double> SamplingCoordinates::Jacobian(const double* phi) const {
   std::vector<double> j(static_cast<size_t>(dim_) * dim_, 0.0);
   for (int i = 0; i < dim_; ++i) j[i * dim_ + i] = 1.0;
+  if (identity_) return j;
   std::vector<double> theta(dim_);
   FromSampling(phi, theta.data());
   const double dv = DefocusVarianceDerivative(phi[kDefocusPx]);

@@ -17,8 +17,16 @@ namespace ccdpsf::testing_support {
 // ~1.5e5 e- peak pixel (integrated) or peak_e = 1.5e5 (pixel_centre).
 SimulationConfig PaperConfig(model::Sampling sampling, int count, uint64_t seed);
 
+// A through-focus series (integrated sampling, Gaussian defocus) with the paper's Airy
+// radius and CCD kernel: one exposure per stage position z_um[k] [um], each with defocus
+// sigma rate_px_per_um |z - best_focus_um| [px] and total flux flux_e, centres jittered by up
+// to +-0.1 px around (10, 10) (deterministic in `seed`).
+SimulationConfig FocusSeriesConfig(const std::vector<double>& z_um, double best_focus_um,
+                                   double rate_px_per_um, double flux_e, uint64_t seed);
+
 // One noisy realisation of every exposure, calibrated as the reader would (known bias and
-// gain), each stamp the whole 21 x 21 frame.
+// gain, saturated pixels masked, FOCUSPOS carried into info.focus_position_um), each stamp
+// the whole 21 x 21 frame.
 std::vector<Stamp> SimulateStamps(const SimulationConfig& config, uint64_t noise_seed);
 
 }  // namespace ccdpsf::testing_support

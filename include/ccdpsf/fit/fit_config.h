@@ -1,18 +1,22 @@
 // FIT.json: the fit's options as a file (command-line flags override it).
 //
 //   {"sampling": "integrated", "defocus": "gaussian", "likelihood": "gaussian",
-//    "joint": false,
+//    "joint": false, "through_focus": false,
 //    "priors": {"airy_radius_px": [0.1, 1.5], "defocus_px": [0.0, 1.5],
 //               "ccd_sigma_x_px": [0.05, 1.5], "ccd_sigma_y_px": [0.05, 1.5],
 //               "position_halfwidth_px": 2.0, "flux_fraction": [0.2, 5.0]},
-//    "map":  {"start_airy_radii_px": [0.35, 0.6, 0.9], "start_defocus_shares": [0.25, 0.75]},
+//    "map":  {"start_airy_radii_px": [0.35, 0.6, 0.9], "start_defocus_shares": [0.25, 0.75],
+//             "max_iterations": 200, "start_ccd_variance_scales": [1.0, 0.5],
+//             "start_best_focus_fractions": [0.2, 0.5, 0.8]},
 //    "mcmc": {"enabled": true, "walkers": 0, "max_steps": 20000, "target_ess": 1000,
 //             "min_tau_multiple": 50, "seed": 1, "threads": 2, "marginal_defocus": true,
 //             "positions_by_conditional": true, "position_update_every": 1},
 //    "calibration": {"gain_e_per_adu": 3.1, "read_noise_e": 4.5, "bias_adu": 1000,
 //                    "saturation_adu": 65535, "stamp_size": 21}}
 //
-// Every key is optional; unknown keys are errors.
+// Every key is optional; unknown keys are errors. "through_focus" fits a joint set as a
+// through-focus series (fit_model.h); `ccdpsf fit --joint` switches it on by itself when it
+// is not given and the files form one (FOCUSPOS on all, >= 3 distinct values).
 #ifndef CCDPSF_FIT_FIT_CONFIG_H_
 #define CCDPSF_FIT_FIT_CONFIG_H_
 
@@ -29,6 +33,8 @@ struct FitConfig {
   FitOptions fit;
   CalibrationOptions calibration;
   bool joint = false;
+  // model.through_focus was set explicitly (FIT.json or a flag): no automatic choice.
+  bool through_focus_given = false;
 };
 
 // Overlays the JSON onto *config (keys absent keep their current values). False with a

@@ -11,6 +11,30 @@
 //   5 + 2K, 6 + 2K       x_px.K, y_px.K: spot centre of exposure K, frame coordinates [px]
 // (the paper's joint fit: CCD widths, intensity and defocus shared, one position per
 // exposure). Priors are flat within [lower, upper] for every parameter.
+//
+// Through-focus mode (FitModelOptions::through_focus): a series of exposures taken at stage
+// positions z_k [um] (FITS keyword FOCUSPOS, Stamp::info.focus_position_um), where the
+// geometric defocus grows linearly with the distance from best focus z0 while the CCD kernel
+// stays fixed:
+//
+//   sigma_f,k = defocus_rate_px_per_um * |z_k - z0|      (Gaussian defocus sigma, exposure k)
+//
+// The layout above is kept (XIndex / YIndex stay valid), index 2 becomes
+//   2 defocus_rate_px_per_um   d sigma_f / d|z - z0| [px/um]                    shared
+// and ONE more shared parameter follows the positions, at the very end of theta:
+//   5 + 2K  best_focus_um      z0, the stage position of best focus [um]      shared
+// (FitModel::FocusIndex()). With one focus position and a Gaussian defocus only the total
+// widths sqrt(sigma_f^2 + sigma_ccd^2) are identified (DESIGN.md pitfall 1); across a series
+// the total variance sigma_ccd^2 + rate^2 (z_k - z0)^2 changes with z_k while the CCD part
+// does not, which identifies the CCD widths. The model depends on sigma_f only through
+// sigma_f^2 = rate^2 (z_k - z0)^2, so it is smooth in rate and z0 (also at z_k = z0).
+// Priors: rate in [0, defocus_px[1] / (0.5 (z_max - z_min))] (the prior's largest defocus
+// reached half the scanned range away from best focus); z0 in [z_min, z_max]: the model
+// ASSUMES that best focus lies inside the scanned range (a lab series is taken across it).
+// Valid only for integrated sampling with a Gaussian defocus (the 2015 pixel_centre model
+// has its own, discretisation-driven, identification, and a pillbox's radius would need its
+// own law), with a finite focus position on every stamp and at least 3 distinct positions
+// (a parabola in z needs three).
 #ifndef CCDPSF_FIT_FIT_MODEL_H_
 #define CCDPSF_FIT_FIT_MODEL_H_
 
@@ -52,7 +76,13 @@ struct FitModelOptions {
   model::ModelOptions model;
   LikelihoodKind likelihood = LikelihoodKind::kGaussian;
   PriorRanges priors;
+  // Fit a through-focus series with the defocus law above (see the top of this file).
+  bool through_focus = false;
 };
+
+// Whether a set of stamps can be fitted as a through-focus series: every stamp has a finite
+// focus position and there are at least 3 distinct ones. False with a one-line reason.
+bool IsFocusSeries(const std::vector<Stamp>& stamps, std::string* why);
 
 // Renders the model of each stamp for a parameter vector; owns scratch space, so use one per
 // thread.
@@ -63,7 +93,8 @@ class FitModel {
   // Builds the model for the given stamps (at least one; all must share a size when more
   // than one). Returns nullptr with a one-line reason on bad input: no stamps, stamps of
   // different sizes, a stamp with no valid pixel, no signal to fit, pixel_centre with a
-  // pillbox.
+  // pillbox; with through_focus, a model other than integrated + Gaussian defocus or stamps
+  // that are not a focus series (IsFocusSeries).
   static std::unique_ptr<FitModel> Create(std::vector<Stamp> stamps, const FitModelOptions& options,
                                           std::string* error);
 
@@ -80,6 +111,23 @@ class FitModel {
   static int XIndex(int k) { return kNumShared + 2 * k; }
   static int YIndex(int k) { return kNumShared + 2 * k + 1; }
 
+  // Through-focus mode: whether theta carries best_focus_um, and its index (dim() - 1;
+  // -1 when not in focus mode).
+  bool through_focus() const { return options_.through_focus; }
+  int FocusIndex() const { return through_focus() ? dim() - 1 : -1; }
+  // Shared parameters in theta: kNumShared, plus best_focus_um in focus mode; their indices
+  // in theta order (0..4, then FocusIndex()).
+  int NumSharedParams() const { return kNumShared + (through_focus() ? 1 : 0); }
+  std::vector<int> SharedIndices() const;
+  // Stage position of exposure k [um] (NaN when unknown).
+  double FocusPositionUm(int k) const { return stamps_[k].info.focus_position_um; }
+  // The defocus of exposure k [px]: theta[kDefocusPx], or in focus mode
+  // theta[kDefocusPx] * |z_k - theta[FocusIndex()]|. d_rate / d_z0 (may be null) receive its
+  // derivatives with respect to the rate and z0 (0 outside focus mode; at z_k = z0 the
+  // derivative in z0 is taken as 0, exact for the model, which depends on sigma_f^2 only).
+  double DefocusFor(const double* theta, int k, double* d_rate = nullptr,
+                    double* d_z0 = nullptr) const;
+
   bool InsidePrior(const double* theta) const;
 
   // The renderer's parameters and pixel grid for exposure k (pixel_centre works on stamp
@@ -90,7 +138,16 @@ class FitModel {
   // A starting point from the stamps' moments (centroid, summed signal, second moments
   // split between defocus and CCD kernel), for the given Airy radius and share of the
   // Gaussian width given to the defocus (0..1).
+  // Not for focus mode (map_fit.cc builds those starts from MomentGaussianVariances).
   std::vector<double> MomentStart(double airy_radius_px, double defocus_share) const;
+
+  // The Gaussian variance of each exposure from its second moments [px^2] (mean of the x
+  // and y axes, less the pixel and an Airy core of the given radius; not clamped): in focus
+  // mode the quantity that grows as sigma_ccd^2 + rate^2 (z_k - z0)^2.
+  std::vector<double> MomentGaussianVariances(double airy_radius_px) const;
+  // Frame-coordinate centroid of stamp k [px] (the moment start's position).
+  double CentroidX(int k) const { return centroid_x_[k]; }
+  double CentroidY(int k) const { return centroid_y_[k]; }
 
   std::unique_ptr<FitEvaluator> NewEvaluator() const;
 

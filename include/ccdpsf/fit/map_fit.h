@@ -12,6 +12,10 @@
 // -log L + constant for the Gaussian likelihood with model-dependent variance: the -sum log
 // sigma term is kept (r2 >= 1, so its derivative is bounded). r1 is the whitened residual.
 // Bounds are the prior box, set with SetParameterLower/UpperBound.
+//
+// Through-focus fits (fit_model.h) add a third parameter block, best_focus_um [1], shared by
+// every exposure like the PSF block (whose index 2 is then the defocus rate); each block's
+// defocus is rate |z_k - z0|, and its Jacobian follows by the chain rule.
 #ifndef CCDPSF_FIT_MAP_FIT_H_
 #define CCDPSF_FIT_MAP_FIT_H_
 
@@ -48,6 +52,16 @@ struct MapOptions {
   std::vector<double> screen_defocus_px = {0.2, 0.3, 0.4, 0.5, 0.65};
   std::vector<double> screen_ccd_sigma_px = {0.15, 0.22, 0.3, 0.38, 0.5};
   int screen_keep = 6;
+  // Through-focus fits. A single exposure cannot separate defocus from the CCD kernel, so
+  // the joint fit is not seeded from one as above. Instead: a normal single-exposure fit of
+  // the exposure with the smallest moment width (the one nearest best focus) gives the Airy
+  // radius, the flux and the total widths there; every exposure's moment variance, pinned to
+  // that fit, is then fitted by sigma_ccd^2 + rate^2 (z_k - z0)^2 (linear least squares in
+  // sigma_ccd^2 and rate^2 on a grid of z0). Starts: the best such z0 with the CCD variance
+  // scaled by each of start_ccd_variance_scales (rate refitted), and z0 at each of these
+  // fractions of the scanned range. Every start is solved; the best wins.
+  std::vector<double> start_ccd_variance_scales = {1.0, 0.5};
+  std::vector<double> start_best_focus_fractions = {0.2, 0.5, 0.8};
 };
 
 struct MapResult {
@@ -68,8 +82,9 @@ struct MapResult {
 bool FindMap(const FitModel& model, const MapOptions& options, MapResult* result,
              std::string* error);
 
-// The residual block of exposure k (parameter blocks: shared[5], position[2]). Exposed for
-// gradient checks; the caller owns the result (or hands it to a ceres::Problem).
+// The residual block of exposure k (parameter blocks: shared[5], position[2], and in
+// through-focus mode best_focus[1]). Exposed for gradient checks; the caller owns the result
+// (or hands it to a ceres::Problem).
 ceres::CostFunction* NewExposureCost(const FitModel& model, int k);
 
 }  // namespace ccdpsf::fit

@@ -14,6 +14,10 @@
 // The priors stay flat in the fit parameters: the density in sampling coordinates carries the
 // Jacobian |d(defocus, sigma_x, sigma_y) / d(defocus, t_x, t_y)| = t_x t_y / (sigma_x sigma_y).
 // Every other coordinate is unchanged (same index, same meaning).
+//
+// Through-focus fits (fit_model.h) walk the fit parameters themselves (the identity map, no
+// Jacobian): there the defocus differs per exposure, so no single total width exists, and
+// the series identifies the CCD widths, so there is no ridge to straighten.
 #ifndef CCDPSF_FIT_SAMPLING_COORDINATES_H_
 #define CCDPSF_FIT_SAMPLING_COORDINATES_H_
 
@@ -45,6 +49,7 @@ class SamplingCoordinates {
   double DefocusVarianceDerivative(double defocus) const;
   int dim_;
   bool pillbox_;
+  bool identity_;
   std::vector<std::string> names_;
 };
 
