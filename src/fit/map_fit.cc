@@ -232,7 +232,12 @@ std::vector<std::vector<double>> ScreenStarts(const FitModel& model, const MapOp
   std::sort(scored.begin(), scored.end(),
             [](const auto& a, const auto& b) { return a.first > b.first; });
   std::vector<std::vector<double>> starts;
+  // The positions were refined for one mid-range shape only; the likelihood is so sharp in
+  // position that each kept shape gets its own refinement before the local solve (measured:
+  // without it a 600 nm spot (r = 0.35 px) ended at chi^2/dof 1.3-1.8 against 1.05 near the
+  // truth).
   for (size_t i = 0; i < scored.size() && static_cast<int>(i) < options.screen_keep; ++i) {
+    RefinePositions(model, ev.get(), &scored[i].second);
     starts.push_back(scored[i].second);
   }
   return starts;

@@ -48,10 +48,11 @@ struct MapOptions {
   // so kAuto screens there and not for integrated sampling, whose starts all agree.
   enum class Screen { kAuto, kAlways, kNever };
   Screen screen = Screen::kAuto;
-  std::vector<double> screen_airy_radii_px = {0.3, 0.4, 0.5, 0.6, 0.7, 0.85};
-  std::vector<double> screen_defocus_px = {0.2, 0.3, 0.4, 0.5, 0.65};
-  std::vector<double> screen_ccd_sigma_px = {0.15, 0.22, 0.3, 0.38, 0.5};
-  int screen_keep = 6;
+  std::vector<double> screen_airy_radii_px = {0.25, 0.3, 0.35, 0.4, 0.45, 0.5, 0.55,
+                                              0.6, 0.65, 0.7, 0.75, 0.85};
+  std::vector<double> screen_defocus_px = {0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5, 0.55, 0.65};
+  std::vector<double> screen_ccd_sigma_px = {0.1, 0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5};
+  int screen_keep = 10;
   // Through-focus fits. A single exposure cannot separate defocus from the CCD kernel, so
   // the joint fit is not seeded from one as above. Instead: a normal single-exposure fit of
   // the exposure with the smallest moment width (the one nearest best focus) gives the Airy
