@@ -37,16 +37,15 @@ cmake -S . -B build -DCMAKE_BUILD_TYPE=Release > /dev/null
 cmake --build build -j"$jobs"
 
 if [ "$mode" = demo ]; then
-  rm -rf out/demo
-  echo "== simulating a Table-1-like exposure set (800 nm, 5 exposures)"
-  ./build/ccdpsf simulate --config=testdata/demo_simulation.json --out=out/demo/data
-  echo "== joint fit of the five exposures (MAP and Laplace)"
-  ./build/ccdpsf fit --joint --nomcmc --out=out/demo/joint out/demo/data/exposure_00*.fits
-  echo "== complete fit of one exposure (MAP, Laplace and MCMC credible intervals)"
-  ./build/ccdpsf fit --out=out/demo/single out/demo/data/exposure_000.fits
-  echo "== done: reports are $(pwd)/out/demo/joint/report.md and"
-  echo "   $(pwd)/out/demo/single/report.md (fit.json and plots beside them; the"
-  echo "   simulation's truth is out/demo/data/truth.json)"
+  rm -rf out/campaign
+  echo "== the main job: characterise the CCD PSF from the bundled lab campaign"
+  echo "   (testdata/campaign_small: 7 settings at 600-890 nm and 23-158 ke- plus a"
+  echo "   through-focus series, 26 exposures; joint fit with MCMC of every setting, then the"
+  echo "   relations with wavelength and intensity and the Euclid VIS requirement checks)"
+  ./build/ccdpsf trend --out=out/campaign testdata/campaign_small
+  echo "== done: the report is $(pwd)/out/campaign/report.md (trend.json, CSV tables and"
+  echo "   plots beside it; each setting's fit report under out/campaign/groups/; the"
+  echo "   campaign's truth is testdata/campaign_small/truth.json)"
   exit 0
 fi
 

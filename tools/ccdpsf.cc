@@ -24,7 +24,7 @@ DEFINE_string(defocus, "gaussian", "Defocus kernel: gaussian or pillbox");
 namespace ccdpsf::tools {
 
 const std::vector<Command>& Commands() {
-  static const std::vector<Command> commands = {SimulateCommand(), FitCommand()};
+  static const std::vector<Command> commands = {SimulateCommand(), FitCommand(), TrendCommand()};
   return commands;
 }
 

@@ -1,0 +1,62 @@
+// The joint fit of every group of a campaign, in parallel across groups, and the posterior
+// draws of the PSF metrics that the trend relations are fitted to.
+//
+// Groups are dealt to `parallel_groups` worker threads (largest first, for balance); each fit
+// runs its MCMC on one thread, so the whole run uses parallel_groups cores. A group's MCMC
+// seed is DeriveSeed(seed, group index), so the results do not depend on the scheduling or
+// on parallel_groups. A group that cannot be fitted (no usable file, a calibration error,
+// stamps of different sizes, a fit that does not converge to a MAP) is kept with the reason;
+// the others go on.
+#ifndef CCDPSF_TREND_GROUP_FIT_H_
+#define CCDPSF_TREND_GROUP_FIT_H_
+
+#include <functional>
+#include <map>
+#include <string>
+#include <vector>
+
+#include "ccdpsf/fit/fit.h"
+#include "ccdpsf/fit/fit_config.h"
+#include "ccdpsf/trend/campaign.h"
+
+namespace ccdpsf::trend {
+
+struct GroupFitOptions {
+  fit::FitConfig config;  // model, fit and calibration options (MCMC threads are set to 1)
+  uint64_t seed = 1;
+  int parallel_groups = 2;
+  // Posterior draws of each metric kept per group (evenly thinned from the chain).
+  int draws = 2000;
+  // Where each group's full fit report goes (out_dir/<group name>/); empty: none.
+  std::string reports_dir;
+};
+
+struct GroupResult {
+  CampaignGroup group;
+  bool ok = false;
+  std::string failure;                 // why the group has no result (ok == false)
+  std::vector<std::string> warnings;   // e.g. one exposure only, MCMC not converged
+  int exposures = 0;
+  bool converged = false;
+  double chi2_per_dof = NAN;
+  double seconds = 0.0;
+  std::string report_dir;              // the group's fit report, if written
+  // Intensity: the model's peak pixel [e-] (mean over the exposures), posterior summary.
+  fit::Summary peak_e;
+  // Summaries and posterior draws of the derived metrics (fit.h DerivedNames(), peak_e
+  // excepted) and of the shared parameters.
+  std::map<std::string, fit::Summary> summaries;
+  std::map<std::string, std::vector<double>> draws;
+};
+
+// Called after each group finishes (from the worker thread, serialised by a lock): its
+// result and how many are done.
+using GroupProgress = std::function<void(const GroupResult&, int done, int total)>;
+
+std::vector<GroupResult> FitGroups(const std::vector<CampaignGroup>& groups,
+                                   const GroupFitOptions& options,
+                                   const GroupProgress& progress);
+
+}  // namespace ccdpsf::trend
+
+#endif  // CCDPSF_TREND_GROUP_FIT_H_

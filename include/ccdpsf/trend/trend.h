@@ -1,0 +1,63 @@
+// From the fitted groups of a campaign to the PSF's relations with wavelength and intensity,
+// the combined model and the requirement checks (paper section 4).
+//
+// Which groups feed which relation:
+//   <metric>_vs_intensity   the groups at the reference wavelength (800 nm by default; else
+//                           the wavelength with the most intensity settings), abscissa the
+//                           group's measured peak pixel (posterior median, e-). Every other
+//                           wavelength with >= 2 intensity settings gets its own relation
+//                           (intensity_by_wavelength).
+//   <metric>_vs_wavelength  per wavelength, the group whose peak is nearest the reference
+//                           intensity I0 (and within intensity_tolerance of it), corrected
+//                           to I0 with the reference wavelength's intensity relation:
+//                           X(I0, lambda) = X(I, lambda) X_I(I0) / X_I(I), the paper's
+//                           combined-model assumption (section 4.4), draw by draw, so the
+//                           correction's own uncertainty is carried. Without an intensity
+//                           relation the points are used as measured (noted).
+//   through-focus groups    not in the relations (a different experiment); reported on
+//                           their own: there the CCD widths are identified.
+// Failed groups appear as gaps in every relation they would have fed.
+#ifndef CCDPSF_TREND_TREND_H_
+#define CCDPSF_TREND_TREND_H_
+
+#include <map>
+#include <string>
+#include <vector>
+
+#include "ccdpsf/trend/group_fit.h"
+#include "ccdpsf/trend/relations.h"
+#include "ccdpsf/trend/requirements.h"
+
+namespace ccdpsf::trend {
+
+struct TrendOptions {
+  double reference_intensity_e = kReferenceIntensityE;
+  double reference_wavelength_nm = kReferenceWavelengthNm;
+  // A wavelength's point for the power law must have |I / I0 - 1| <= this.
+  double intensity_tolerance = 0.3;
+  bool correct_to_reference_intensity = true;
+  RelationOptions relation;
+  std::vector<Requirement> requirements = DefaultRequirements();
+};
+
+struct TrendResult {
+  std::vector<GroupResult> groups;
+  // trend.json's "relations": <metric>_vs_wavelength and <metric>_vs_intensity (the latter at
+  // intensity_wavelength_nm).
+  std::map<std::string, RelationFit> relations;
+  double intensity_wavelength_nm = NAN;
+  // Intensity relations at the other wavelengths with >= 2 settings: wavelength -> name -> fit.
+  std::map<double, std::map<std::string, RelationFit>> intensity_by_wavelength;
+  // The groups used for the wavelength relations, in wavelength order.
+  std::vector<std::string> wavelength_groups;
+  std::vector<RequirementResult> requirements;
+  std::vector<std::string> notes;  // what the reader should know (corrections, exclusions)
+};
+
+// False (with a one-line reason) only for invalid options.
+bool ComputeTrend(std::vector<GroupResult> groups, const TrendOptions& options,
+                  TrendResult* result, std::string* error);
+
+}  // namespace ccdpsf::trend
+
+#endif  // CCDPSF_TREND_TREND_H_

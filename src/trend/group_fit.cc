@@ -1,0 +1,147 @@
+#include "ccdpsf/trend/group_fit.h"
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <mutex>
+#include <numeric>
+#include <thread>
+
+#include "ccdpsf/exposure.h"
+#include "ccdpsf/fit/fit_report.h"
+#include "ccdpsf/provenance.h"
+#include "ccdpsf/random.h"
+
+namespace ccdpsf::trend {
+namespace {
+
+GroupResult FitOne(const CampaignGroup& group, int index, const GroupFitOptions& options) {
+  const auto start = std::chrono::steady_clock::now();
+  GroupResult out;
+  out.group = group;
+  out.exposures = static_cast<int>(group.files.size());
+  auto finish = [&](const std::string& failure) {
+    out.ok = failure.empty();
+    out.failure = failure;
+    out.seconds =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    return out;
+  };
+  if (!group.problem.empty()) return finish(group.problem);
+  fit::FitConfig config = options.config;
+  if (group.focus_series) {
+    // A through-focus series is fitted with its own model (fit_model.h), which exists in
+    // integrated sampling with a Gaussian defocus only: there it identifies the CCD widths.
+    config.model.model.sampling = model::Sampling::kIntegrated;
+    config.model.model.defocus = model::DefocusKind::kGaussian;
+    config.model.through_focus = true;
+    out.warnings.push_back(
+        "through-focus series: fitted with defocus = rate x |z - z0| (integrated sampling, "
+        "Gaussian defocus), which identifies the CCD widths");
+  }
+  std::vector<Stamp> stamps;
+  std::vector<CalibrationReport> calibration;
+  std::string error;
+  for (const std::string& f : group.files) {
+    std::optional<Exposure> e = LoadExposure(f, config.calibration, &error);
+    if (!e) return finish(error);
+    stamps.push_back(e->stamp);
+    calibration.push_back(e->report);
+  }
+  if (stamps.size() == 1) {
+    out.warnings.push_back("one exposure only: fitted alone, without the joint constraint");
+  }
+  auto model = fit::FitModel::Create(stamps, config.model, &error);
+  if (!model) return finish(error);
+  fit::FitOptions fo = config.fit;
+  fo.mcmc.num_threads = 1;
+  fo.mcmc.progress = false;
+  fo.mcmc.seed = DeriveSeed(options.seed, static_cast<uint64_t>(index));
+  fit::FitResult result;
+  if (!fit::RunFit(*model, fo, &result, &error)) return finish(error);
+  out.chi2_per_dof = result.map.chi2 / result.map.dof;
+  out.converged = result.have_mcmc && result.chain.converged;
+  if (result.have_mcmc && !result.chain.converged) {
+    out.warnings.push_back("MCMC not converged: " + result.chain.stop_reason);
+  }
+
+  for (const auto& [name, summary] : result.derived) out.summaries[name] = summary;
+  for (int i = 0; i < fit::kNumShared; ++i) out.summaries[result.names[i]] = result.parameters[i];
+  if (model->FocusIndex() >= 0) {
+    out.summaries[result.names[model->FocusIndex()]] = result.parameters[model->FocusIndex()];
+  }
+  out.peak_e = out.summaries["peak_e"];
+
+  if (result.have_mcmc) {
+    const fit::SamplerResult& c = result.chain;
+    const int dim = model->dim();
+    const size_t kept = static_cast<size_t>(c.num_steps - c.burn_in) * c.num_walkers;
+    const size_t n = std::min<size_t>(kept, static_cast<size_t>(std::max(1, options.draws)));
+    const std::vector<std::string>& names = fit::DerivedNames();
+    for (size_t t = 0; t < n; ++t) {
+      const size_t s = static_cast<size_t>(c.burn_in) * c.num_walkers + t * kept / n;
+      const double* theta = &c.chain[s * dim];
+      const std::vector<double> d = fit::DerivedAt(*model, theta);
+      for (size_t j = 0; j < names.size(); ++j) {
+        if (std::isfinite(d[j])) out.draws[names[j]].push_back(d[j]);
+      }
+      for (int i = 0; i < fit::kNumShared; ++i) out.draws[result.names[i]].push_back(theta[i]);
+    }
+  }
+
+  if (!options.reports_dir.empty()) {
+    out.report_dir = options.reports_dir + "/" + group.name;
+    nlohmann::json run = {{"command", "trend (group fit)"},
+                          {"group", group.name},
+                          {"files", group.files},
+                          {"options", fit::FitConfigJson(config)},
+                          {"seed", fo.mcmc.seed},
+                          {"software", SoftwareVersions()}};
+    std::vector<std::string> plot_warnings;
+    if (!fit::WriteFitReport(out.report_dir, *model, result, calibration, run, &plot_warnings,
+                             &error)) {
+      out.warnings.push_back("fit report not written: " + error);
+      out.report_dir.clear();
+    }
+    for (const std::string& w : plot_warnings) out.warnings.push_back(w);
+  }
+  return finish("");
+}
+
+}  // namespace
+
+std::vector<GroupResult> FitGroups(const std::vector<CampaignGroup>& groups,
+                                   const GroupFitOptions& options,
+                                   const GroupProgress& progress) {
+  const int total = static_cast<int>(groups.size());
+  std::vector<GroupResult> results(total);
+  // Largest groups first, so that the last to start are the quick ones.
+  std::vector<int> order(total);
+  std::iota(order.begin(), order.end(), 0);
+  std::stable_sort(order.begin(), order.end(), [&](int a, int b) {
+    return groups[a].files.size() > groups[b].files.size();
+  });
+  std::atomic<int> next{0};
+  std::mutex mutex;
+  int done = 0;
+  auto worker = [&]() {
+    while (true) {
+      const int i = next.fetch_add(1);
+      if (i >= total) return;
+      const int g = order[i];
+      GroupResult r = FitOne(groups[g], g, options);
+      std::lock_guard<std::mutex> lock(mutex);
+      results[g] = std::move(r);
+      ++done;
+      if (progress) progress(results[g], done, total);
+    }
+  };
+  const int threads = std::clamp(options.parallel_groups, 1, std::max(1, total));
+  std::vector<std::thread> pool;
+  for (int t = 1; t < threads; ++t) pool.emplace_back(worker);
+  worker();
+  for (std::thread& t : pool) t.join();
+  return results;
+}
+
+}  // namespace ccdpsf::trend

@@ -1,0 +1,214 @@
+#include "ccdpsf/trend/trend.h"
+
+#include <algorithm>
+#include <cmath>
+#include <set>
+#include <sstream>
+
+namespace ccdpsf::trend {
+namespace {
+
+std::string Format(double v, int precision = 4) {
+  std::ostringstream out;
+  out.precision(precision);
+  out << v;
+  return out.str();
+}
+
+// The group's measurement of `metric` as a relation point at `abscissa`: its posterior
+// draws, else the Laplace Gaussian, else a gap saying why.
+RelationPoint PointOf(const GroupResult& g, const std::string& metric, double abscissa) {
+  const std::string& label = g.group.name;
+  if (!g.ok) return RelationPoint::Missing(label, abscissa, g.failure);
+  auto draws = g.draws.find(metric);
+  if (draws != g.draws.end() && draws->second.size() >= 2) {
+    return RelationPoint::FromDraws(label, abscissa, draws->second);
+  }
+  auto s = g.summaries.find(metric);
+  if (s != g.summaries.end() && std::isfinite(s->second.laplace_sd)) {
+    return RelationPoint::FromGaussian(label, abscissa, s->second.map, s->second.laplace_sd);
+  }
+  return RelationPoint::Missing(label, abscissa,
+                                "no posterior draws (MCMC off) and no Laplace sd (the data do "
+                                "not constrain " + metric + ")");
+}
+
+double NominalOrMeasuredPeak(const GroupResult& g) {
+  if (g.ok && std::isfinite(g.peak_e.median)) return g.peak_e.median;
+  if (g.ok && std::isfinite(g.peak_e.map)) return g.peak_e.map;
+  return g.group.nominal_peak_e.value_or(NAN);
+}
+
+}  // namespace
+
+bool ComputeTrend(std::vector<GroupResult> groups, const TrendOptions& options,
+                  TrendResult* result, std::string* error) {
+  if (!options.relation.IsValid(error)) return false;
+  if (!(options.reference_intensity_e > 0) || !(options.reference_wavelength_nm > 0) ||
+      !(options.intensity_tolerance > 0)) {
+    *error = "trend: the reference intensity, wavelength and intensity tolerance must be > 0";
+    return false;
+  }
+  *result = TrendResult();
+  result->groups = std::move(groups);
+  const std::vector<GroupResult>& all = result->groups;
+  const std::vector<std::string>& metrics = TrendMetricNames();
+  const double i0 = options.reference_intensity_e;
+
+  // Regular (single-focus) groups by wavelength; groups of unknown wavelength fit nowhere.
+  std::map<double, std::vector<const GroupResult*>> by_wavelength;
+  for (const GroupResult& g : all) {
+    if (g.group.focus_series) continue;
+    if (!std::isfinite(g.group.wavelength_nm)) {
+      result->notes.push_back(g.group.name + " is in no relation: " + g.failure);
+      continue;
+    }
+    by_wavelength[g.group.wavelength_nm].push_back(&g);
+  }
+
+  // Intensity relations.
+  double main_wavelength = NAN;
+  size_t most = 0;
+  for (const auto& [wavelength, list] : by_wavelength) {
+    if (list.size() > most) {
+      most = list.size();
+      main_wavelength = wavelength;
+    }
+  }
+  auto ref = by_wavelength.find(options.reference_wavelength_nm);
+  if (ref != by_wavelength.end() && ref->second.size() >= 2) {
+    main_wavelength = options.reference_wavelength_nm;
+  }
+  result->intensity_wavelength_nm = main_wavelength;
+  for (const auto& [wavelength, list] : by_wavelength) {
+    const bool main = wavelength == main_wavelength;
+    if (!main && list.size() < 2) continue;
+    for (const std::string& metric : metrics) {
+      std::vector<RelationPoint> points;
+      for (const GroupResult* g : list) {
+        points.push_back(PointOf(*g, metric, NominalOrMeasuredPeak(*g)));
+      }
+      auto fit = FitRelation(RelationKind::kLinear, points, options.relation, error);
+      if (!fit) return false;
+      const std::string name = RelationName(metric, RelationKind::kLinear);
+      if (main) {
+        result->relations[name] = std::move(*fit);
+      } else {
+        result->intensity_by_wavelength[wavelength][name] = std::move(*fit);
+      }
+    }
+  }
+  if (std::isfinite(main_wavelength)) {
+    const size_t n = by_wavelength[main_wavelength].size();
+    if (n < 2) {
+      result->notes.push_back("no wavelength has two or more intensity settings: the intensity "
+                              "relations cannot be fitted");
+    } else if (main_wavelength != options.reference_wavelength_nm) {
+      result->notes.push_back("the intensity relations are measured at " +
+                              Format(main_wavelength) + " nm (no " +
+                              Format(options.reference_wavelength_nm) +
+                              " nm intensity series)");
+    }
+  }
+  for (const auto& [wavelength, list] : by_wavelength) {
+    if (list.size() == 1 && wavelength != main_wavelength) {
+      result->notes.push_back(Format(wavelength) +
+                              " nm has a single intensity setting: no intensity relation there");
+    }
+  }
+
+  // Wavelength relations: one point per wavelength, nearest I0.
+  std::vector<std::pair<double, const GroupResult*>> chosen;  // wavelength, group or nullptr
+  std::map<double, std::string> why_none;
+  for (const auto& [wavelength, list] : by_wavelength) {
+    const GroupResult* best = nullptr;
+    double best_distance = INFINITY;
+    for (const GroupResult* g : list) {
+      const double peak = NominalOrMeasuredPeak(*g);
+      // (A failed group of unknown intensity might have been the one: it ranks as close.)
+      const double distance = std::isfinite(peak) ? std::fabs(peak / i0 - 1.0)
+                                                  : (g->ok ? INFINITY : 0.0);
+      // A failed group is chosen only if no successful one qualifies: its gap then shows.
+      const double rank = distance + (g->ok ? 0.0 : 10.0);
+      if (rank < best_distance) {
+        best_distance = rank;
+        best = g;
+      }
+    }
+    const double distance =
+        best != nullptr ? std::fabs(NominalOrMeasuredPeak(*best) / i0 - 1.0) : INFINITY;
+    if (best != nullptr && (distance <= options.intensity_tolerance || !best->ok)) {
+      chosen.push_back({wavelength, best});
+    } else {
+      chosen.push_back({wavelength, nullptr});
+      why_none[wavelength] = "no setting within " +
+                             Format(100 * options.intensity_tolerance, 3) + " % of I0 = " +
+                             Format(i0, 7) + " e-";
+    }
+  }
+  std::vector<std::string> uncorrected;
+  for (const std::string& metric : metrics) {
+    auto it = result->relations.find(RelationName(metric, RelationKind::kLinear));
+    // A correction from a relation the data barely constrain would inject its spread (its
+    // draws can even change sign); such points are used as measured.
+    const RelationFit* intensity = it != result->relations.end() && it->second.fitted &&
+                                           !it->second.HasFlag(kFlagPoorlyConstrained)
+                                       ? &it->second
+                                       : nullptr;
+    if (options.correct_to_reference_intensity && intensity == nullptr) {
+      uncorrected.push_back(metric);
+    }
+    std::vector<RelationPoint> points;
+    for (const auto& [wavelength, g] : chosen) {
+      if (g == nullptr) {
+        points.push_back(RelationPoint::Missing(Format(wavelength) + " nm", wavelength,
+                                                why_none[wavelength]));
+        continue;
+      }
+      RelationPoint p = PointOf(*g, metric, wavelength);
+      const double peak = NominalOrMeasuredPeak(*g);
+      if (options.correct_to_reference_intensity && intensity != nullptr &&
+          p.missing_reason.empty() && !p.draws.empty() && std::isfinite(peak)) {
+        const std::vector<double> at_i0 = intensity->ValueDraws(i0);
+        const std::vector<double> at_i = intensity->ValueDraws(peak);
+        for (size_t j = 0; j < p.draws.size(); ++j) {
+          const size_t r = j % at_i0.size();
+          p.draws[j] *= at_i0[r] / at_i[r];
+        }
+      }
+      points.push_back(std::move(p));
+    }
+    auto fit = FitRelation(RelationKind::kPowerLaw, points, options.relation, error);
+    if (!fit) return false;
+    result->relations[RelationName(metric, RelationKind::kPowerLaw)] = std::move(*fit);
+  }
+  for (const auto& [wavelength, g] : chosen) {
+    if (g != nullptr) result->wavelength_groups.push_back(g->group.name);
+  }
+  if (options.correct_to_reference_intensity) {
+    if (uncorrected.size() < metrics.size()) {
+      result->notes.push_back(
+          "wavelength points are corrected to I0 = " + Format(i0, 7) + " e- with the " +
+          Format(result->intensity_wavelength_nm) +
+          " nm intensity relation of each metric, draw by draw (paper section 4.4's assumption "
+          "that the intensity dependence does not change with wavelength)");
+    }
+    if (!uncorrected.empty()) {
+      std::string list;
+      for (const std::string& m : uncorrected) list += (list.empty() ? "" : ", ") + m;
+      result->notes.push_back("used at their measured intensity, not corrected to I0 (no "
+                              "well-constrained intensity relation): " + list);
+    }
+  }
+  for (const GroupResult& g : all) {
+    if (g.group.focus_series) {
+      result->notes.push_back(g.group.name +
+                              " is a through-focus series: reported on its own, not in the "
+                              "relations");
+    }
+  }
+  result->requirements = EvaluateRequirements(options.requirements, result->relations, i0);
+  return true;
+}
+
+}  // namespace ccdpsf::trend

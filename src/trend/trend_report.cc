@@ -1,0 +1,378 @@
+#include "ccdpsf/trend/trend_report.h"
+
+#include <algorithm>
+#include <cmath>
+#include <fstream>
+#include <sstream>
+
+#include "ccdpsf/atomic_file.h"
+#include "ccdpsf/plot.h"
+#include "ccdpsf/staged_output.h"
+
+namespace ccdpsf::trend {
+namespace {
+
+using nlohmann::json;
+
+json Number(double v) { return std::isfinite(v) ? json(v) : json(nullptr); }
+
+json SummaryJson(const fit::Summary& s) {
+  return {{"map", Number(s.map)},       {"laplace_sd", Number(s.laplace_sd)},
+          {"median", Number(s.median)}, {"lo68", Number(s.lo68)},
+          {"hi68", Number(s.hi68)},     {"lo997", Number(s.lo997)},
+          {"hi997", Number(s.hi997)}};
+}
+
+json GroupJson(const GroupResult& g) {
+  json j = {{"name", g.group.name},
+            {"wavelength_nm", Number(g.group.wavelength_nm)},
+            {"nominal_peak_e", g.group.nominal_peak_e ? json(*g.group.nominal_peak_e) : json()},
+            {"exptime_s", g.group.exptime_s ? json(*g.group.exptime_s) : json()},
+            {"focus_series", g.group.focus_series},
+            {"files", g.group.files},
+            {"ok", g.ok},
+            {"failure", g.ok ? json() : json(g.failure)},
+            {"warnings", g.warnings},
+            {"mcmc_converged", g.converged},
+            {"chi2_per_dof", Number(g.chi2_per_dof)},
+            {"seconds", g.seconds},
+            {"report", g.report_dir.empty() ? json() : json(g.report_dir)}};
+  if (g.ok) {
+    j["peak_e"] = SummaryJson(g.peak_e);
+    json m = json::object();
+    for (const auto& [name, s] : g.summaries) m[name] = SummaryJson(s);
+    j["metrics"] = m;
+  }
+  return j;
+}
+
+std::string Fmt(double v, int precision = 4) {
+  if (!std::isfinite(v)) return "n/a";
+  std::ostringstream out;
+  out.precision(precision);
+  out << v;
+  return out.str();
+}
+
+std::string Interval(const Estimate& e, int precision = 4) {
+  if (!std::isfinite(e.median)) return "n/a";
+  return Fmt(e.median, precision) + " [" + Fmt(e.lo68, precision) + ", " +
+         Fmt(e.hi68, precision) + "]";
+}
+
+std::string Interval(const fit::Summary& s, int precision = 4) {
+  if (std::isfinite(s.median)) {
+    return Fmt(s.median, precision) + " [" + Fmt(s.lo68, precision) + ", " +
+           Fmt(s.hi68, precision) + "]";
+  }
+  if (std::isfinite(s.map)) {
+    return Fmt(s.map, precision) + " +- " + (std::isfinite(s.laplace_sd) ? Fmt(s.laplace_sd, 2)
+                                                                       : std::string("(unconstrained)"));
+  }
+  return "n/a";
+}
+
+// A relation's points as CSV: label, abscissa, median, lo68, hi68, sd, normalised residual.
+std::string RelationCsv(const RelationFit& fit) {
+  std::ostringstream csv;
+  csv.precision(10);
+  csv << "group,abscissa,median,lo68,hi68,sd,normalized_residual,used\n";
+  for (const PointSummary& p : fit.points) {
+    csv << p.label << "," << p.abscissa << "," << p.value.median << "," << p.value.lo68 << ","
+        << p.value.hi68 << "," << p.value.sd << "," << p.normalized_residual << ",1\n";
+  }
+  for (const RelationGap& g : fit.gaps) {
+    csv << g.label << "," << g.abscissa << ",,,,,,0\n";
+  }
+  return csv.str();
+}
+
+struct PlotLine {
+  std::string label;
+  const RelationFit* fit = nullptr;
+};
+
+// Points with 68 % bars and the median relation of each fit; requirement lines in red.
+void PlotFits(const std::string& dir, const std::string& stem, const std::string& title,
+              const std::string& x_label, const std::string& y_label,
+              const std::vector<PlotLine>& lines, const std::vector<HorizontalLine>& limits,
+              std::vector<std::string>* pngs, std::vector<std::string>* warnings) {
+  XyPlotInput in;
+  in.title = title;
+  in.x_label = x_label;
+  in.y_label = y_label;
+  for (const PlotLine& line : lines) {
+    if (line.fit == nullptr || line.fit->points.empty()) continue;
+    Series s;
+    s.label = line.label;
+    for (const PointSummary& p : line.fit->points) {
+      if (!std::isfinite(p.value.median)) continue;
+      s.x.push_back(p.abscissa);
+      s.y.push_back(p.value.median);
+      s.y_lo.push_back(std::min(p.value.lo68, p.value.median));
+      s.y_hi.push_back(std::max(p.value.hi68, p.value.median));
+    }
+    Curve c;
+    c.label = line.fit->fitted ? line.label + " fit" : "";
+    if (line.fit->fitted) {
+      const double lo = line.fit->MinAbscissa(), hi = line.fit->MaxAbscissa();
+      for (int i = 0; i <= 40; ++i) {
+        const double x = lo + (hi - lo) * i / 40.0;
+        const Estimate e = SummarizeDraws(line.fit->ValueDraws(x));
+        if (std::isfinite(e.median)) {
+          c.x.push_back(x);
+          c.y.push_back(e.median);
+        }
+      }
+    }
+    // Series k and curve k share a colour, so they stay paired: a relation that was not
+    // fitted gets a one-point curve (which draws nothing) and no key entry.
+    if (s.x.empty()) continue;
+    if (c.x.empty()) {
+      c.label.clear();
+      c.x = {s.x[0]};
+      c.y = {s.y[0]};
+    }
+    in.series.push_back(std::move(s));
+    in.curves.push_back(std::move(c));
+  }
+  bool any = false;
+  for (const Series& s : in.series) any = any || !s.x.empty();
+  if (!any) return;
+  in.requirements = limits;
+  PlotResult plot;
+  std::string error;
+  if (!WriteXyPlot(dir, stem, in, &plot, &error)) {
+    warnings->push_back(stem + ".png not made: " + error);
+  } else if (!plot.png_written) {
+    warnings->push_back(stem + ".png not made: " + plot.message);
+  } else {
+    pngs->push_back(stem + ".png");
+  }
+}
+
+const RelationFit* Find(const TrendResult& r, const std::string& name) {
+  auto it = r.relations.find(name);
+  return it == r.relations.end() ? nullptr : &it->second;
+}
+
+double LimitOf(const TrendResult& r, const std::string& metric) {
+  for (const RequirementResult& q : r.requirements) {
+    if (q.requirement.target == Requirement::Target::kMetricAt && q.requirement.metric == metric) {
+      return q.requirement.limit;
+    }
+  }
+  return NAN;
+}
+
+}  // namespace
+
+json TrendJson(const TrendResult& r) {
+  json j;
+  j["relations"] = json::object();
+  for (const auto& [name, fit] : r.relations) j["relations"][name] = ToJson(fit);
+  j["intensity_relations_wavelength_nm"] = Number(r.intensity_wavelength_nm);
+  j["intensity_relations_by_wavelength"] = json::object();
+  for (const auto& [wavelength, fits] : r.intensity_by_wavelength) {
+    json w = json::object();
+    for (const auto& [name, fit] : fits) w[name] = ToJson(fit);
+    j["intensity_relations_by_wavelength"][Fmt(wavelength, 6)] = w;
+  }
+  j["wavelength_relation_groups"] = r.wavelength_groups;
+  j["requirements"] = json::array();
+  for (const RequirementResult& q : r.requirements) j["requirements"].push_back(ToJson(q));
+  j["groups"] = json::array();
+  int failed = 0;
+  for (const GroupResult& g : r.groups) {
+    j["groups"].push_back(GroupJson(g));
+    failed += g.ok ? 0 : 1;
+  }
+  j["failed_groups"] = failed;
+  j["notes"] = r.notes;
+  return j;
+}
+
+bool WriteTrendReport(const std::string& out_dir, const TrendResult& r,
+                      const json& run_record, std::vector<std::string>* warnings,
+                      std::string* error) {
+  StagedOutput out;
+  if (!out.Begin(out_dir, error)) return false;
+  const std::string dir = out.staging_dir();
+
+  // CSV tables.
+  std::ostringstream groups_csv;
+  groups_csv.precision(10);
+  groups_csv << "group,wavelength_nm,nominal_peak_e,exposures,focus_series,ok,peak_e";
+  const std::vector<std::string>& metrics = TrendMetricNames();
+  for (const std::string& m : metrics) groups_csv << "," << m << "," << m << "_lo68," << m << "_hi68";
+  groups_csv << ",chi2_per_dof,mcmc_converged,failure\n";
+  for (const GroupResult& g : r.groups) {
+    groups_csv << g.group.name << "," << g.group.wavelength_nm << ","
+               << (g.group.nominal_peak_e ? std::to_string(*g.group.nominal_peak_e) : "") << ","
+               << g.exposures << "," << (g.group.focus_series ? 1 : 0) << "," << (g.ok ? 1 : 0)
+               << "," << g.peak_e.median;
+    for (const std::string& m : metrics) {
+      auto s = g.summaries.find(m);
+      if (s == g.summaries.end()) {
+        groups_csv << ",,,";
+      } else {
+        groups_csv << "," << s->second.median << "," << s->second.lo68 << "," << s->second.hi68;
+      }
+    }
+    std::string failure = g.failure;
+    std::replace(failure.begin(), failure.end(), '"', '\'');
+    groups_csv << "," << g.chi2_per_dof << "," << (g.converged ? 1 : 0) << ",\"" << failure
+               << "\"\n";
+  }
+  if (!WriteTextFileAtomically(out.Path("groups.csv"), groups_csv.str(), error)) return false;
+  for (const auto& [name, fit] : r.relations) {
+    if (!WriteTextFileAtomically(out.Path(name + ".csv"), RelationCsv(fit), error)) return false;
+  }
+
+  // Plots like the paper's figures.
+  std::vector<std::string> pngs;
+  const double fwhm_limit = LimitOf(r, "fwhm_um");
+  const double e_limit = LimitOf(r, "ellipticity");
+  std::vector<HorizontalLine> fwhm_lines, e_lines;
+  if (std::isfinite(fwhm_limit)) fwhm_lines.push_back({"requirement", fwhm_limit});
+  if (std::isfinite(e_limit)) e_lines.push_back({"requirement", e_limit});
+  const std::string at_i = " at " + Fmt(r.intensity_wavelength_nm) + " nm";
+  PlotFits(dir, "fwhm_vs_wavelength", "CCD PSF FWHM vs wavelength (at I0)", "wavelength [nm]",
+           "FWHM [um]",
+           {{"FWHM_x", Find(r, "fwhm_x_um_vs_wavelength")},
+            {"FWHM_y", Find(r, "fwhm_y_um_vs_wavelength")},
+            {"FWHM", Find(r, "fwhm_um_vs_wavelength")}},
+           fwhm_lines, &pngs, warnings);
+  PlotFits(dir, "fwhm_vs_intensity", "CCD PSF FWHM vs intensity" + at_i,
+           "peak pixel [e-]", "FWHM [um]",
+           {{"FWHM_x", Find(r, "fwhm_x_um_vs_intensity")},
+            {"FWHM_y", Find(r, "fwhm_y_um_vs_intensity")},
+            {"FWHM", Find(r, "fwhm_um_vs_intensity")}},
+           fwhm_lines, &pngs, warnings);
+  PlotFits(dir, "r2_vs_wavelength", "CCD PSF R^2 vs wavelength (at I0)", "wavelength [nm]",
+           "R^2 [px^2]", {{"R^2", Find(r, "r2_px2_vs_wavelength")}}, {}, &pngs, warnings);
+  PlotFits(dir, "r2_vs_intensity", "CCD PSF R^2 vs intensity" + at_i, "peak pixel [e-]",
+           "R^2 [px^2]", {{"R^2", Find(r, "r2_px2_vs_intensity")}}, {}, &pngs, warnings);
+  PlotFits(dir, "ellipticity_vs_wavelength", "CCD PSF ellipticity vs wavelength (at I0)",
+           "wavelength [nm]", "e", {{"e", Find(r, "ellipticity_vs_wavelength")}}, e_lines,
+           &pngs, warnings);
+  PlotFits(dir, "ellipticity_vs_intensity", "CCD PSF ellipticity vs intensity" + at_i,
+           "peak pixel [e-]", "e", {{"e", Find(r, "ellipticity_vs_intensity")}}, e_lines, &pngs,
+           warnings);
+  PlotFits(dir, "total_fwhm_vs_wavelength",
+           "identified (total) FWHM, defocus included, vs wavelength (at I0)", "wavelength [nm]",
+           "total FWHM [um]", {{"total FWHM", Find(r, "total_fwhm_um_vs_wavelength")}},
+           fwhm_lines, &pngs, warnings);
+  PlotFits(dir, "total_fwhm_vs_intensity", "identified (total) FWHM vs intensity" + at_i,
+           "peak pixel [e-]", "total FWHM [um]",
+           {{"total FWHM", Find(r, "total_fwhm_um_vs_intensity")}}, fwhm_lines, &pngs, warnings);
+
+  // report.md
+  std::ostringstream md;
+  int ok = 0;
+  for (const GroupResult& g : r.groups) ok += g.ok ? 1 : 0;
+  md << "# ccdpsf trend\n\n";
+  md << r.groups.size() << " groups, " << ok << " fitted, " << r.groups.size() - ok
+     << " failed. Intervals are central 68 % posterior intervals (propagated from each group's "
+        "MCMC draws).\n\n";
+  md << "## Requirements\n\n```\n" << FormatRequirementTable(r.requirements) << "```\n\n";
+  md << "## Relations\n\n";
+  md << "| relation | coefficients (median [68 %]) | value at pivot | chi2/dof | points | flags |\n";
+  md << "|---|---|---|---|---|---|\n";
+  for (const auto& [name, fit] : r.relations) {
+    std::string coefficients, pivot;
+    for (const Coefficient& c : fit.coefficients) {
+      if (c.name == "value_at_pivot") {
+        pivot = Interval(c.estimate) + " at " + Fmt(fit.pivot, 6);
+      } else {
+        coefficients += (coefficients.empty() ? "" : "; ") + c.name + " = " + Interval(c.estimate);
+      }
+    }
+    std::string flags;
+    for (const RelationFlag& f : fit.flags) flags += (flags.empty() ? "" : ", ") + f.code;
+    md << "| " << name << " | " << coefficients << " | " << pivot << " | "
+       << (fit.dof > 0 ? Fmt(fit.chi2 / fit.dof, 3) : std::string("n/a")) << " | "
+       << fit.points.size() << (fit.gaps.empty() ? "" : " (+" + std::to_string(fit.gaps.size()) + " gaps)")
+       << " | " << (flags.empty() ? "-" : flags) << " |\n";
+  }
+  md << "\nRelation flags and gaps, in words:\n\n";
+  for (const auto& [name, fit] : r.relations) {
+    for (const RelationFlag& f : fit.flags) md << "- " << name << ": " << f.reason << "\n";
+    for (const RelationGap& g : fit.gaps) {
+      md << "- " << name << ": gap at " << g.label << " (" << g.reason << ")\n";
+    }
+  }
+  if (!r.intensity_by_wavelength.empty()) {
+    md << "\nIntensity relations at other wavelengths (FWHM):\n\n";
+    for (const auto& [wavelength, fits] : r.intensity_by_wavelength) {
+      auto it = fits.find("fwhm_um_vs_intensity");
+      if (it == fits.end()) continue;
+      const Coefficient* slope = it->second.Find("slope");
+      const Coefficient* intercept = it->second.Find("intercept");
+      md << "- " << Fmt(wavelength) << " nm: FWHM = " << Interval(intercept->estimate)
+         << " um + " << Interval(slope->estimate) << " um/e- x I"
+         << (it->second.HasFlag(kFlagPoorlyConstrained) ? " (poorly constrained)" : "") << "\n";
+    }
+  }
+  md << "\n## Plots\n\n";
+  for (const std::string& png : pngs) md << "![" << png << "](" << png << ")\n\n";
+  md << "## Groups\n\n| group | nm | peak e- | exposures | FWHM um | e | total FWHM um | chi2/dof | status |\n";
+  md << "|---|---|---|---|---|---|---|---|---|\n";
+  for (const GroupResult& g : r.groups) {
+    auto metric = [&](const std::string& m) {
+      auto s = g.summaries.find(m);
+      return s == g.summaries.end() ? std::string("n/a") : Interval(s->second);
+    };
+    std::string status = g.ok ? (g.converged ? "ok" : "ok, MCMC not converged") : "FAILED: " + g.failure;
+    if (g.ok && !g.report_dir.empty()) status += " ([fit](" + g.report_dir + "/report.md))";
+    md << "| " << g.group.name << (g.group.focus_series ? " (through focus)" : "") << " | "
+       << Fmt(g.group.wavelength_nm) << " | " << (g.ok ? Interval(g.peak_e, 6) : "n/a") << " | "
+       << g.exposures << " | " << (g.ok ? metric("fwhm_um") : "n/a") << " | "
+       << (g.ok ? metric("ellipticity") : "n/a") << " | " << (g.ok ? metric("total_fwhm_um") : "n/a")
+       << " | " << Fmt(g.chi2_per_dof, 3) << " | " << status << " |\n";
+  }
+  bool any_focus = false;
+  for (const GroupResult& g : r.groups) any_focus = any_focus || (g.ok && g.group.focus_series);
+  if (any_focus) {
+    md << "\n## Through-focus series\n\n"
+          "At one focus position a Gaussian defocus and the CCD kernel are not separable "
+          "(DESIGN.md pitfall 1): in `integrated` sampling the CCD-only widths of the groups "
+          "above rest on the priors. A series through focus, fitted with defocus = rate x "
+          "|z - z0| and one CCD kernel, identifies them:\n\n"
+          "| group | nm | CCD sigma_x px | CCD sigma_y px | FWHM um | e | defocus rate px/um | best focus um |\n"
+          "|---|---|---|---|---|---|---|---|\n";
+    for (const GroupResult& g : r.groups) {
+      if (!g.ok || !g.group.focus_series) continue;
+      auto metric = [&](const std::string& m) {
+        auto it = g.summaries.find(m);
+        return it == g.summaries.end() ? std::string("n/a") : Interval(it->second);
+      };
+      md << "| " << g.group.name << " | " << Fmt(g.group.wavelength_nm) << " | "
+         << metric("ccd_sigma_x_px") << " | " << metric("ccd_sigma_y_px") << " | "
+         << metric("fwhm_um") << " | " << metric("ellipticity") << " | "
+         << metric("defocus_rate_px_per_um") << " | " << metric("best_focus_um") << " |\n";
+    }
+  }
+  bool any_warning = false;
+  for (const GroupResult& g : r.groups) any_warning = any_warning || !g.warnings.empty();
+  if (any_warning) {
+    md << "\nWarnings:\n\n";
+    for (const GroupResult& g : r.groups) {
+      for (const std::string& w : g.warnings) md << "- " << g.group.name << ": " << w << "\n";
+    }
+  }
+  if (!r.notes.empty()) {
+    md << "\n## Notes\n\n";
+    for (const std::string& n : r.notes) md << "- " << n << "\n";
+  }
+  md << "\nFiles: trend.json (everything), groups.csv, one CSV per relation, the plots with "
+        "their gnuplot scripts (.gp) and data (.dat), run.json (options, seed, versions).\n";
+  if (!WriteTextFileAtomically(out.Path("report.md"), md.str(), error)) return false;
+  if (!WriteTextFileAtomically(out.Path("run.json"), run_record.dump(2) + "\n", error)) return false;
+  if (!WriteTextFileAtomically(out.Path("trend.json"), TrendJson(r).dump(2) + "\n", error)) {
+    return false;
+  }
+  return out.Commit({"trend.json"}, error);
+}
+
+}  // namespace ccdpsf::trend

@@ -1,0 +1,119 @@
+// ccdpsf trend: a characterisation campaign in, the CCD PSF's relations with wavelength and
+// intensity, the combined model and the requirement checks out.
+#include <cstdio>
+#include <fstream>
+#include <sstream>
+
+#include "ccdpsf/provenance.h"
+#include "ccdpsf/trend/campaign.h"
+#include "ccdpsf/trend/group_fit.h"
+#include "ccdpsf/trend/trend.h"
+#include "ccdpsf/trend/trend_report.h"
+#include "command.h"
+#include "gflags/gflags.h"
+
+DECLARE_string(out);
+DECLARE_uint64(seed);
+DECLARE_int32(threads);
+DEFINE_string(requirements, "",
+              "trend: JSON list of requirements (default: the Euclid VIS ones: FWHM <= 10.8 um "
+              "and e <= 0.156 at 800 nm and I0, alpha of FWHM(lambda) <= -0.2)");
+DEFINE_double(reference_intensity_e, 157800,
+              "trend: intensity zero point I0 [e- in the peak pixel] of the combined model");
+DEFINE_bool(group_reports, true, "trend: write each group's full fit report under DIR/groups/");
+
+namespace ccdpsf::tools {
+namespace {
+
+int RunTrend(const std::vector<std::string>& inputs) {
+  if (FLAGS_out.empty()) return Fail("trend needs --out=DIR");
+  std::string error;
+  trend::GroupFitOptions fit_options;
+  if (!ResolveFitConfig(&fit_options.config, &error)) return Fail(error);
+  fit_options.seed = fit_options.config.fit.mcmc.seed;
+  fit_options.parallel_groups = FlagGiven("threads") ? FLAGS_threads
+                                                     : fit_options.config.fit.mcmc.num_threads;
+  if (FLAGS_group_reports) fit_options.reports_dir = FLAGS_out + "/groups";
+
+  trend::TrendOptions trend_options;
+  trend_options.reference_intensity_e = FLAGS_reference_intensity_e;
+  trend_options.relation.seed = fit_options.seed;
+  if (!FLAGS_requirements.empty()) {
+    std::ifstream in(FLAGS_requirements);
+    if (!in) return Fail("cannot read --requirements file " + FLAGS_requirements);
+    std::stringstream text;
+    text << in.rdbuf();
+    auto requirements = trend::ParseRequirementsText(text.str(), &error);
+    if (!requirements) return Fail(FLAGS_requirements + ": " + error);
+    trend_options.requirements = *requirements;
+  }
+
+  std::vector<trend::CampaignGroup> groups;
+  if (!trend::LoadCampaign(inputs, &groups, &error)) return Fail(error);
+  int exposures = 0;
+  for (const auto& g : groups) exposures += static_cast<int>(g.files.size());
+  std::fprintf(stderr, "ccdpsf trend: %zu groups, %d exposures, %d in parallel\n", groups.size(),
+               exposures, fit_options.parallel_groups);
+  std::vector<trend::GroupResult> results = trend::FitGroups(
+      groups, fit_options, [](const trend::GroupResult& r, int done, int total) {
+        if (r.ok) {
+          std::fprintf(stderr, "[%d/%d] %s: %d exposures, chi2/dof %.3f, %s, %.1f s\n", done,
+                       total, r.group.name.c_str(), r.exposures, r.chi2_per_dof,
+                       r.converged ? "MCMC converged" : "MCMC NOT converged", r.seconds);
+        } else {
+          std::fprintf(stderr, "[%d/%d] %s: FAILED: %s\n", done, total, r.group.name.c_str(),
+                       r.failure.c_str());
+        }
+        std::fflush(stderr);
+      });
+  int failed = 0;
+  for (const auto& r : results) failed += r.ok ? 0 : 1;
+  if (failed == static_cast<int>(results.size())) {
+    return Fail("every group failed to fit (first: " + results[0].group.name + ": " +
+                results[0].failure + ")");
+  }
+  trend::TrendResult trend_result;
+  if (!trend::ComputeTrend(std::move(results), trend_options, &trend_result, &error)) {
+    return Fail(error);
+  }
+  nlohmann::json run = {{"command", "trend"},
+                        {"inputs", inputs},
+                        {"options", fit::FitConfigJson(fit_options.config)},
+                        {"requirements", trend::RequirementsToJson(trend_options.requirements)},
+                        {"reference_intensity_e", trend_options.reference_intensity_e},
+                        {"parallel_groups", fit_options.parallel_groups},
+                        {"seed", fit_options.seed},
+                        {"software", SoftwareVersions()}};
+  std::vector<std::string> warnings;
+  if (!trend::WriteTrendReport(FLAGS_out, trend_result, run, &warnings, &error)) {
+    return Fail(error);
+  }
+  for (const std::string& w : warnings) std::fprintf(stderr, "ccdpsf: warning: %s\n", w.c_str());
+  int passed = 0, decided = 0;
+  for (const auto& q : trend_result.requirements) {
+    if (q.pass) {
+      ++decided;
+      passed += *q.pass ? 1 : 0;
+    }
+  }
+  std::printf("trend of %zu groups (%d failed): %d/%d requirements pass; report: %s/report.md\n",
+              trend_result.groups.size(), failed, passed, decided, FLAGS_out.c_str());
+  return 0;
+}
+
+}  // namespace
+
+Command TrendCommand() {
+  return {"trend",
+          "ccdpsf trend --out=DIR [options] CAMPAIGN (manifest.json, its folder, or FITS files "
+          "and folders grouped by WAVELEN / EXPTIME)",
+          "Fit every setting of a campaign jointly; relations with wavelength and intensity; "
+          "requirement checks.",
+          {"out", "config", "sampling", "defocus", "likelihood", "seed", "walkers", "max_steps",
+           "target_ess", "threads", "mcmc", "gain_e_per_adu", "read_noise_e", "bias_adu",
+           "saturation_adu", "stamp_size", "requirements", "reference_intensity_e",
+           "group_reports"},
+          RunTrend};
+}
+
+}  // namespace ccdpsf::tools
