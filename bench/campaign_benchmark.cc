@@ -70,6 +70,7 @@ int main(int argc, char** argv) {
     }
     trend::GroupFitOptions options;
     options.config.model.model.sampling = config->sampling;
+    options.config.fit.mcmc.target_ess = 400;  // as `ccdpsf trend` by default
     options.parallel_groups = 2;
     options.seed = 1;
     std::vector<trend::GroupResult> results = trend::FitGroups(

@@ -31,7 +31,8 @@ DEFINE_uint64(seed, 1, "fit: random seed of the MCMC");
 DEFINE_int32(walkers, 0,
              "fit: MCMC walkers (0: max(2 x ensemble dimension + 2, target_ess / 50))");
 DEFINE_int32(max_steps, 20000, "fit: MCMC step limit");
-DEFINE_double(target_ess, 1000, "fit: effective sample size every parameter must reach");
+DEFINE_double(target_ess, 1000,
+              "fit: effective sample size every parameter must reach (trend: 400 unless given)");
 DEFINE_int32(threads, 2, "fit: threads for the MCMC");
 DEFINE_bool(mcmc, true, "fit: run the MCMC (--nomcmc: MAP and Laplace only)");
 DEFINE_double(gain_e_per_adu, 0, "fit: gain [e-/ADU], overrides GAIN");
