@@ -188,6 +188,31 @@ TEST(Fit, ReportsTheDefocusDegeneracyHonestly) {
   EXPECT_TRUE(std::isfinite(r.parameters[kFluxE].laplace_sd));
 }
 
+// The same at a MAP with zero defocus (a spot in perfect focus): the model depends on the
+// defocus through its square, so the local curvature sees the defocus alone as free and would
+// give the CCD widths a small, false sd. They must still get none.
+TEST(Fit, ReportsTheDegeneracyAtZeroDefocus) {
+  SimulationConfig c = PaperConfig(model::Sampling::kIntegrated, 1, 9);
+  c.defocus_px = 0.0;
+  FitModelOptions options;
+  auto model = MustCreate(SimulateStamps(c, 10), options);
+  FitResult r;
+  std::string error;
+  ASSERT_TRUE(RunFit(*model, NoMcmc(), &r, &error)) << error;
+  for (int i : {kDefocusPx, kCcdSigmaXPx, kCcdSigmaYPx}) {
+    EXPECT_TRUE(std::isnan(r.parameters[i].laplace_sd)) << r.names[i];
+  }
+  for (const char* name : {"fwhm_um", "fwhm_x_um", "fwhm_y_um", "r2_px2", "ellipticity"}) {
+    EXPECT_TRUE(std::isnan(r.derived[IndexOf(r, name)].second.laplace_sd)) << name;
+  }
+  bool named = false;
+  for (const UnconstrainedDirection& d : r.laplace.unconstrained) {
+    named = named || d.description.find("convolve to one Gaussian") != std::string::npos;
+  }
+  EXPECT_TRUE(named);
+  EXPECT_TRUE(std::isfinite(r.derived[IndexOf(r, "total_fwhm_um")].second.laplace_sd));
+}
+
 // The answer must not depend on the luck of a start: every single start lands on the same
 // identified solution.
 TEST(Fit, EveryStartReachesTheSameSolution) {

@@ -88,6 +88,46 @@ bool RunFit(const FitModel& model, const FitOptions& options, FitResult* result,
   result->laplace =
       ComputeLaplace(model, theta_map, evaluator->FisherInformation(theta_map.data()));
 
+  // DESIGN.md pitfall 1 holds exactly in this model, whatever the local curvature says: at a
+  // MAP with zero defocus the model depends on the defocus only through its square, so the
+  // Fisher matrix sees the defocus alone as free and would give the CCD widths a small sd,
+  // although they trade against the defocus along the whole ridge. Their sds (and those of
+  // everything computed from them, below) are withheld, and the degeneracy is named.
+  const bool split_unidentified = model.options().model.sampling == model::Sampling::kIntegrated &&
+                                  model.options().model.defocus == model::DefocusKind::kGaussian &&
+                                  !model.through_focus();
+  if (split_unidentified) {
+    LaplaceResult& lr = result->laplace;
+    const std::string explanation =
+        "defocus_sigma_px, ccd_sigma_x_px, ccd_sigma_y_px: the data do not constrain this "
+        "combination at all (a Gaussian defocus and the Gaussian CCD kernel convolve to one "
+        "Gaussian: only defocus^2 + ccd_sigma_x^2 and defocus^2 + ccd_sigma_y^2 are "
+        "identified; see total_sigma_x_px / total_sigma_y_px; here the MAP sits at zero "
+        "defocus, where the ridge meets the bound at right angles, so the local curvature "
+        "sees the defocus alone)";
+    bool named = false;
+    UnconstrainedDirection* defocus_only = nullptr;
+    for (UnconstrainedDirection& d : lr.unconstrained) {
+      named = named || d.description.find("convolve to one Gaussian") != std::string::npos;
+      if (d.direction[kDefocusPx] != 0.0) defocus_only = &d;
+    }
+    if (!named && defocus_only != nullptr) {
+      defocus_only->description = explanation;
+    } else if (!named) {
+      UnconstrainedDirection d;
+      d.direction.assign(dim, 0.0);
+      d.direction[kDefocusPx] = 1.0;
+      d.sd_fraction_of_prior = INFINITY;
+      d.description = explanation;
+      lr.unconstrained.push_back(d);
+    }
+    for (int i : {static_cast<int>(kDefocusPx), static_cast<int>(kCcdSigmaXPx),
+                  static_cast<int>(kCcdSigmaYPx)}) {
+      lr.sd[i] = NAN;
+      lr.constrained[i] = false;
+    }
+  }
+
   // MAP and Laplace for the parameters.
   result->parameters.resize(dim);
   for (int i = 0; i < dim; ++i) {
@@ -114,6 +154,8 @@ bool RunFit(const FitModel& model, const FitOptions& options, FitResult* result,
       tp[i] = tm[i] = theta_map[i];
     }
     result->derived[j].second.laplace_sd = DerivedSd(result->laplace, grad);
+    // The CCD-only metrics (the first six) depend on the unidentified split.
+    if (split_unidentified && j < 6) result->derived[j].second.laplace_sd = NAN;
   }
   {
     std::vector<double> pixels, jac, grad(dim, 0.0);
