@@ -52,9 +52,18 @@ json ReadJson(const std::string& path) {
 // Writes a small simulated set (2 exposures) at the given wavelength and exposure time.
 void SimulateSet(const std::string& dir, double wavelength, double exptime,
                  const std::vector<std::string>& omit = {},
-                 const std::vector<double>& focus = {}) {
-  SimulationConfig c = testing_support::PaperConfig(model::Sampling::kIntegrated, focus.empty() ? 2 : static_cast<int>(focus.size()), 3);
+                 const std::vector<double>& focus = {}, int frame = 0) {
+  SimulationConfig c = testing_support::PaperConfig(
+      model::Sampling::kIntegrated, focus.empty() ? 2 : static_cast<int>(focus.size()), 3);
   c.omit_keywords = omit;
+  if (frame > 0) {
+    // A smaller frame, the spot kept at its centre.
+    for (SimulatedExposure& e : c.exposures) {
+      e.x_px += (frame - c.nx) / 2;
+      e.y_px += (frame - c.ny) / 2;
+    }
+    c.nx = c.ny = frame;
+  }
   for (size_t k = 0; k < c.exposures.size(); ++k) {
     c.exposures[k].wavelength_nm = wavelength;
     c.exposures[k].exptime_s = exptime;
@@ -250,16 +259,20 @@ TEST(TrendCli, BrokenGroupsAreReportedAndTheRunGoesOn) {
   fs::create_directories(dir + "/bad");
   std::ofstream(dir + "/bad/broken.fits") << "SIMPLE  =                    T / not really\n";
   std::ofstream(dir + "/bad/broken.fits", std::ios::app) << "WAVELEN = 750\n";
+  // Mixed stamp sizes in one setting: 21 x 21 frames beside 11 x 11 ones (stamps 21 and 11).
+  SimulateSet(dir + "/mixed_a", 650, 3.0);
+  SimulateSet(dir + "/mixed_b", 650, 3.0, {}, {}, 11);
   std::string out;
   ASSERT_EQ(RunCcdpsf("trend --nomcmc --out=" + dir + "/trend --nogroup_reports " + dir +
                           "/ok600 " + dir + "/ok800 " + dir + "/ok890 " + dir + "/nowave " + dir +
-                          "/bad",
+                          "/bad " + dir + "/mixed_a " + dir + "/mixed_b",
                       &out),
             0)
       << out;
   EXPECT_NE(out.find("FAILED"), std::string::npos) << out;
   const json trend = ReadJson(dir + "/trend/trend.json");
-  EXPECT_EQ(trend["failed_groups"].get<int>(), 3) << out;  // two without WAVELEN, one unreadable
+  // Two files without WAVELEN, one unreadable, one setting of mixed stamp sizes.
+  EXPECT_EQ(trend["failed_groups"].get<int>(), 4) << out;
   for (const json& g : trend["groups"]) {
     if (!g["ok"].get<bool>()) {
       EXPECT_FALSE(g["failure"].get<std::string>().empty());
