@@ -94,7 +94,9 @@ json FitJson(const FitModel& model, const FitResult& r,
                  {"burn_in", c.burn_in},       {"acceptance_fraction", c.mean_acceptance},
                  {"tau", tau},                 {"ess", ess},
                  {"converged", c.converged},   {"stop_reason", c.stop_reason},
-                 {"threads", c.num_threads_used}, {"seconds", c.seconds}};
+                 {"threads", c.num_threads_used}, {"seconds", c.seconds},
+                 // Joint fits: acceptance of the positions' conditional moves (null if none).
+                 {"position_acceptance", Num(c.conditional_acceptance)}};
   } else {
     j["mcmc"] = nullptr;
   }

@@ -10,7 +10,7 @@
 //             "start_best_focus_fractions": [0.2, 0.5, 0.8]},
 //    "mcmc": {"enabled": true, "walkers": 0, "max_steps": 20000, "target_ess": 1000,
 //             "min_tau_multiple": 50, "seed": 1, "threads": 2, "marginal_defocus": true,
-//             "positions_by_conditional": true, "position_update_every": 1},
+//             "positions_by_conditional": true, "position_update_every": 2},
 //    "calibration": {"gain_e_per_adu": 3.1, "read_noise_e": 4.5, "bias_adu": 1000,
 //                    "saturation_adu": 65535, "stamp_size": 21}}
 //
