@@ -440,18 +440,22 @@ bool FindMap(const FitModel& model, const MapOptions& options, MapResult* result
   const bool fallback_only =
       !model.through_focus() && model.num_exposures() > 1 && starts.size() == 2;
   StartOutcome best;
+  std::string last_failure;
   for (const std::vector<double>& start : starts) {
     if (fallback_only && best.usable) break;
     const StartOutcome o = Solve(model, start, options);
     ++result->num_starts;
     result->start_costs.push_back(o.cost);
-    if (!o.usable) continue;
+    if (!o.usable) {
+      last_failure = o.message + " after " + std::to_string(o.iterations) + " iterations";
+      continue;
+    }
     ++result->num_usable_starts;
     if (o.cost < best.cost) best = o;
   }
   if (!best.usable) {
     *error = "the fit did not converge from any of " + std::to_string(result->num_starts) +
-             " starting points (" + best.message + ")";
+             " starting points (last: " + last_failure + ")";
     return false;
   }
   result->theta = best.theta;

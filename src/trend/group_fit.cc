@@ -1,6 +1,7 @@
 #include "ccdpsf/trend/group_fit.h"
 
 #include <algorithm>
+#include <cmath>
 #include <atomic>
 #include <chrono>
 #include <mutex>
@@ -60,6 +61,13 @@ GroupResult FitOne(const CampaignGroup& group, int index, const GroupFitOptions&
   fit::FitResult result;
   if (!fit::RunFit(*model, fo, &result, &error)) return finish(error);
   out.chi2_per_dof = result.map.chi2 / result.map.dof;
+  // chi^2/dof has sd sqrt(2 / dof) for a model that describes the data: beyond 5 sd the fit
+  // is suspect (a wrong basin, or a missing effect: `ccdpsf diagnose`).
+  if (result.map.dof > 0 && out.chi2_per_dof > 1.0 + 5.0 * std::sqrt(2.0 / result.map.dof)) {
+    out.warnings.push_back("chi2/dof = " + std::to_string(out.chi2_per_dof) +
+                           " is more than 5 sd above 1: the model does not describe these "
+                           "data (a wrong local optimum, or a missing effect)");
+  }
   out.converged = result.have_mcmc && result.chain.converged;
   if (result.have_mcmc && !result.chain.converged) {
     out.warnings.push_back("MCMC not converged: " + result.chain.stop_reason);

@@ -37,7 +37,9 @@ struct MapOptions {
   // exposure and seeds the joint solve with the result.
   std::vector<double> start_airy_radii_px = {0.35, 0.6, 0.9};
   std::vector<double> start_defocus_shares = {0.25, 0.75};
-  int max_iterations = 200;
+  // Generous: at low signal (~7 ke- peaks) the rugged pixel_centre joint problem needs several
+  // hundred iterations; converging fits stop long before.
+  int max_iterations = 1000;
   // Threads for Ceres' residual evaluation (helps joint fits: one block per exposure).
   int num_threads = 2;
   // Grid screening before the local solves: the log-likelihood is evaluated on a coarse grid
