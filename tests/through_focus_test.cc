@@ -216,7 +216,9 @@ TEST(ThroughFocus, IdentifiesTheCcdWidths) {
                                              single.laplace.at_bound.end(), kDefocusPx) > 0;
     EXPECT_TRUE(std::isnan(single.parameters[kCcdSigmaXPx].laplace_sd)) << "exposure " << k;
     EXPECT_TRUE(std::isnan(single.parameters[kCcdSigmaYPx].laplace_sd)) << "exposure " << k;
-    if (defocus_at_bound) EXPECT_LT(single.map.theta[kDefocusPx], 1e-3) << "exposure " << k;
+    if (defocus_at_bound) {
+      EXPECT_LT(single.map.theta[kDefocusPx], 1e-3) << "exposure " << k;
+    }
     lowest_sx = std::min(lowest_sx, single.map.theta[kCcdSigmaXPx]);
     highest_sx = std::max(highest_sx, single.map.theta[kCcdSigmaXPx]);
   }

@@ -24,7 +24,8 @@ DEFINE_string(defocus, "gaussian", "Defocus kernel: gaussian or pillbox");
 namespace ccdpsf::tools {
 
 const std::vector<Command>& Commands() {
-  static const std::vector<Command> commands = {SimulateCommand(), FitCommand(), TrendCommand()};
+  static const std::vector<Command> commands = {SimulateCommand(), FitCommand(), TrendCommand(),
+                                                DiagnoseCommand()};
   return commands;
 }
 
@@ -51,9 +52,10 @@ void PrintCommandHelp(const Command& c) {
 }
 
 void PrintHelp() {
-  std::printf("ccdpsf %s: the intrinsic PSF of a CCD from spot-projection exposures.\n\n"
-              "Commands:\n",
-              SoftwareVersions()["ccdpsf"].get<std::string>().c_str());
+  std::printf(
+      "ccdpsf %s: the intrinsic PSF of a CCD from spot-projection exposures.\n\n"
+      "Commands:\n",
+      SoftwareVersions()["ccdpsf"].get<std::string>().c_str());
   for (const Command& c : Commands()) std::printf("  %-10s %s\n", c.name, c.summary);
   std::printf("\n'ccdpsf <command> --help' lists a command's options.\n");
 }

@@ -1,0 +1,169 @@
+// The missing-effect workflow of `ccdpsf diagnose`: fit a baseline, find where it and the
+// data disagree, name the catalogue effect that explains the disagreement, add it, refit,
+// repeat until nothing significant is left.
+//
+// Each round, for the current model M (the baseline in round 0):
+//   1. M's MAP (effect_fit.h) and its residual statistics with posterior predictive p-values
+//      from simulations of M at its MAP (statistics.h).
+//   2. Every catalogue effect not in M is either skipped with a reason, when the data cannot
+//      identify it (see below), or fitted as M + effect (MAP from the current MAP with the
+//      effect at 2-3 starting strengths) and scored against M:
+//        delta log L  = log L(M + effect) - log L(M), both at their MAP (>= 0; a fit that
+//                       ends lower is counted as 0);
+//        LR           = 2 delta log L, with a p-value from the chi-bar-square mixture of a
+//                       likelihood-ratio test whose null value lies on the boundary of the
+//                       prior: with b such parameters (a strength that cannot be negative)
+//                       and f others, LR ~ sum_{i=0..b} C(b, i) 2^-b chi2_{i+f} (Self & Liang
+//                       1987). A shape parameter that the null leaves undefined (a trail's
+//                       length at zero trail, a halo's width at zero fraction) is counted in
+//                       f: an approximation to the supremum over it (Davies' problem) that
+//                       the clean-data benchmark checks;
+//        delta BIC    = k ln(pixels) - LR (negative favours the effect);
+//        log BF       = Laplace-approximate log Bayes factor with the catalogue's flat priors:
+//                       delta log L + (k/2) ln 2 pi + 1/2 ln det Sigma_e - sum ln w_i + the log
+//                       of the prior box's share of the Gaussian, over the effect's
+//                       constrained parameters (Sigma_e their Laplace covariance, w_i their
+//                       prior widths); unconstrained ones contribute 0.
+//      An effect is significant when p < alpha / (number tested) (Bonferroni over the
+//      catalogue) AND delta BIC < 0. The significant effect with the lowest delta BIC is named.
+//   3. If one is named, M + effect (already fitted) becomes the next round's model.
+// The loop stops when nothing is significant ("no missing effect") or after max_rounds
+// rounds of testing; the last round then only reports the final model's statistics.
+//
+// Not identifiable, and therefore never claimed (the output says why):
+//   defocus          in the baseline already; without it (baseline_defocus = false) only in
+//                    pixel_centre sampling or with a pillbox: a Gaussian defocus convolved
+//                    with the Gaussian CCD kernel is one Gaussian (DESIGN.md pitfall 1).
+//   brighter_fatter  needs two or more intensities (IsMultiIntensity): at one intensity the
+//                    slope is exactly a change of the CCD widths.
+//   jitter           needs two or more exposures: one exposure's jitter is its CCD widths.
+//   defocus_offset   integrated sampling: a shifted defocus kernel is exactly a shift of the
+//                    spot (the fitted position absorbs it); pixel_centre: not rendered.
+#ifndef CCDPSF_DIAGNOSE_DIAGNOSE_H_
+#define CCDPSF_DIAGNOSE_DIAGNOSE_H_
+
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "ccdpsf/diagnose/effect_fit.h"
+#include "ccdpsf/diagnose/statistics.h"
+#include "ccdpsf/fit/map_fit.h"
+
+namespace ccdpsf::diagnose {
+
+enum class FluxChoice { kAuto, kShared, kPerExposure };
+
+struct ThresholdOptions {
+  // Strengths tried, as multiples of the catalogue default of the effect's strength parameter
+  // (capped at its prior's upper end).
+  std::vector<double> multiples = {0.25, 0.5, 1.0, 2.0, 4.0, 8.0};
+  int num_simulations = 10;  // per strength
+  double detection_rate = 0.8;  // "detected" = named in at least this share
+  uint64_t seed = 7;
+};
+
+struct DiagnoseOptions {
+  // The baseline: the paper's model (with defocus) by default.
+  bool baseline_defocus = true;
+  std::vector<model::EffectKind> baseline_effects;
+  // kAuto: a flux per exposure for a multi-intensity set (IsMultiIntensity), else shared (the
+  // paper's joint fit).
+  FluxChoice flux = FluxChoice::kAuto;
+  // Effects that may be named; empty: the whole catalogue.
+  std::vector<model::EffectKind> candidates;
+  int max_rounds = 3;
+  double alpha = 0.01;  // family-wise false-claim rate per round (Bonferroni)
+  PredictiveOptions predictive;
+  EffectFitOptions fit;
+  fit::MapOptions map;  // for the baseline's starting point (fit::FindMap)
+  bool compute_thresholds = false;
+  ThresholdOptions thresholds;
+
+  bool IsValid(std::string* error) const;
+};
+
+struct ParameterEstimate {
+  std::string name;
+  double map = NAN;
+  double sd = NAN;  // Laplace; NaN when the data do not constrain it
+  bool at_bound = false;
+};
+
+struct CandidateResult {
+  model::EffectKind kind;
+  enum class Status { kTested, kNotIdentifiable, kInModel, kFitFailed };
+  Status status = Status::kTested;
+  std::string reason;  // for every status but kTested
+  int num_parameters = 0;
+  int boundary_parameters = 0;  // b of the chi-bar-square mixture
+  double delta_log_likelihood = NAN;
+  double lr = NAN;
+  double p_value = NAN;
+  double delta_bic = NAN;
+  double log_bayes_factor = NAN;
+  bool significant = false;
+  std::vector<ParameterEstimate> parameters;  // the effect's, at the MAP of M + effect
+  double chi2_per_dof = NAN;                  // of M + effect
+  double seconds = 0.0;
+};
+
+std::string ToString(CandidateResult::Status status);
+
+struct RoundResult {
+  ModelSpec spec;
+  std::vector<std::string> names;  // parameter names of the model
+  EffectFitResult fit;
+  ResidualStatistics statistics;
+  std::vector<std::vector<double>> predictive_draws;  // [statistic][simulation]
+  bool tested = false;                  // false for a final round past the round limit
+  std::vector<CandidateResult> candidates;
+  int num_tested = 0;
+  double p_threshold = NAN;  // alpha / num_tested
+  std::optional<model::EffectKind> named;
+  std::string verdict;  // one line
+};
+
+struct DetectionThreshold {
+  model::EffectKind kind;
+  std::string parameter;  // the strength parameter varied
+  std::vector<double> strengths;
+  std::vector<double> rates;  // share of simulations in which it was named
+  double threshold = NAN;     // weakest strength with rate >= detection_rate (NaN: none)
+  int num_simulations = 0;
+};
+
+struct DiagnoseResult {
+  std::vector<RoundResult> rounds;
+  std::vector<model::EffectKind> named;  // in the order found
+  FluxMode flux = FluxMode::kShared;
+  bool multi_intensity = false;
+  std::vector<double> peak_e;  // per exposure (data)
+  int jitter_reference = 0;
+  bool round_limit_reached = false;
+  std::vector<std::string> notes;
+  bool thresholds_computed = false;
+  std::vector<DetectionThreshold> thresholds;
+  double seconds = 0.0;
+};
+
+// The chi-bar-square tail probability P(LR >= lr) for b boundary and f free parameters.
+double ChiBarSquarePValue(double lr, int boundary, int free);
+
+// Runs the workflow on the stamps of `base` (its model options and priors are the baseline's;
+// not through-focus). False with a one-line reason when the baseline cannot be fitted or the
+// options are invalid.
+bool RunDiagnosis(const fit::FitModel& base, const DiagnoseOptions& options,
+                  DiagnoseResult* result, std::string* error);
+
+// Detection threshold of `kind` for data like `base`'s: the model `spec` at `p` (a fitted
+// point) with the effect added at each strength, simulated and diagnosed for that effect
+// alone with the same decision rule (p < p_threshold and delta BIC < 0).
+bool ComputeDetectionThreshold(const fit::FitModel& base, const ModelSpec& spec,
+                               const std::vector<double>& p, model::EffectKind kind,
+                               double p_threshold, const DiagnoseOptions& options,
+                               DetectionThreshold* out, std::string* error);
+
+}  // namespace ccdpsf::diagnose
+
+#endif  // CCDPSF_DIAGNOSE_DIAGNOSE_H_

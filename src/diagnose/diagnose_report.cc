@@ -1,0 +1,453 @@
+#include "ccdpsf/diagnose/diagnose_report.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <sstream>
+
+#include "ccdpsf/atomic_file.h"
+#include "ccdpsf/plot.h"
+#include "ccdpsf/staged_output.h"
+
+namespace ccdpsf::diagnose {
+
+using nlohmann::json;
+
+namespace {
+
+json Num(double v) { return std::isfinite(v) ? json(v) : json(nullptr); }
+
+std::string Fmt(double v, const char* format = "%.4g") {
+  if (!std::isfinite(v)) return "-";
+  char buf[64];
+  std::snprintf(buf, sizeof(buf), format, v);
+  return buf;
+}
+
+json Parameters(const std::vector<std::string>& names, const EffectFitResult& fit) {
+  json out = json::object();
+  for (size_t i = 0; i < names.size(); ++i) {
+    const double sd = i < fit.laplace.sd.size() ? fit.laplace.sd[i] : NAN;
+    const bool at_bound = std::find(fit.laplace.at_bound.begin(), fit.laplace.at_bound.end(),
+                                    static_cast<int>(i)) != fit.laplace.at_bound.end();
+    out[names[i]] = {{"map", Num(fit.p[i])}, {"laplace_sd", Num(sd)}, {"at_bound", at_bound}};
+  }
+  return out;
+}
+
+json Estimate(double map, double sd, bool at_bound) {
+  json e = {{"map", Num(map)}, {"laplace_sd", Num(sd)}, {"at_bound", at_bound}};
+  if (std::isfinite(sd)) {
+    e["lo68"] = map - sd;
+    e["hi68"] = map + sd;
+    e["lo997"] = map - 3 * sd;
+    e["hi997"] = map + 3 * sd;
+  }
+  return e;
+}
+
+// The named effects' parameters of the final model, jitter also as sigmas.
+json EffectParameters(const DiagnoseResult& result) {
+  json out = json::object();
+  const RoundResult& last = result.rounds.back();
+  const EffectFitResult& fit = last.fit;
+  for (model::EffectKind kind : result.named) {
+    const std::string name = model::ToString(kind);
+    json e = json::object();
+    for (size_t i = 0; i < last.names.size(); ++i) {
+      const std::string& n = last.names[i];
+      const bool mine = kind == model::EffectKind::kDefocus
+                            ? n.rfind("defocus_", 0) == 0
+                            : n.rfind(name + ".", 0) == 0;
+      if (!mine) continue;
+      const double sd = fit.laplace.sd.empty() ? NAN : fit.laplace.sd[i];
+      const bool at_bound = std::find(fit.laplace.at_bound.begin(), fit.laplace.at_bound.end(),
+                                      static_cast<int>(i)) != fit.laplace.at_bound.end();
+      const std::string key = kind == model::EffectKind::kDefocus ? n : n.substr(name.size() + 1);
+      e[key] = Estimate(fit.p[i], sd, at_bound);
+      if (kind == model::EffectKind::kJitter) {
+        // var -> sigma (delta method; no sd at sigma = 0).
+        const double s = std::sqrt(std::max(fit.p[i], 0.0));
+        std::string sname = key;
+        sname.replace(0, std::string("var_x_px2").size(),
+                      key.rfind("var_x", 0) == 0 ? "sigma_x_px" : "sigma_y_px");
+        e[sname] = Estimate(s, s > 0 ? sd / (2 * s) : NAN, at_bound);
+      }
+    }
+    if (kind == model::EffectKind::kBrighterFatter && last.spec.defocus) {
+      // With a Gaussian defocus only sigma_f^2 + sigma_ccd^2 is identified (DESIGN.md pitfall
+      // 1), and with it the slope of the TOTAL width: d sigma_tot / dI = slope sigma_ccd /
+      // sigma_tot at zero signal (sd scaled from the slope's: the split's own uncertainty is
+      // not in it). Reported beside the CCD-width slopes.
+      auto index = [&](const std::string& n) {
+        const auto it = std::find(last.names.begin(), last.names.end(), n);
+        return it == last.names.end() ? -1 : static_cast<int>(it - last.names.begin());
+      };
+      const int f = index("defocus_sigma_px");
+      for (const char* axis : {"x", "y"}) {
+        const int s = index(std::string("ccd_sigma_") + axis + "_px");
+        const int b = index(std::string("brighter_fatter.slope_") + axis + "_px_per_e");
+        if (f < 0 || s < 0 || b < 0) continue;
+        const double ratio = fit.p[s] / std::hypot(fit.p[s], fit.p[f]);
+        const double sd = fit.laplace.sd.empty() ? NAN : fit.laplace.sd[b];
+        e[std::string("total_slope_") + axis + "_px_per_e"] =
+            Estimate(fit.p[b] * ratio, sd * ratio, false);
+      }
+    }
+    out[name] = e;
+  }
+  return out;
+}
+
+json Statistics(const ResidualStatistics& st) {
+  json list = json::array();
+  const auto& desc = StatisticDescriptions();
+  for (size_t i = 0; i < st.values.size(); ++i) {
+    const NamedStatistic& s = st.values[i];
+    list.push_back({{"name", s.name},
+                    {"value", Num(s.value)},
+                    {"tail", s.tail == Tail::kUpper ? "upper" : "two_sided"},
+                    {"p_value", Num(s.p_value)},
+                    {"predictive_mean", Num(s.predictive_mean)},
+                    {"predictive_sd", Num(s.predictive_sd)},
+                    {"description", i < desc.size() ? desc[i].second : ""}});
+  }
+  return list;
+}
+
+// The statistic with the smallest predictive p-value (ties: the largest deviation in
+// predictive sds); -1 if none has a p-value.
+int FlaggingStatistic(const ResidualStatistics& st) {
+  // A targeted statistic says more than chi^2: it wins ties with it.
+  int best = -1;
+  double chi2_p = INFINITY;
+  if (const NamedStatistic* c = st.Find("chi2_per_dof"); c != nullptr && std::isfinite(c->p_value)) {
+    chi2_p = c->p_value;
+  }
+  double best_p = INFINITY, best_dev = -INFINITY;
+  for (size_t i = 0; i < st.values.size(); ++i) {
+    const NamedStatistic& s = st.values[i];
+    if (!std::isfinite(s.p_value) || s.name == "chi2_per_dof") continue;
+    const double dev = std::isfinite(s.predictive_sd) && s.predictive_sd > 0
+                           ? std::fabs(s.value - s.predictive_mean) / s.predictive_sd
+                           : 0.0;
+    if (s.p_value < best_p || (s.p_value == best_p && dev > best_dev)) {
+      best = static_cast<int>(i);
+      best_p = s.p_value;
+      best_dev = dev;
+    }
+  }
+  if (best < 0 || best_p > chi2_p) {
+    for (size_t i = 0; i < st.values.size(); ++i) {
+      if (st.values[i].name == "chi2_per_dof" && std::isfinite(chi2_p)) return static_cast<int>(i);
+    }
+  }
+  return best;
+}
+
+}  // namespace
+
+json DiagnoseJson(const fit::FitModel& base, const DiagnoseResult& result,
+                  const DiagnoseOptions& options) {
+  json j;
+  j["named_effects"] = json::array();
+  for (model::EffectKind k : result.named) j["named_effects"].push_back(model::ToString(k));
+  j["verdict"] = result.named.empty()
+                     ? "no missing effect"
+                     : "missing effects found: " + [&] {
+                         std::string s;
+                         for (model::EffectKind k : result.named) s += (s.empty() ? "" : ", ") + model::ToString(k);
+                         return s;
+                       }();
+  j["round_limit_reached"] = result.round_limit_reached;
+  j["flux_mode"] = ToString(result.flux);
+  j["multi_intensity"] = result.multi_intensity;
+  j["peak_e"] = result.peak_e;
+  j["jitter_reference_exposure"] = result.jitter_reference;
+  j["exposures"] = json::array();
+  for (const Stamp& s : base.stamps()) j["exposures"].push_back(s.info.source);
+  j["decision"] = {{"alpha", options.alpha},
+                   {"rule", "p < alpha / tested (Bonferroni) and delta BIC < 0; the lowest delta "
+                            "BIC is named"},
+                   {"max_rounds", options.max_rounds},
+                   {"predictive_simulations", options.predictive.num_simulations},
+                   {"predictive_refit", options.predictive.refit}};
+  j["rounds"] = json::array();
+  for (const RoundResult& r : result.rounds) {
+    json jr;
+    json effects = json::array();
+    for (model::EffectKind k : r.spec.effects) effects.push_back(model::ToString(k));
+    jr["model"] = {{"description", r.spec.Describe()},
+                   {"defocus", r.spec.defocus},
+                   {"effects", effects},
+                   {"flux", ToString(r.spec.flux)}};
+    jr["fit"] = {{"chi2", r.fit.chi2},
+                 {"dof", r.fit.dof},
+                 {"chi2_per_dof", r.statistics.chi2_per_dof},
+                 {"chi2_per_dof_expected_sd", r.statistics.chi2_per_dof_sd},
+                 {"loglike", r.fit.log_likelihood},
+                 {"seconds", r.fit.seconds},
+                 {"parameters", Parameters(r.names, r.fit)}};
+    jr["chi2_per_dof"] = r.statistics.chi2_per_dof;
+    jr["statistics"] = Statistics(r.statistics);
+    jr["radial_profile"] = {{"annulus_inner_px", json::array()},
+                            {"mean_normalised_residual", json::array()},
+                            {"count", json::array()}};
+    for (size_t b = 0; b < r.statistics.radial_mean.size(); ++b) {
+      jr["radial_profile"]["annulus_inner_px"].push_back(b);
+      jr["radial_profile"]["mean_normalised_residual"].push_back(Num(r.statistics.radial_mean[b]));
+      jr["radial_profile"]["count"].push_back(r.statistics.radial_count[b]);
+    }
+    jr["tested"] = r.tested;
+    jr["num_tested"] = r.num_tested;
+    jr["p_threshold"] = Num(r.p_threshold);
+    jr["candidates"] = json::array();
+    for (const CandidateResult& c : r.candidates) {
+      json jc = {{"name", model::ToString(c.kind)}, {"status", ToString(c.status)}};
+      if (c.status != CandidateResult::Status::kTested) {
+        jc["reason"] = c.reason;
+      } else {
+        jc["num_parameters"] = c.num_parameters;
+        jc["boundary_parameters"] = c.boundary_parameters;
+        jc["delta_loglike"] = Num(c.delta_log_likelihood);
+        jc["lr"] = Num(c.lr);
+        jc["p_value"] = Num(c.p_value);
+        jc["delta_bic"] = Num(c.delta_bic);
+        jc["log_bayes_factor"] = Num(c.log_bayes_factor);
+        jc["significant"] = c.significant;
+        jc["chi2_per_dof_with"] = Num(c.chi2_per_dof);
+        json ps = json::object();
+        for (const ParameterEstimate& p : c.parameters) {
+          ps[p.name] = {{"map", Num(p.map)}, {"laplace_sd", Num(p.sd)}, {"at_bound", p.at_bound}};
+        }
+        jc["parameters"] = ps;
+      }
+      jr["candidates"].push_back(jc);
+    }
+    jr["named"] = r.named ? json(model::ToString(*r.named)) : json(nullptr);
+    jr["verdict"] = r.verdict;
+    j["rounds"].push_back(jr);
+  }
+  const RoundResult& last = result.rounds.back();
+  j["final_fit"] = {{"model", last.spec.Describe()},
+                    {"chi2", last.fit.chi2},
+                    {"dof", last.fit.dof},
+                    {"chi2_per_dof", last.statistics.chi2_per_dof},
+                    {"chi2_per_dof_expected_sd", last.statistics.chi2_per_dof_sd},
+                    {"loglike", last.fit.log_likelihood},
+                    {"parameters", Parameters(last.names, last.fit)},
+                    {"effects", EffectParameters(result)}};
+  json th = {{"computed", result.thresholds_computed}};
+  if (!result.thresholds_computed) {
+    th["note"] = "not computed (run with --thresholds to simulate them)";
+  } else {
+    th["detection_rate"] = options.thresholds.detection_rate;
+    th["effects"] = json::array();
+    for (const DetectionThreshold& t : result.thresholds) {
+      th["effects"].push_back({{"name", model::ToString(t.kind)},
+                               {"parameter", t.parameter},
+                               {"strengths", t.strengths},
+                               {"rates", t.rates},
+                               {"threshold", Num(t.threshold)},
+                               {"simulations_per_strength", t.num_simulations}});
+    }
+  }
+  j["detection_thresholds"] = th;
+  j["notes"] = result.notes;
+  j["seconds"] = result.seconds;
+  return j;
+}
+
+namespace {
+
+std::string Markdown(const DiagnoseResult& result, const json& doc,
+                     const std::vector<std::string>& plot_notes) {
+  std::ostringstream md;
+  md << "# ccdpsf diagnose\n\n";
+  md << "**Verdict: " << doc["verdict"].get<std::string>() << "**";
+  if (result.round_limit_reached) md << " (round limit reached: more may remain)";
+  md << "\n\n";
+  md << "Exposures: " << result.peak_e.size() << ", flux " << ToString(result.flux)
+     << (result.multi_intensity ? " (several intensities)" : " (one intensity)")
+     << ". Decision: p < alpha / tested and delta BIC < 0, alpha = "
+     << doc["decision"]["alpha"].get<double>() << "; predictive p-values from "
+     << doc["decision"]["predictive_simulations"].get<int>() << " simulations of each fitted model.\n\n";
+  for (size_t i = 0; i < result.rounds.size(); ++i) {
+    const RoundResult& r = result.rounds[i];
+    md << "## Round " << i << ": " << r.spec.Describe() << "\n\n";
+    md << "chi2/dof = " << Fmt(r.statistics.chi2_per_dof) << " (expected 1 +- "
+       << Fmt(r.statistics.chi2_per_dof_sd, "%.3f") << ", dof " << r.statistics.dof << ")\n\n";
+    md << "| statistic | value | predictive mean +- sd | p |\n|---|---|---|---|\n";
+    for (const NamedStatistic& s : r.statistics.values) {
+      md << "| " << s.name << " | " << Fmt(s.value) << " | " << Fmt(s.predictive_mean) << " +- "
+         << Fmt(s.predictive_sd) << " | " << Fmt(s.p_value, "%.3f") << " |\n";
+    }
+    md << "\n";
+    if (r.tested) {
+      md << "| candidate | status | delta logL | p (chi-bar^2) | delta BIC | log BF | parameters |\n"
+            "|---|---|---|---|---|---|---|\n";
+      for (const CandidateResult& c : r.candidates) {
+        md << "| " << model::ToString(c.kind) << (c.significant ? " **(significant)**" : "")
+           << " | " << ToString(c.status) << " | ";
+        if (c.status == CandidateResult::Status::kTested) {
+          md << Fmt(c.delta_log_likelihood, "%.2f") << " | " << Fmt(c.p_value, "%.3g") << " | "
+             << Fmt(c.delta_bic, "%.1f") << " | " << Fmt(c.log_bayes_factor, "%.1f") << " | ";
+          for (const ParameterEstimate& p : c.parameters) {
+            md << p.name << " = " << Fmt(p.map) << " +- " << Fmt(p.sd, "%.2g")
+               << (p.at_bound ? " (at bound)" : "") << "; ";
+          }
+          md << " |\n";
+        } else {
+          md << " | | | | " << c.reason << " |\n";
+        }
+      }
+      md << "\np threshold: " << Fmt(r.p_threshold, "%.3g") << " (" << r.num_tested
+         << " tested).\n\n";
+    }
+    md << "**" << r.verdict << "**\n\n";
+  }
+  md << "## Final model\n\n" << result.rounds.back().spec.Describe() << ", chi2/dof "
+     << Fmt(result.rounds.back().statistics.chi2_per_dof) << "\n\n";
+  for (auto it = doc["final_fit"]["effects"].begin(); it != doc["final_fit"]["effects"].end(); ++it) {
+    for (auto p = it.value().begin(); p != it.value().end(); ++p) {
+      md << "- " << it.key() << "." << p.key() << " = "
+         << Fmt(p.value()["map"].is_null() ? NAN : p.value()["map"].get<double>()) << " +- "
+         << Fmt(p.value()["laplace_sd"].is_null() ? NAN : p.value()["laplace_sd"].get<double>(),
+                "%.2g")
+         << "\n";
+    }
+  }
+  md << "\n## Detection thresholds\n\n";
+  if (!result.thresholds_computed) {
+    md << "Not computed (run with --thresholds): effects not named may still be present below "
+          "the strength these data can detect.\n";
+  } else {
+    for (const DetectionThreshold& t : result.thresholds) {
+      md << "- " << t.parameter << ": "
+         << (std::isfinite(t.threshold) ? "detected (>= 80 % of simulations) from " + Fmt(t.threshold)
+                                        : std::string("not detected up to ") + Fmt(t.strengths.back()))
+         << "\n";
+    }
+  }
+  if (!result.notes.empty() || !plot_notes.empty()) {
+    md << "\n## Notes\n\n";
+    for (const std::string& n : result.notes) md << "- " << n << "\n";
+    for (const std::string& n : plot_notes) md << "- " << n << "\n";
+  }
+  md << "\nPlots: stacked_residuals.png (one row per round), radial_profile.png, "
+        "flag_<effect>.png.\n";
+  return md.str();
+}
+
+}  // namespace
+
+bool WriteDiagnoseReport(const std::string& out_dir, const fit::FitModel& base,
+                         const DiagnoseResult& result, const DiagnoseOptions& options,
+                         const json& run_record, std::vector<std::string>* warnings,
+                         std::string* error) {
+  if (result.rounds.empty()) {
+    *error = "no diagnosis to write";
+    return false;
+  }
+  StagedOutput out;
+  if (!out.Begin(out_dir, error)) return false;
+  const std::string dir = out.staging_dir();
+  std::vector<std::string> plot_notes;
+  auto note_plot = [&](const PlotResult& pr) {
+    if (!pr.png_written && !pr.message.empty()) {
+      warnings->push_back(pr.message);
+      plot_notes.push_back(pr.message);
+    }
+  };
+  // Stacked residuals, one row per round.
+  {
+    std::vector<StampPanels> rows;
+    for (size_t i = 0; i < result.rounds.size(); ++i) {
+      const ResidualStatistics& st = result.rounds[i].statistics;
+      StampPanels p;
+      p.title = "round " + std::to_string(i) + ": " + result.rounds[i].spec.Describe() +
+                " (stacked over " + std::to_string(result.peak_e.size()) + " exposures)";
+      p.data = st.stacked_data;
+      p.model = st.stacked_model;
+      p.residual = st.stacked_residual;
+      p.normalised = st.stacked_normalised;
+      rows.push_back(std::move(p));
+    }
+    PlotResult pr;
+    if (!WriteResidualMaps(dir, "stacked_residuals", rows, &pr, error)) return false;
+    note_plot(pr);
+  }
+  // Radial profile per round.
+  {
+    XyPlotInput in;
+    in.title = "radial profile of the normalised residual";
+    in.x_label = "distance from the fitted centre [px] (annulus centre)";
+    in.y_label = "mean normalised residual";
+    for (size_t i = 0; i < result.rounds.size(); ++i) {
+      const ResidualStatistics& st = result.rounds[i].statistics;
+      Series s;
+      s.label = "round " + std::to_string(i) + ": " + result.rounds[i].spec.Describe();
+      for (size_t b = 0; b < st.radial_mean.size(); ++b) {
+        if (!std::isfinite(st.radial_mean[b]) || st.radial_count[b] <= 0) continue;
+        s.x.push_back(b + 0.5 + 0.05 * i);
+        s.y.push_back(st.radial_mean[b]);
+        const double e = 1.0 / std::sqrt(st.radial_count[b]);
+        s.y_lo.push_back(st.radial_mean[b] - e);
+        s.y_hi.push_back(st.radial_mean[b] + e);
+      }
+      if (!s.x.empty()) in.series.push_back(std::move(s));
+    }
+    in.requirements.push_back({"0", 0.0});
+    if (!in.series.empty()) {
+      PlotResult pr;
+      if (!WriteXyPlot(dir, "radial_profile", in, &pr, error)) return false;
+      note_plot(pr);
+    }
+  }
+  // The flagging statistic of each named effect: before (its round) and after (the next).
+  for (size_t i = 0; i + 1 < result.rounds.size(); ++i) {
+    const RoundResult& before = result.rounds[i];
+    const RoundResult& after = result.rounds[i + 1];
+    if (!before.named) continue;
+    const int s = FlaggingStatistic(before.statistics);
+    if (s < 0 || before.predictive_draws.empty()) continue;
+    XyPlotInput in;
+    const std::string name = before.statistics.values[s].name;
+    in.title = model::ToString(*before.named) + ": " + name + " before and after";
+    in.x_label = "quantile of the predictive simulations";
+    in.y_label = name;
+    for (const RoundResult* r : {&before, &after}) {
+      if (r->predictive_draws.size() <= static_cast<size_t>(s)) continue;
+      std::vector<double> v;
+      for (double x : r->predictive_draws[s]) {
+        if (std::isfinite(x)) v.push_back(x);
+      }
+      std::sort(v.begin(), v.end());
+      Series ser;
+      ser.label = std::string(r == &before ? "before" : "after") + ": simulations of the fitted model";
+      for (size_t q = 0; q < v.size(); ++q) {
+        ser.x.push_back((q + 0.5) / v.size());
+        ser.y.push_back(v[q]);
+      }
+      if (!ser.x.empty()) in.series.push_back(std::move(ser));
+      const double obs = r->statistics.values[s].value;
+      if (std::isfinite(obs)) {
+        in.requirements.push_back(
+            {std::string(r == &before ? "observed before" : "observed after"), obs});
+      }
+    }
+    if (in.series.empty()) continue;
+    PlotResult pr;
+    if (!WriteXyPlot(dir, "flag_" + model::ToString(*before.named), in, &pr, error)) return false;
+    note_plot(pr);
+  }
+  const json doc = DiagnoseJson(base, result, options);
+  if (!WriteTextFileAtomically(out.Path("report.md"), Markdown(result, doc, plot_notes), error) ||
+      !WriteTextFileAtomically(out.Path("run.json"), run_record.dump(2) + "\n", error) ||
+      !WriteTextFileAtomically(out.Path("diagnose.json"), doc.dump(2) + "\n", error)) {
+    return false;
+  }
+  return out.Commit({"diagnose.json"}, error);
+}
+
+}  // namespace ccdpsf::diagnose

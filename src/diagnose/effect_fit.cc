@@ -1,0 +1,701 @@
+#include "ccdpsf/diagnose/effect_fit.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+
+#include "ccdpsf/noise.h"
+#include "ccdpsf/random.h"
+#include "ceres/ceres.h"
+#include "glog/logging.h"
+
+namespace ccdpsf::diagnose {
+
+using model::EffectKind;
+
+namespace {
+
+// Writes the catalogue parameters of a non-jitter effect into *e without the domain checks of
+// model::SetEffectParameters: the fit stays inside the prior box, which lies inside the
+// domain, but numeric differences and Ceres' line searches need plain arithmetic at its edges.
+void SetUnchecked(EffectKind kind, const double* v, model::ExposureEffects* e) {
+  switch (kind) {
+    case EffectKind::kBrighterFatter:
+      e->brighter_fatter = model::BrighterFatterParams{v[0], v[1]};
+      return;
+    case EffectKind::kSerialCti:
+      e->serial_cti = model::CtiParams{v[0], v[1]};
+      return;
+    case EffectKind::kParallelCti:
+      e->parallel_cti = model::CtiParams{v[0], v[1]};
+      return;
+    case EffectKind::kIpc:
+      e->ipc = model::IpcParams{v[0]};
+      return;
+    case EffectKind::kBackground:
+      e->background = model::BackgroundParams{v[0]};
+      return;
+    case EffectKind::kNonlinearity:
+      e->nonlinearity = model::NonlinearityParams{v[0]};
+      return;
+    case EffectKind::kHalo:
+      e->halo = model::HaloParams{v[0], v[1]};
+      return;
+    case EffectKind::kDefocus:
+    case EffectKind::kJitter:
+    case EffectKind::kDefocusOffset:
+      break;
+  }
+  LOG(FATAL) << "SetUnchecked: " << model::ToString(kind);
+}
+
+double StampSum(const Stamp& s) {
+  double sum = 0.0;
+  for (size_t q = 0; q < s.valid.size(); ++q) {
+    if (s.valid[q]) sum += s.electrons.data[q];
+  }
+  return sum;
+}
+
+// The residual block of exposure k: r1 and r2 per valid pixel (see the header), with numeric
+// derivatives that stay inside the prior box.
+class ExposureCost : public ceres::CostFunction {
+ public:
+  ExposureCost(const EffectModel& model, int k, const Image* data)
+      : model_(model), k_(k), evaluator_(model), blocks_(model.BlocksOf(k)) {
+    const Stamp& s = model.base().stamps()[k];
+    data_ = data != nullptr ? data->data.data() : s.electrons.data.data();
+    for (size_t q = 0; q < s.valid.size(); ++q) {
+      if (s.valid[q]) pixels_.push_back(static_cast<int>(q));
+    }
+    noise_.gain_e_per_adu = s.gain_e_per_adu;
+    noise_.read_noise_e = s.read_noise_e;
+    for (int b : blocks_) mutable_parameter_block_sizes()->push_back(model.blocks()[b].size);
+    set_num_residuals(2 * static_cast<int>(pixels_.size()));
+    p_.assign(model.dim(), 0.0);
+    // Parameters of other exposures are never read for exposure k; give them valid values.
+    for (int i = 0; i < model.dim(); ++i) p_[i] = 0.5 * (model.lower()[i] + model.upper()[i]);
+  }
+
+  bool Evaluate(double const* const* parameters, double* residuals,
+                double** jacobians) const override {
+    for (size_t b = 0; b < blocks_.size(); ++b) {
+      const EffectModel::Block& block = model_.blocks()[blocks_[b]];
+      std::copy(parameters[b], parameters[b] + block.size, p_.begin() + block.begin);
+    }
+    if (!Residuals(p_.data(), residuals)) return false;
+    if (jacobians == nullptr) return true;
+    const int nr = num_residuals();
+    plus_.resize(nr);
+    minus_.resize(nr);
+    for (size_t b = 0; b < blocks_.size(); ++b) {
+      if (jacobians[b] == nullptr) continue;
+      const EffectModel::Block& block = model_.blocks()[blocks_[b]];
+      for (int j = 0; j < block.size; ++j) {
+        const int i = block.begin + j;
+        const double x = p_[i];
+        const double lo = model_.lower()[i], hi = model_.upper()[i];
+        const double h = 1e-5 * std::max(std::fabs(x), 1e-2 * (hi - lo));
+        const bool up = x + h <= hi, down = x - h >= lo;
+        double x_plus = x, x_minus = x;
+        if (up && down) {
+          x_plus = x + h;
+          x_minus = x - h;
+        } else if (up) {
+          x_plus = x + h;
+        } else {
+          x_minus = x - h;
+        }
+        bool ok = true;
+        if (x_plus != x) {
+          p_[i] = x_plus;
+          ok &= Residuals(p_.data(), plus_.data());
+        } else {
+          std::copy(residuals, residuals + nr, plus_.begin());
+        }
+        if (ok && x_minus != x) {
+          p_[i] = x_minus;
+          ok &= Residuals(p_.data(), minus_.data());
+        } else if (ok) {
+          std::copy(residuals, residuals + nr, minus_.begin());
+        }
+        p_[i] = x;
+        if (!ok) return false;
+        const double inv = 1.0 / (x_plus - x_minus);
+        for (int r = 0; r < nr; ++r) {
+          jacobians[b][r * block.size + j] = (plus_[r] - minus_[r]) * inv;
+        }
+      }
+    }
+    return true;
+  }
+
+ private:
+  bool Residuals(const double* p, double* residuals) const {
+    if (!evaluator_.Render(p, k_, &model_e_, &charge_e_)) return false;
+    const double var0 = noise_.VarianceE2(0.0);
+    const int n = static_cast<int>(pixels_.size());
+    for (int i = 0; i < n; ++i) {
+      const int q = pixels_[i];
+      const double var = noise_.VarianceE2(charge_e_[q]);
+      residuals[i] = (data_[q] - model_e_[q]) / std::sqrt(var);
+      residuals[n + i] = std::sqrt(std::log(var / var0) + 1.0);
+    }
+    return true;
+  }
+
+  const EffectModel& model_;
+  const int k_;
+  mutable EffectEvaluator evaluator_;
+  const std::vector<int> blocks_;
+  const double* data_;
+  std::vector<int> pixels_;
+  CcdNoise noise_;
+  mutable std::vector<double> p_, model_e_, charge_e_, plus_, minus_;
+};
+
+}  // namespace
+
+std::string ToString(FluxMode mode) {
+  return mode == FluxMode::kShared ? "shared" : "per_exposure";
+}
+
+bool ModelSpec::Has(EffectKind kind) const {
+  if (kind == EffectKind::kDefocus) return defocus;
+  return std::find(effects.begin(), effects.end(), kind) != effects.end();
+}
+
+std::string ModelSpec::Describe() const {
+  std::string s = defocus ? "baseline" : "baseline without defocus";
+  for (EffectKind k : effects) s += " + " + model::ToString(k);
+  return s;
+}
+
+void EffectModel::Add(const std::string& name, double lower, double upper, double start) {
+  names_.push_back(name);
+  lower_.push_back(lower);
+  upper_.push_back(upper);
+  start_.push_back(std::clamp(start, lower, upper));
+}
+
+std::unique_ptr<EffectModel> EffectModel::Create(const fit::FitModel& base, const ModelSpec& spec,
+                                                 std::string* error) {
+  if (base.through_focus()) {
+    *error = "diagnose does not handle through-focus series (fit them with 'ccdpsf fit')";
+    return nullptr;
+  }
+  if (base.options().likelihood != fit::LikelihoodKind::kGaussian) {
+    *error = "diagnose uses the Gaussian likelihood (the paper's); poisson_normal is not supported";
+    return nullptr;
+  }
+  const int n = base.num_exposures();
+  for (EffectKind kind : spec.effects) {
+    if (kind == EffectKind::kDefocus) {
+      *error = "defocus is a baseline component (ModelSpec::defocus), not an added effect";
+      return nullptr;
+    }
+    if (kind == EffectKind::kDefocusOffset) {
+      *error = "defocus_offset cannot be fitted: in integrated sampling it is exactly a shift of "
+               "the spot, and the pixel_centre renderer does not support it";
+      return nullptr;
+    }
+    if (kind == EffectKind::kJitter && n < 2) {
+      *error = "jitter needs at least two exposures (one exposure's jitter is its CCD widths)";
+      return nullptr;
+    }
+    if (std::count(spec.effects.begin(), spec.effects.end(), kind) > 1) {
+      *error = model::ToString(kind) + " appears twice in the model";
+      return nullptr;
+    }
+  }
+  if (spec.Has(EffectKind::kJitter) && (spec.jitter_reference < 0 || spec.jitter_reference >= n)) {
+    *error = "jitter reference exposure out of range";
+    return nullptr;
+  }
+  std::unique_ptr<EffectModel> m(new EffectModel(base, spec));
+  const auto& bn = base.names();
+  const auto& bl = base.lower();
+  const auto& bu = base.upper();
+  // Shared block.
+  if (spec.flux == FluxMode::kShared) {
+    m->shared_flux_ = 0;
+    m->Add(bn[fit::kFluxE], bl[fit::kFluxE], bu[fit::kFluxE], 0.5 * (bl[0] + bu[0]));
+  }
+  m->shape_begin_ = m->dim();
+  for (int i = fit::kAiryRadiusPx; i <= fit::kCcdSigmaYPx; ++i) {
+    if (i == fit::kDefocusPx && !spec.defocus) continue;
+    m->Add(bn[i], bl[i], bu[i], 0.5 * (bl[i] + bu[i]));
+  }
+  m->blocks_.push_back({0, m->dim()});
+  // Exposure blocks.
+  m->exposure_begin_ = m->dim();
+  m->exposure_size_ = spec.flux == FluxMode::kShared ? 2 : 3;
+  double mean_sum = 0.0;
+  for (const Stamp& s : base.stamps()) mean_sum += StampSum(s) / n;
+  for (int k = 0; k < n; ++k) {
+    const int b = m->dim();
+    for (int j = 0; j < 2; ++j) {
+      const int i = fit::FitModel::XIndex(k) + j;
+      m->Add(bn[i], bl[i], bu[i], 0.5 * (bl[i] + bu[i]));
+    }
+    if (spec.flux == FluxMode::kPerExposure) {
+      // The shared range, scaled by this stamp's share of the signal.
+      const double scale = mean_sum > 0 ? std::max(StampSum(base.stamps()[k]), 1.0) / mean_sum : 1.0;
+      m->Add(bn[fit::kFluxE] + "." + std::to_string(k), bl[fit::kFluxE] * scale,
+             bu[fit::kFluxE] * scale, StampSum(base.stamps()[k]));
+    }
+    m->blocks_.push_back({b, m->dim() - b});
+  }
+  // Shared effect parameters.
+  const int effect_begin = m->dim();
+  for (EffectKind kind : spec.effects) {
+    if (kind == EffectKind::kJitter) continue;
+    m->effect_begin_.push_back({kind, m->dim()});
+    const model::EffectInfo& info = model::DescribeEffect(kind);
+    const std::vector<double> start = m->DefaultStart(kind);
+    for (size_t j = 0; j < info.parameters.size(); ++j) {
+      const auto& pi = info.parameters[j];
+      m->Add(info.name + "." + pi.name, pi.prior_lower, pi.prior_upper, start[j]);
+    }
+  }
+  if (m->dim() > effect_begin) {
+    m->effect_block_ = static_cast<int>(m->blocks_.size());
+    m->blocks_.push_back({effect_begin, m->dim() - effect_begin});
+  }
+  // Jitter variances.
+  m->jitter_index_.assign(n, -1);
+  m->jitter_block_.assign(n, -1);
+  if (spec.Has(EffectKind::kJitter)) {
+    const model::EffectInfo& info = model::DescribeEffect(EffectKind::kJitter);
+    const double vx = std::pow(info.parameters[0].prior_upper, 2);
+    const double vy = std::pow(info.parameters[1].prior_upper, 2);
+    const std::vector<double> start = m->DefaultStart(EffectKind::kJitter);
+    for (int k = 0; k < n; ++k) {
+      if (k == spec.jitter_reference) continue;
+      m->jitter_index_[k] = m->dim();
+      m->jitter_block_[k] = static_cast<int>(m->blocks_.size());
+      m->blocks_.push_back({m->dim(), 2});
+      m->Add("jitter.var_x_px2." + std::to_string(k), 0.0, vx, start[0]);
+      m->Add("jitter.var_y_px2." + std::to_string(k), 0.0, vy, start[1]);
+    }
+  }
+  for (int i = 0; i < m->dim(); ++i) {
+    if (!(m->lower_[i] < m->upper_[i])) {
+      *error = "empty prior range for " + m->names_[i];
+      return nullptr;
+    }
+  }
+  return m;
+}
+
+int EffectModel::FluxIndex(int k) const {
+  return spec_.flux == FluxMode::kShared ? shared_flux_ : XIndex(k) + 2;
+}
+
+int EffectModel::ShapeIndex(int shared_param) const {
+  CHECK(shared_param >= fit::kAiryRadiusPx && shared_param <= fit::kCcdSigmaYPx);
+  if (shared_param == fit::kAiryRadiusPx) return shape_begin_;
+  if (shared_param == fit::kDefocusPx) return spec_.defocus ? shape_begin_ + 1 : -1;
+  return shape_begin_ + (shared_param - fit::kAiryRadiusPx) - (spec_.defocus ? 0 : 1);
+}
+
+std::vector<int> EffectModel::EffectIndices(EffectKind kind) const {
+  std::vector<int> out;
+  if (kind == EffectKind::kDefocus) {
+    if (spec_.defocus) out.push_back(ShapeIndex(fit::kDefocusPx));
+    return out;
+  }
+  if (kind == EffectKind::kJitter) {
+    for (int i : jitter_index_) {
+      if (i >= 0) {
+        out.push_back(i);
+        out.push_back(i + 1);
+      }
+    }
+    return out;
+  }
+  for (const auto& [k, begin] : effect_begin_) {
+    if (k != kind) continue;
+    const int np = static_cast<int>(model::DescribeEffect(kind).parameters.size());
+    for (int j = 0; j < np; ++j) out.push_back(begin + j);
+  }
+  return out;
+}
+
+std::vector<int> EffectModel::BlocksOf(int k) const {
+  std::vector<int> b = {0, 1 + k};
+  if (effect_block_ >= 0) b.push_back(effect_block_);
+  if (jitter_block_[k] >= 0) b.push_back(jitter_block_[k]);
+  return b;
+}
+
+std::vector<double> EffectModel::DefaultStart(EffectKind kind) const {
+  switch (kind) {
+    case EffectKind::kDefocus: return {0.3};
+    case EffectKind::kBrighterFatter: return {1.0e-7, 1.0e-7};
+    case EffectKind::kSerialCti:
+    case EffectKind::kParallelCti: return {1.0e-3, 1.5};
+    case EffectKind::kIpc: return {0.003};
+    case EffectKind::kJitter: return {0.005, 0.005};
+    case EffectKind::kBackground: return {0.0};
+    case EffectKind::kNonlinearity: return {3.0e-8};
+    case EffectKind::kHalo: return {0.01, 2.5};
+    case EffectKind::kDefocusOffset: return {0.0, 0.0};
+  }
+  return {};
+}
+
+std::vector<double> EffectModel::FromBaseline(const std::vector<double>& theta) const {
+  CHECK_EQ(static_cast<int>(theta.size()), base_.dim());
+  std::vector<double> p = start_;
+  const int n = num_exposures();
+  double mean_sum = 0.0;
+  std::vector<double> sums(n);
+  for (int k = 0; k < n; ++k) {
+    sums[k] = StampSum(base_.stamps()[k]);
+    mean_sum += sums[k] / n;
+  }
+  for (int k = 0; k < n; ++k) {
+    const double scale =
+        spec_.flux == FluxMode::kShared || mean_sum <= 0 ? 1.0 : sums[k] / mean_sum;
+    p[FluxIndex(k)] = theta[fit::kFluxE] * scale;
+    p[XIndex(k)] = theta[fit::FitModel::XIndex(k)];
+    p[YIndex(k)] = theta[fit::FitModel::YIndex(k)];
+  }
+  for (int i = fit::kAiryRadiusPx; i <= fit::kCcdSigmaYPx; ++i) {
+    const int j = ShapeIndex(i);
+    if (j >= 0) p[j] = theta[i];
+  }
+  for (int i = 0; i < dim(); ++i) p[i] = std::clamp(p[i], lower_[i], upper_[i]);
+  return p;
+}
+
+std::vector<double> EffectModel::FromOther(const EffectModel& other,
+                                           const std::vector<double>& q) const {
+  std::vector<double> p = start_;
+  for (int i = 0; i < dim(); ++i) {
+    const auto it = std::find(other.names().begin(), other.names().end(), names_[i]);
+    if (it != other.names().end()) p[i] = q[it - other.names().begin()];
+    p[i] = std::clamp(p[i], lower_[i], upper_[i]);
+  }
+  return p;
+}
+
+model::SpotParams EffectModel::SpotFor(const double* p, int k) const {
+  std::vector<double> theta(base_.dim(), 0.0);
+  theta[fit::kFluxE] = p[FluxIndex(k)];
+  for (int i = fit::kAiryRadiusPx; i <= fit::kCcdSigmaYPx; ++i) {
+    const int j = ShapeIndex(i);
+    // Without the defocus component it is held at its smallest allowed value (0 in
+    // integrated sampling; the 2015 model needs a positive width).
+    theta[i] = j >= 0 ? p[j] : base_.lower()[i];
+  }
+  theta[fit::FitModel::XIndex(k)] = p[XIndex(k)];
+  theta[fit::FitModel::YIndex(k)] = p[YIndex(k)];
+  return base_.SpotFor(theta.data(), k);
+}
+
+model::ExposureEffects EffectModel::EffectsFor(const double* p, int k) const {
+  model::ExposureEffects e;
+  for (const auto& [kind, begin] : effect_begin_) SetUnchecked(kind, p + begin, &e);
+  if (spec_.Has(EffectKind::kJitter)) {
+    model::JitterParams j{0.0, 0.0, 0.0, 0.0};
+    const int i = jitter_index_[k];
+    if (i >= 0) {
+      j.sigma_x_px = std::sqrt(std::max(p[i], 0.0));
+      j.sigma_y_px = std::sqrt(std::max(p[i + 1], 0.0));
+    }
+    e.jitter = j;
+  }
+  return e;
+}
+
+bool EffectModel::InsideBounds(const double* p) const {
+  for (int i = 0; i < dim(); ++i) {
+    if (!(p[i] >= lower_[i] && p[i] <= upper_[i])) return false;
+  }
+  return true;
+}
+
+std::unique_ptr<EffectEvaluator> EffectModel::NewEvaluator() const {
+  return std::make_unique<EffectEvaluator>(*this);
+}
+
+EffectEvaluator::EffectEvaluator(const EffectModel& model)
+    : model_(model), renderer_(model.base().options().model) {}
+
+bool EffectEvaluator::Render(const double* p, int k, std::vector<double>* model_e,
+                             std::vector<double>* charge_e) {
+  const model::SpotParams sp = model_.SpotFor(p, k);
+  std::string why;
+  if (!model::ValidSpotParams(renderer_.options(), sp, &why)) return false;
+  const model::ExposureEffects effects = model_.EffectsFor(p, k);
+  const model::PixelGrid grid = model_.base().GridFor(k);
+  charge_buf_.resize(grid.size());
+  const double peak =
+      effects.brighter_fatter ? model::BrighterFatterSignal(renderer_, effects, sp, grid) : 0.0;
+  model::RenderSpotWithKernelEffects(renderer_, effects, sp, grid, peak, charge_buf_.data());
+  double pedestal = 0.0;
+  if (effects.HasImageEffects()) {
+    model::SpotReference spot{sp[model::kFlux], sp[model::kCentreX], sp[model::kCentreY]};
+    if (renderer_.options().sampling == model::Sampling::kPixelCentre) {
+      // m is not a flux: the halo takes its share of the stamp's electrons (as simulate.cc).
+      spot.flux_e = 0.0;
+      for (double v : charge_buf_) spot.flux_e += v;
+    }
+    model::ApplyChargeEffects(effects, grid, spot, charge_buf_.data());
+    if (effects.background) pedestal = effects.background->pedestal_e;
+  }
+  for (double v : charge_buf_) {
+    if (!std::isfinite(v)) return false;
+  }
+  if (model_e != nullptr) {
+    model_e->resize(grid.size());
+    for (int q = 0; q < grid.size(); ++q) (*model_e)[q] = charge_buf_[q] + pedestal;
+  }
+  if (charge_e != nullptr) *charge_e = charge_buf_;
+  return true;
+}
+
+double EffectEvaluator::ExposureLogLikelihood(const double* p, int k) {
+  if (!Render(p, k, &model_buf_, nullptr)) return -INFINITY;
+  const std::vector<double> charge = charge_buf_;
+  const Stamp& s = model_.base().stamps()[k];
+  CcdNoise noise{s.gain_e_per_adu, s.read_noise_e};
+  double ll = 0.0;
+  for (size_t q = 0; q < s.valid.size(); ++q) {
+    if (!s.valid[q]) continue;
+    const double var = noise.VarianceE2(charge[q]);
+    const double r = s.electrons.data[q] - model_buf_[q];
+    ll += -0.5 * (r * r / var + std::log(2.0 * M_PI * var));
+  }
+  return ll;
+}
+
+double EffectEvaluator::LogLikelihood(const double* p) {
+  double ll = 0.0;
+  for (int k = 0; k < model_.num_exposures(); ++k) ll += ExposureLogLikelihood(p, k);
+  return ll;
+}
+
+double EffectEvaluator::ChiSquare(const double* p) {
+  double chi2 = 0.0;
+  for (int k = 0; k < model_.num_exposures(); ++k) {
+    if (!Render(p, k, &model_buf_, nullptr)) return INFINITY;
+    const Stamp& s = model_.base().stamps()[k];
+    CcdNoise noise{s.gain_e_per_adu, s.read_noise_e};
+    for (size_t q = 0; q < s.valid.size(); ++q) {
+      if (!s.valid[q]) continue;
+      const double r = s.electrons.data[q] - model_buf_[q];
+      chi2 += r * r / noise.VarianceE2(charge_buf_[q]);
+    }
+  }
+  return chi2;
+}
+
+namespace {
+
+// log L and chi^2 against `data_e` (or the stamps).
+void Score(const EffectModel& model, const std::vector<double>& p,
+           const std::vector<Image>* data_e, double* log_likelihood, double* chi2) {
+  EffectEvaluator ev(model);
+  std::vector<double> m, c;
+  *log_likelihood = 0.0;
+  *chi2 = 0.0;
+  for (int k = 0; k < model.num_exposures(); ++k) {
+    if (!ev.Render(p.data(), k, &m, &c)) {
+      *log_likelihood = -INFINITY;
+      *chi2 = INFINITY;
+      return;
+    }
+    const Stamp& s = model.base().stamps()[k];
+    const std::vector<double>& d = data_e != nullptr ? (*data_e)[k].data : s.electrons.data;
+    CcdNoise noise{s.gain_e_per_adu, s.read_noise_e};
+    for (size_t q = 0; q < s.valid.size(); ++q) {
+      if (!s.valid[q]) continue;
+      const double var = noise.VarianceE2(c[q]);
+      const double r = d[q] - m[q];
+      *chi2 += r * r / var;
+      *log_likelihood += -0.5 * (r * r / var + std::log(2.0 * M_PI * var));
+    }
+  }
+}
+
+}  // namespace
+
+std::vector<double> InformationMatrix(const EffectModel& model, const std::vector<double>& p,
+                                      const std::vector<Image>* data_e) {
+  const int dim = model.dim();
+  std::vector<double> info(static_cast<size_t>(dim) * dim, 0.0);
+  for (int k = 0; k < model.num_exposures(); ++k) {
+    ExposureCost cost(model, k, data_e != nullptr ? &(*data_e)[k] : nullptr);
+    const std::vector<int> blocks = model.BlocksOf(k);
+    std::vector<const double*> params;
+    std::vector<std::vector<double>> jac(blocks.size());
+    std::vector<double*> jac_ptrs;
+    const int nr = cost.num_residuals();
+    for (size_t b = 0; b < blocks.size(); ++b) {
+      const auto& block = model.blocks()[blocks[b]];
+      params.push_back(p.data() + block.begin);
+      jac[b].resize(static_cast<size_t>(nr) * block.size);
+      jac_ptrs.push_back(jac[b].data());
+    }
+    std::vector<double> residuals(nr);
+    if (!cost.Evaluate(params.data(), residuals.data(), jac_ptrs.data())) continue;
+    // Global column index of each local column.
+    std::vector<int> column;
+    std::vector<std::pair<int, int>> local;  // (block, j)
+    for (size_t b = 0; b < blocks.size(); ++b) {
+      const auto& block = model.blocks()[blocks[b]];
+      for (int j = 0; j < block.size; ++j) {
+        column.push_back(block.begin + j);
+        local.push_back({static_cast<int>(b), j});
+      }
+    }
+    const int nc = static_cast<int>(column.size());
+    for (int a = 0; a < nc; ++a) {
+      const auto [ba, ja] = local[a];
+      const int sa = model.blocks()[blocks[ba]].size;
+      for (int c = a; c < nc; ++c) {
+        const auto [bc, jc] = local[c];
+        const int sc = model.blocks()[blocks[bc]].size;
+        double sum = 0.0;
+        for (int r = 0; r < nr; ++r) {
+          sum += jac[ba][static_cast<size_t>(r) * sa + ja] * jac[bc][static_cast<size_t>(r) * sc + jc];
+        }
+        info[static_cast<size_t>(column[a]) * dim + column[c]] += sum;
+        if (column[a] != column[c]) info[static_cast<size_t>(column[c]) * dim + column[a]] += sum;
+      }
+    }
+  }
+  return info;
+}
+
+bool FitEffectModel(const EffectModel& model, const std::vector<std::vector<double>>& starts,
+                    const EffectFitOptions& options, EffectFitResult* result, std::string* error,
+                    const std::vector<Image>* data_e) {
+  const auto t0 = std::chrono::steady_clock::now();
+  *result = EffectFitResult();
+  double best_cost = INFINITY;
+  std::vector<double> best;
+  std::string best_message, last_message;
+  int best_iterations = 0;
+  for (const std::vector<double>& start : starts) {
+    CHECK_EQ(static_cast<int>(start.size()), model.dim());
+    std::vector<double> p = start;
+    for (int i = 0; i < model.dim(); ++i) p[i] = std::clamp(p[i], model.lower()[i], model.upper()[i]);
+    ceres::Problem::Options problem_options;
+    problem_options.cost_function_ownership = ceres::TAKE_OWNERSHIP;
+    ceres::Problem problem(problem_options);
+    for (int k = 0; k < model.num_exposures(); ++k) {
+      std::vector<double*> blocks;
+      for (int b : model.BlocksOf(k)) blocks.push_back(p.data() + model.blocks()[b].begin);
+      problem.AddResidualBlock(
+          new ExposureCost(model, k, data_e != nullptr ? &(*data_e)[k] : nullptr), nullptr,
+          blocks);
+    }
+    for (const auto& block : model.blocks()) {
+      for (int j = 0; j < block.size; ++j) {
+        problem.SetParameterLowerBound(p.data() + block.begin, j, model.lower()[block.begin + j]);
+        problem.SetParameterUpperBound(p.data() + block.begin, j, model.upper()[block.begin + j]);
+      }
+    }
+    ceres::Solver::Options solver;
+    solver.linear_solver_type = ceres::DENSE_QR;
+    solver.max_num_iterations = options.max_iterations;
+    solver.function_tolerance = options.function_tolerance;
+    solver.gradient_tolerance = 1e-10;
+    solver.parameter_tolerance = 1e-9;
+    solver.num_threads = options.num_threads;
+    solver.logging_type = ceres::SILENT;
+    ceres::Solver::Summary summary;
+    ceres::Solve(solver, &problem, &summary);
+    ++result->num_starts;
+    last_message = summary.message;
+    // A run stopped by the iteration limit still has a usable point: the evidence compares
+    // likelihoods, and a better point can only help the model being tested.
+    if (!summary.IsSolutionUsable() || !std::isfinite(summary.final_cost)) continue;
+    if (summary.final_cost < best_cost) {
+      best_cost = summary.final_cost;
+      best = p;
+      best_message = summary.message;
+      best_iterations = static_cast<int>(summary.iterations.size());
+    }
+  }
+  if (best.empty()) {
+    *error = "the fit of '" + model.spec().Describe() + "' did not converge from any of " +
+             std::to_string(starts.size()) + " starting points (" + last_message + ")";
+    return false;
+  }
+  result->p = best;
+  result->usable = true;
+  result->iterations = best_iterations;
+  result->termination = best_message;
+  Score(model, best, data_e, &result->log_likelihood, &result->chi2);
+  result->num_pixels = model.NumValidPixels();
+  result->dof = result->num_pixels - model.dim();
+  const std::vector<double> info = InformationMatrix(model, best, data_e);
+  const bool gaussian_defocus = model.spec().defocus &&
+                                model.base().options().model.defocus == model::DefocusKind::kGaussian;
+  result->laplace =
+      fit::ComputeLaplace(model.names(), model.lower(), model.upper(), best, info, gaussian_defocus);
+  result->seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return true;
+}
+
+std::vector<Image> SimulateData(const EffectModel& model, const std::vector<double>& p,
+                                std::mt19937_64& engine) {
+  EffectEvaluator ev(model);
+  std::vector<Image> out;
+  std::vector<double> m, c;
+  for (int k = 0; k < model.num_exposures(); ++k) {
+    const Stamp& s = model.base().stamps()[k];
+    Image d(s.nx(), s.ny(), 0.0);
+    CHECK(ev.Render(p.data(), k, &m, &c)) << "SimulateData outside the model's domain";
+    const double g = s.gain_e_per_adu;
+    const double ceiling = std::floor(std::min(s.saturation_adu, 65535.0));
+    for (size_t q = 0; q < d.size(); ++q) {
+      const double pedestal = m[q] - c[q];
+      const double photo = static_cast<double>(Poisson(std::max(c[q], 0.0), engine)) + pedestal;
+      const double read = s.read_noise_e * StandardNormal(engine);
+      const double adu = std::clamp(std::nearbyint(s.bias_adu + (photo + read) / g), 0.0, ceiling);
+      d.data[q] = (adu - s.bias_adu) * g;
+    }
+    out.push_back(std::move(d));
+  }
+  return out;
+}
+
+int SharpestExposure(const fit::FitModel& base) {
+  const std::vector<double> v = base.MomentGaussianVariances(0.5);
+  return static_cast<int>(std::min_element(v.begin(), v.end()) - v.begin());
+}
+
+std::vector<double> PeakSignals(const std::vector<Stamp>& stamps) {
+  std::vector<double> peaks;
+  for (const Stamp& s : stamps) {
+    double peak = -INFINITY;
+    for (size_t q = 0; q < s.valid.size(); ++q) {
+      if (s.valid[q]) peak = std::max(peak, s.electrons.data[q]);
+    }
+    peaks.push_back(peak);
+  }
+  return peaks;
+}
+
+bool IsMultiIntensity(const std::vector<Stamp>& stamps) {
+  if (stamps.size() < 2) return false;
+  const std::vector<double> peaks = PeakSignals(stamps);
+  const auto [lo, hi] = std::minmax_element(peaks.begin(), peaks.end());
+  if (*lo > 0 && *hi / *lo > 1.25) return true;
+  double t_lo = INFINITY, t_hi = -INFINITY;
+  for (const Stamp& s : stamps) {
+    if (!std::isfinite(s.info.exptime_s)) continue;
+    t_lo = std::min(t_lo, s.info.exptime_s);
+    t_hi = std::max(t_hi, s.info.exptime_s);
+  }
+  return std::isfinite(t_lo) && t_lo > 0 && t_hi / t_lo > 1.01;
+}
+
+}  // namespace ccdpsf::diagnose

@@ -1,0 +1,279 @@
+#include "ccdpsf/diagnose/statistics.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "ccdpsf/noise.h"
+#include "ccdpsf/random.h"
+#include "glog/logging.h"
+
+namespace ccdpsf::diagnose {
+
+namespace {
+
+constexpr int kRadialBins = 10;
+
+struct Accumulator {
+  double sum = 0.0;
+  int count = 0;
+  void Add(double r) {
+    sum += r;
+    ++count;
+  }
+  double Z() const { return count > 0 ? sum / std::sqrt(static_cast<double>(count)) : 0.0; }
+};
+
+}  // namespace
+
+const std::vector<std::pair<std::string, std::string>>& StatisticDescriptions() {
+  static const std::vector<std::pair<std::string, std::string>> d = {
+      {"chi2_per_dof", "sum of squared normalised residuals per degree of freedom (every effect)"},
+      {"core_z", "residual within 1.5 px of the centre (nonlinearity, ipc, brighter_fatter, halo)"},
+      {"ring_z", "residual 1.5-4 px from the centre (halo, jitter, ipc)"},
+      {"outer_z", "residual beyond 6 px: a pedestal (background, halo wing)"},
+      {"odd_x_z", "odd moment along x, +x minus -x side (serial_cti)"},
+      {"odd_y_z", "odd moment along y, +y minus -y side (parallel_cti)"},
+      {"neighbour_z", "four edge neighbours of the peak minus four diagonal ones (ipc)"},
+      {"peak_z", "residual of the peak pixel (nonlinearity, ipc)"},
+      {"peak_trend_z",
+       "core residual against peak signal across exposures (brighter_fatter, nonlinearity)"},
+      {"width_scatter", "scatter of the exposures' width residuals (jitter, brighter_fatter)"},
+      {"radial_chi2", "radial structure of the residual, 1-px annuli (halo, background, defocus)"},
+  };
+  return d;
+}
+
+const NamedStatistic* ResidualStatistics::Find(const std::string& name) const {
+  for (const NamedStatistic& s : values) {
+    if (s.name == name) return &s;
+  }
+  return nullptr;
+}
+
+std::vector<ExposureResidual> ComputeResiduals(const EffectModel& model,
+                                               const std::vector<double>& p,
+                                               const std::vector<Image>* data_e) {
+  EffectEvaluator ev(model);
+  std::vector<ExposureResidual> out;
+  std::vector<double> m, c;
+  for (int k = 0; k < model.num_exposures(); ++k) {
+    const Stamp& s = model.base().stamps()[k];
+    ExposureResidual e;
+    e.data_e = data_e != nullptr ? (*data_e)[k] : s.electrons;
+    e.model_e = Image(s.nx(), s.ny(), NAN);
+    e.normalised = Image(s.nx(), s.ny(), NAN);
+    e.valid = s.valid;
+    e.origin_x = s.origin_x;
+    e.origin_y = s.origin_y;
+    CHECK(ev.Render(p.data(), k, &m, &c)) << "ComputeResiduals outside the model's domain";
+    const CcdNoise noise{s.gain_e_per_adu, s.read_noise_e};
+    e.peak_e = *std::max_element(m.begin(), m.end());
+    for (size_t q = 0; q < s.valid.size(); ++q) {
+      e.model_e.data[q] = m[q];
+      if (!s.valid[q]) continue;
+      e.normalised.data[q] = (e.data_e.data[q] - m[q]) / std::sqrt(noise.VarianceE2(c[q]));
+    }
+    const model::SpotParams sp = model.SpotFor(p.data(), k);
+    const model::PixelGrid grid = model.base().GridFor(k);
+    e.centre_x = sp[model::kCentreX] - grid.x0;
+    e.centre_y = sp[model::kCentreY] - grid.y0;
+    out.push_back(std::move(e));
+  }
+  return out;
+}
+
+ResidualStatistics ComputeStatistics(const std::vector<ExposureResidual>& residuals,
+                                     int num_parameters) {
+  CHECK(!residuals.empty());
+  ResidualStatistics st;
+  const int nx = residuals[0].normalised.nx, ny = residuals[0].normalised.ny;
+  const int kx = (nx - 1) / 2, ky = (ny - 1) / 2;
+  st.stacked_data = Image(nx, ny, 0.0);
+  st.stacked_model = Image(nx, ny, 0.0);
+  st.stacked_residual = Image(nx, ny, 0.0);
+  st.stacked_normalised = Image(nx, ny, 0.0);
+  st.stack_count = Image(nx, ny, 0.0);
+  Accumulator core, ring, outer, odd_x, odd_y;
+  std::vector<Accumulator> radial(kRadialBins);
+  double neighbour_sum = 0.0, peak_sum = 0.0;
+  std::vector<double> widths;
+  int num_pixels = 0;
+  for (const ExposureResidual& e : residuals) {
+    const int px = static_cast<int>(std::lround(e.centre_x));
+    const int py = static_cast<int>(std::lround(e.centre_y));
+    Accumulator core_k;
+    // Width residual: r projected on (rho^2 - mean rho^2) over rho < 4.
+    std::vector<std::pair<double, double>> width_terms;
+    for (int j = 0; j < e.normalised.ny; ++j) {
+      for (int i = 0; i < e.normalised.nx; ++i) {
+        const size_t q = static_cast<size_t>(j) * e.normalised.nx + i;
+        if (!e.valid[q]) continue;
+        const double r = e.normalised.data[q];
+        ++num_pixels;
+        st.chi2 += r * r;
+        const double dx = i - e.centre_x, dy = j - e.centre_y;
+        const double rho = std::hypot(dx, dy);
+        if (rho < 1.5) {
+          core.Add(r);
+          core_k.Add(r);
+        } else if (rho < 4.0) {
+          ring.Add(r);
+        } else if (rho >= 6.0) {
+          outer.Add(r);
+        }
+        if (rho < 4.0) width_terms.push_back({rho * rho, r});
+        if (std::fabs(dx) >= 0.5 && std::fabs(dx) <= 4.5 && std::fabs(dy) <= 4.5) {
+          odd_x.Add(dx > 0 ? r : -r);
+        }
+        if (std::fabs(dy) >= 0.5 && std::fabs(dy) <= 4.5 && std::fabs(dx) <= 4.5) {
+          odd_y.Add(dy > 0 ? r : -r);
+        }
+        const int bin = static_cast<int>(rho);
+        if (bin < kRadialBins) radial[bin].Add(r);
+        // The stack.
+        const int si = i - px + kx, sj = j - py + ky;
+        if (si < 0 || sj < 0 || si >= nx || sj >= ny) continue;
+        st.stacked_data(si, sj) += e.data_e.data[q];
+        st.stacked_model(si, sj) += e.model_e.data[q];
+        st.stacked_residual(si, sj) += e.data_e.data[q] - e.model_e.data[q];
+        st.stacked_normalised(si, sj) += r;
+        st.stack_count(si, sj) += 1.0;
+      }
+    }
+    // Neighbours of the peak pixel (the pixel nearest the centre).
+    auto r_at = [&](int i, int j, double* out) {
+      if (i < 0 || j < 0 || i >= e.normalised.nx || j >= e.normalised.ny) return false;
+      const size_t q = static_cast<size_t>(j) * e.normalised.nx + i;
+      if (!e.valid[q]) return false;
+      *out = e.normalised.data[q];
+      return true;
+    };
+    double edge = 0.0, diag = 0.0, v;
+    int n_edge = 0, n_diag = 0;
+    for (const auto& [di, dj] : {std::pair{1, 0}, {-1, 0}, {0, 1}, {0, -1}}) {
+      if (r_at(px + di, py + dj, &v)) {
+        edge += v;
+        ++n_edge;
+      }
+    }
+    for (const auto& [di, dj] : {std::pair{1, 1}, {-1, 1}, {1, -1}, {-1, -1}}) {
+      if (r_at(px + di, py + dj, &v)) {
+        diag += v;
+        ++n_diag;
+      }
+    }
+    if (n_edge > 0 && n_diag > 0) {
+      neighbour_sum += (edge - diag) / std::sqrt(static_cast<double>(n_edge + n_diag));
+    }
+    if (r_at(px, py, &v)) peak_sum += v;
+    st.peak_e.push_back(e.peak_e);
+    st.core_z.push_back(core_k.Z());
+    double mean_rho2 = 0.0;
+    for (const auto& t : width_terms) mean_rho2 += t.first / width_terms.size();
+    double proj = 0.0, norm = 0.0;
+    for (const auto& t : width_terms) {
+      proj += (t.first - mean_rho2) * t.second;
+      norm += (t.first - mean_rho2) * (t.first - mean_rho2);
+    }
+    widths.push_back(norm > 0 ? proj / std::sqrt(norm) : 0.0);
+  }
+  const int num_exposures = static_cast<int>(residuals.size());
+  st.dof = std::max(1, num_pixels - num_parameters);
+  st.chi2_per_dof = st.chi2 / st.dof;
+  st.chi2_per_dof_sd = std::sqrt(2.0 / st.dof);
+  for (int si = 0; si < nx * ny; ++si) {
+    if (st.stack_count.data[si] == 0) {
+      st.stacked_data.data[si] = st.stacked_model.data[si] = st.stacked_residual.data[si] = NAN;
+      st.stacked_normalised.data[si] = NAN;
+    } else {
+      // Sum of n unit normals / sqrt(n): the stacked normalised residual stays N(0, 1).
+      st.stacked_normalised.data[si] /= std::sqrt(st.stack_count.data[si]);
+    }
+  }
+  double radial_chi2 = 0.0;
+  for (const Accumulator& a : radial) {
+    st.radial_mean.push_back(a.count > 0 ? a.sum / a.count : NAN);
+    st.radial_count.push_back(a.count);
+    if (a.count > 0) radial_chi2 += a.sum * a.sum / a.count;
+  }
+  // Peak trend across intensities.
+  double trend = NAN;
+  {
+    const auto [lo, hi] = std::minmax_element(st.peak_e.begin(), st.peak_e.end());
+    if (num_exposures >= 2 && *lo > 0 && *hi / *lo > 1.25) {
+      double mean_i = 0.0;
+      for (double i : st.peak_e) mean_i += i / num_exposures;
+      double num = 0.0, den = 0.0;
+      for (int k = 0; k < num_exposures; ++k) {
+        num += st.core_z[k] * (st.peak_e[k] - mean_i);
+        den += std::pow(st.peak_e[k] - mean_i, 2);
+      }
+      trend = num / std::sqrt(den);
+    }
+  }
+  double width_scatter = NAN;
+  if (num_exposures >= 2) {
+    double mean_w = 0.0;
+    for (double w : widths) mean_w += w / num_exposures;
+    width_scatter = 0.0;
+    for (double w : widths) width_scatter += (w - mean_w) * (w - mean_w);
+  }
+  const double k_norm = std::sqrt(static_cast<double>(num_exposures));
+  st.values = {
+      {"chi2_per_dof", st.chi2_per_dof, Tail::kUpper},
+      {"core_z", core.Z(), Tail::kTwoSided},
+      {"ring_z", ring.Z(), Tail::kTwoSided},
+      {"outer_z", outer.Z(), Tail::kTwoSided},
+      {"odd_x_z", odd_x.Z(), Tail::kTwoSided},
+      {"odd_y_z", odd_y.Z(), Tail::kTwoSided},
+      {"neighbour_z", neighbour_sum / k_norm, Tail::kTwoSided},
+      {"peak_z", peak_sum / k_norm, Tail::kTwoSided},
+      {"peak_trend_z", trend, Tail::kTwoSided},
+      {"width_scatter", width_scatter, Tail::kUpper},
+      {"radial_chi2", radial_chi2, Tail::kUpper},
+  };
+  return st;
+}
+
+void PredictiveCheck(const EffectModel& model, const std::vector<double>& p,
+                     const PredictiveOptions& options, ResidualStatistics* observed,
+                     std::vector<std::vector<double>>* draws) {
+  const int ns = static_cast<int>(observed->values.size());
+  std::vector<std::vector<double>> values(ns);
+  for (int s = 0; s < options.num_simulations; ++s) {
+    std::mt19937_64 engine(DeriveSeed(options.seed, static_cast<uint64_t>(s)));
+    const std::vector<Image> data = SimulateData(model, p, engine);
+    std::vector<double> at = p;
+    if (options.refit) {
+      EffectFitResult refit;
+      std::string error;
+      if (FitEffectModel(model, {p}, options.fit, &refit, &error, &data)) at = refit.p;
+    }
+    const ResidualStatistics sim = ComputeStatistics(ComputeResiduals(model, at, &data), model.dim());
+    for (int i = 0; i < ns; ++i) values[i].push_back(sim.values[i].value);
+  }
+  for (int i = 0; i < ns; ++i) {
+    NamedStatistic& o = observed->values[i];
+    const std::vector<double>& v = values[i];
+    if (!std::isfinite(o.value) || v.empty()) continue;
+    int above = 0, below = 0, n = 0;
+    double sum = 0.0, sum2 = 0.0;
+    for (double x : v) {
+      if (!std::isfinite(x)) continue;
+      ++n;
+      above += x >= o.value;
+      below += x <= o.value;
+      sum += x;
+      sum2 += x * x;
+    }
+    if (n == 0) continue;
+    const double upper = (1.0 + above) / (1.0 + n);
+    const double lower = (1.0 + below) / (1.0 + n);
+    o.p_value = o.tail == Tail::kUpper ? upper : std::min(1.0, 2.0 * std::min(upper, lower));
+    o.predictive_mean = sum / n;
+    o.predictive_sd = n > 1 ? std::sqrt(std::max(0.0, (sum2 - sum * sum / n) / (n - 1))) : NAN;
+  }
+  if (draws != nullptr) *draws = std::move(values);
+}
+
+}  // namespace ccdpsf::diagnose
