@@ -166,6 +166,12 @@ TEST(Trend, RecoversCombinedModelTruthWithGapsAndNotes) {
     groups.push_back(SyntheticGroup("i" + std::to_string(f), 800, f * i0, truth(f * i0, 800), rel,
                                     engine));
   }
+  // A chain that did not converge, stuck far from the truth with a tiny spread: it must be a
+  // gap, not a point that dominates the weighted fit.
+  GroupResult stuck = SyntheticGroup("stuck", 800, 0.45 * i0, 2.0 * truth(0.45 * i0, 800), 1e-5,
+                                     engine);
+  stuck.converged = false;
+  groups.push_back(stuck);
   GroupResult failed;
   failed.group.name = "w750";
   failed.group.wavelength_nm = 750;
@@ -181,6 +187,8 @@ TEST(Trend, RecoversCombinedModelTruthWithGapsAndNotes) {
   ASSERT_EQ(w.gaps.size(), 1u);
   EXPECT_EQ(w.gaps[0].label, "w750");
   const RelationFit& i = r.relations.at("fwhm_um_vs_intensity");
+  ASSERT_EQ(i.gaps.size(), 1u);
+  EXPECT_EQ(i.gaps[0].label, "stuck");
   const Estimate& slope = i.Find("slope")->estimate;
   EXPECT_NEAR(slope.median, s * a * std::pow(800.0, alpha) / (c + s * i0),
               3 * 0.5 * (slope.hi68 - slope.lo68));

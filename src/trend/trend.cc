@@ -21,6 +21,13 @@ RelationPoint PointOf(const GroupResult& g, const std::string& metric, double ab
   const std::string& label = g.group.name;
   if (!g.ok) return RelationPoint::Missing(label, abscissa, g.failure);
   auto draws = g.draws.find(metric);
+  // A chain that did not converge has intervals not to be trusted (often far too narrow: a
+  // walker ensemble stuck in one corner), and one such point can dominate a weighted fit.
+  if (draws != g.draws.end() && !g.converged) {
+    return RelationPoint::Missing(label, abscissa,
+                                  "its MCMC did not converge, so its interval is not to be "
+                                  "trusted (see the group's fit report)");
+  }
   if (draws != g.draws.end() && draws->second.size() >= 2) {
     return RelationPoint::FromDraws(label, abscissa, draws->second);
   }
