@@ -15,6 +15,7 @@
 
 #include "ccdpsf/fits_io.h"
 #include "gtest/gtest.h"
+#include "support/run_ccdpsf.h"
 #include "nlohmann/json.hpp"
 
 namespace ccdpsf {
@@ -79,23 +80,8 @@ std::map<std::string, std::string> FilesBelow(const std::string& dir) {
   return files;
 }
 
-struct RunResult {
-  int exit_code = -1;
-  std::string output;  // stdout and stderr together
-};
-
-RunResult RunCcdpsf(const std::string& args) {
-  const std::string command = std::string(CCDPSF_BINARY) + " " + args + " 2>&1";
-  RunResult r;
-  FILE* pipe = popen(command.c_str(), "r");
-  if (pipe == nullptr) return r;
-  char buffer[4096];
-  size_t n;
-  while ((n = fread(buffer, 1, sizeof(buffer), pipe)) > 0) r.output.append(buffer, n);
-  const int status = pclose(pipe);
-  r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  return r;
-}
+using testing_support::RunCcdpsf;
+using testing_support::RunResult;
 
 // The truth widths against the formula evaluated by hand in a different but equivalent
 // arrangement, FWHM_x = FWHM_x(I0 at lambda0) (lambda / lambda0)^alpha_x FWHM_x(I) /

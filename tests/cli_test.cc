@@ -10,6 +10,7 @@
 #include "ccdpsf/fits_io.h"
 #include "fitsio.h"
 #include "gtest/gtest.h"
+#include "support/run_ccdpsf.h"
 #include "nlohmann/json.hpp"
 
 namespace ccdpsf {
@@ -17,23 +18,8 @@ namespace {
 
 namespace fs = std::filesystem;
 
-struct RunResult {
-  int exit_code = -1;
-  std::string output;  // stdout and stderr together
-};
-
-RunResult RunCcdpsf(const std::string& args) {
-  const std::string command = std::string(CCDPSF_BINARY) + " " + args + " 2>&1";
-  RunResult r;
-  FILE* pipe = popen(command.c_str(), "r");
-  if (pipe == nullptr) return r;
-  char buffer[4096];
-  size_t n;
-  while ((n = fread(buffer, 1, sizeof(buffer), pipe)) > 0) r.output.append(buffer, n);
-  const int status = pclose(pipe);
-  r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  return r;
-}
+using testing_support::RunCcdpsf;
+using testing_support::RunResult;
 
 // Per process: ctest runs tests in parallel processes, each of which simulates its own set.
 std::string Fresh(const std::string& name) {

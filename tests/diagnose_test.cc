@@ -39,6 +39,7 @@
 #include "ccdpsf/fit/fit_model.h"
 #include "gtest/gtest.h"
 #include "nlohmann/json.hpp"
+#include "support/run_ccdpsf.h"
 #include "support/simulated_stamps.h"
 
 namespace ccdpsf::diagnose {
@@ -328,15 +329,9 @@ TEST(Diagnose, BadInputIsRefused) {
 
 // The CLI: one line and a non-zero exit on bad input, no diagnose.json.
 std::string RunCcdpsf(const std::string& args, int* code) {
-  const std::string command = std::string(CCDPSF_BINARY) + " " + args + " 2>&1";
-  std::string out;
-  FILE* pipe = popen(command.c_str(), "r");
-  char buffer[4096];
-  size_t n;
-  while ((n = fread(buffer, 1, sizeof(buffer), pipe)) > 0) out.append(buffer, n);
-  const int status = pclose(pipe);
-  *code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  return out;
+  testing_support::RunResult r = testing_support::RunCcdpsf(args);
+  *code = r.exit_code;
+  return r.output;
 }
 
 TEST(Diagnose, CliBadInput) {

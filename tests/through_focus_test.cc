@@ -18,6 +18,7 @@
 #include "ceres/gradient_checker.h"
 #include "gtest/gtest.h"
 #include "nlohmann/json.hpp"
+#include "support/run_ccdpsf.h"
 #include "support/simulated_stamps.h"
 
 namespace ccdpsf::fit {
@@ -64,7 +65,8 @@ int DerivedIndex(const FitResult& r, const std::string& name) {
 }
 
 TEST(ThroughFocus, ParameterLayoutAndPriors) {
-  const SimulationConfig c = FocusSeriesConfig(kPositionsUm, kBestFocusUm, kRatePxPerUm, kSeriesFluxE, 1);
+  const SimulationConfig c =
+      FocusSeriesConfig(kPositionsUm, kBestFocusUm, kRatePxPerUm, kSeriesFluxE, 1);
   auto model = MustCreate(SimulateStamps(c, 2), FocusOptions());
   ASSERT_NE(model, nullptr);
   EXPECT_EQ(model->dim(), kNumShared + 2 * 5 + 1);
@@ -95,7 +97,8 @@ TEST(ThroughFocus, ParameterLayoutAndPriors) {
 // best focus and one exactly at it (sigma_f = 0, where |z - z0| has its kink but the model,
 // a function of sigma_f^2, is smooth).
 TEST(ThroughFocus, ExposureCostPassesGradientChecker) {
-  const SimulationConfig c = FocusSeriesConfig(kPositionsUm, kBestFocusUm, kRatePxPerUm, kSeriesFluxE, 3);
+  const SimulationConfig c =
+      FocusSeriesConfig(kPositionsUm, kBestFocusUm, kRatePxPerUm, kSeriesFluxE, 3);
   auto model = MustCreate(SimulateStamps(c, 4), FocusOptions());
   ASSERT_NE(model, nullptr);
   for (const auto& [k, z0] : std::vector<std::pair<int, double>>{{0, 60.0}, {3, 140.0}, {2, 0.0}}) {
@@ -120,7 +123,8 @@ TEST(ThroughFocus, ExposureCostPassesGradientChecker) {
 // DESIGN.md pitfall 3 in focus mode: the joint log-likelihood equals the sum of the single
 // exposures' ones, each single fitted with its own defocus rate |z_k - z0|.
 TEST(ThroughFocus, JointLogLikelihoodIsTheSumOfSingles) {
-  const SimulationConfig c = FocusSeriesConfig(kPositionsUm, kBestFocusUm, kRatePxPerUm, kSeriesFluxE, 5);
+  const SimulationConfig c =
+      FocusSeriesConfig(kPositionsUm, kBestFocusUm, kRatePxPerUm, kSeriesFluxE, 5);
   const std::vector<Stamp> stamps = SimulateStamps(c, 6);
   for (LikelihoodKind kind : {LikelihoodKind::kGaussian, LikelihoodKind::kPoissonNormal}) {
     FitModelOptions options = FocusOptions();
@@ -158,7 +162,8 @@ TEST(ThroughFocus, JointLogLikelihoodIsTheSumOfSingles) {
 // focus position each - do not identify them (pitfall 1), nor does the joint fit of the
 // same series with one shared defocus.
 TEST(ThroughFocus, IdentifiesTheCcdWidths) {
-  const SimulationConfig c = FocusSeriesConfig(kPositionsUm, kBestFocusUm, kRatePxPerUm, kSeriesFluxE, 7);
+  const SimulationConfig c =
+      FocusSeriesConfig(kPositionsUm, kBestFocusUm, kRatePxPerUm, kSeriesFluxE, 7);
   const std::vector<Stamp> stamps = SimulateStamps(c, 8);
   auto model = MustCreate(stamps, FocusOptions());
   ASSERT_NE(model, nullptr);
@@ -212,8 +217,8 @@ TEST(ThroughFocus, IdentifiesTheCcdWidths) {
     ASSERT_EQ(single.laplace.unconstrained.size(), 1u) << "exposure " << k;
     EXPECT_TRUE(std::isinf(single.laplace.unconstrained[0].sd_fraction_of_prior));
     EXPECT_NE(single.laplace.unconstrained[0].direction[kDefocusPx], 0.0);
-    const bool defocus_at_bound = std::count(single.laplace.at_bound.begin(),
-                                             single.laplace.at_bound.end(), kDefocusPx) > 0;
+    const bool defocus_at_bound =
+        std::count(single.laplace.at_bound.begin(), single.laplace.at_bound.end(), kDefocusPx) > 0;
     EXPECT_TRUE(std::isnan(single.parameters[kCcdSigmaXPx].laplace_sd)) << "exposure " << k;
     EXPECT_TRUE(std::isnan(single.parameters[kCcdSigmaYPx].laplace_sd)) << "exposure " << k;
     if (defocus_at_bound) {
@@ -319,13 +324,13 @@ TEST(ThroughFocus, McmcCoversTheCcdWidths) {
     // knows a width to ~7 %).
     EXPECT_NEAR(0.5 * (s.hi68 - s.lo68) / s.laplace_sd, 1.0, 0.3) << r.names[index[j]];
     std::printf("  %-24s truth %.6g  median %.6g  68%% [%.6g, %.6g]  99.7%% [%.6g, %.6g]\n",
-                r.names[index[j]].c_str(), truth[j], s.median, s.lo68, s.hi68, s.lo997,
-                s.hi997);
+                r.names[index[j]].c_str(), truth[j], s.median, s.lo68, s.hi68, s.lo997, s.hi997);
   }
 }
 
 TEST(ThroughFocus, BadInputIsReported) {
-  const SimulationConfig c = FocusSeriesConfig(kPositionsUm, kBestFocusUm, kRatePxPerUm, kSeriesFluxE, 13);
+  const SimulationConfig c =
+      FocusSeriesConfig(kPositionsUm, kBestFocusUm, kRatePxPerUm, kSeriesFluxE, 13);
   const std::vector<Stamp> stamps = SimulateStamps(c, 14);
   std::string error;
   auto expect_fail = [&](std::vector<Stamp> s, const FitModelOptions& o, const std::string& what) {
@@ -366,9 +371,9 @@ TEST(ThroughFocus, FitConfigKey) {
   EXPECT_TRUE(c.through_focus_given);
   EXPECT_EQ(c.fit.map.start_best_focus_fractions, std::vector<double>{0.5});
   EXPECT_EQ(FitConfigJson(c)["through_focus"], true);
-  for (const char* bad : {R"({"through_focus": 1})",
-                          R"({"map": {"start_best_focus_fractions": [1.5]}})",
-                          R"({"map": {"start_ccd_variance_scales": [0]}})"}) {
+  for (const char* bad :
+       {R"({"through_focus": 1})", R"({"map": {"start_best_focus_fractions": [1.5]}})",
+        R"({"map": {"start_ccd_variance_scales": [0]}})"}) {
     FitConfig d;
     EXPECT_FALSE(ParseFitConfig(bad, &d, &error)) << bad;
   }
@@ -379,8 +384,8 @@ TEST(ThroughFocus, FitConfigKey) {
 // best_focus_um and finite Laplace sds for the CCD widths.
 TEST(ThroughFocus, CliFitsASimulatedSeries) {
   namespace fs = std::filesystem;
-  const std::string dir = ::testing::TempDir() + "/ccdpsf_focus_" +
-                          std::to_string(static_cast<long>(::getpid()));
+  const std::string dir =
+      ::testing::TempDir() + "/ccdpsf_focus_" + std::to_string(static_cast<long>(::getpid()));
   fs::remove_all(dir);
   fs::create_directories(dir);
   nlohmann::json sim = {{"seed", 21},
@@ -393,30 +398,29 @@ TEST(ThroughFocus, CliFitsASimulatedSeries) {
                         {"wavelength_nm", 800},
                         {"exptime_s", 2.5},
                         {"exposures", nlohmann::json::array()}};
-  const double jitter[5][2] = {{0.03, -0.05}, {-0.08, 0.02}, {0.06, 0.07}, {-0.02, -0.09}, {0.09, 0.01}};
+  const double jitter[5][2] = {
+      {0.03, -0.05}, {-0.08, 0.02}, {0.06, 0.07}, {-0.02, -0.09}, {0.09, 0.01}};
   for (int k = 0; k < 5; ++k) {
-    sim["exposures"].push_back({{"flux_e", kSeriesFluxE},
-                                {"x_px", 12.0 + jitter[k][0]},
-                                {"y_px", 12.0 + jitter[k][1]},
-                                {"focus_position_um", kPositionsUm[k]},
-                                {"defocus_px", kRatePxPerUm * std::fabs(kPositionsUm[k] - kBestFocusUm)}});
+    sim["exposures"].push_back(
+        {{"flux_e", kSeriesFluxE},
+         {"x_px", 12.0 + jitter[k][0]},
+         {"y_px", 12.0 + jitter[k][1]},
+         {"focus_position_um", kPositionsUm[k]},
+         {"defocus_px", kRatePxPerUm * std::fabs(kPositionsUm[k] - kBestFocusUm)}});
   }
   std::ofstream(dir + "/sim.json") << sim.dump();
-  auto run = [](const std::string& args, std::string* output) {
-    FILE* pipe = popen((std::string(CCDPSF_BINARY) + " " + args + " 2>&1").c_str(), "r");
-    if (pipe == nullptr) return -1;
-    char buffer[4096];
-    size_t n;
-    while ((n = fread(buffer, 1, sizeof(buffer), pipe)) > 0) output->append(buffer, n);
-    const int status = pclose(pipe);
-    return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  };
   std::string out;
-  ASSERT_EQ(run("simulate --config=" + dir + "/sim.json --out=" + dir + "/series", &out), 0) << out;
+  ASSERT_EQ(testing_support::RunCcdpsf(
+                "simulate --config=" + dir + "/sim.json --out=" + dir + "/series", &out),
+            0)
+      << out;
   std::string files;
-  for (int k = 0; k < 5; ++k) files += " " + dir + "/series/exposure_00" + std::to_string(k) + ".fits";
+  for (int k = 0; k < 5; ++k)
+    files += " " + dir + "/series/exposure_00" + std::to_string(k) + ".fits";
   out.clear();
-  ASSERT_EQ(run("fit --joint --nomcmc --out=" + dir + "/fit" + files, &out), 0) << out;
+  ASSERT_EQ(testing_support::RunCcdpsf("fit --joint --nomcmc --out=" + dir + "/fit" + files, &out),
+            0)
+      << out;
   EXPECT_NE(out.find("note: the 5 files carry FOCUSPOS with 5 distinct values"), std::string::npos)
       << out;
   std::ifstream in(dir + "/fit/fit.json");
@@ -434,8 +438,10 @@ TEST(ThroughFocus, CliFitsASimulatedSeries) {
   EXPECT_EQ(fit["exposures"][0]["focus_position_um"], -400.0);
   // Told not to: one shared defocus, and the degeneracy is back.
   out.clear();
-  ASSERT_EQ(run("fit --joint --nomcmc --nothrough_focus --out=" + dir + "/fit_shared" + files, &out),
-            0)
+  ASSERT_EQ(
+      testing_support::RunCcdpsf(
+          "fit --joint --nomcmc --nothrough_focus --out=" + dir + "/fit_shared" + files, &out),
+      0)
       << out;
   EXPECT_EQ(out.find("note:"), std::string::npos) << out;
   std::ifstream in2(dir + "/fit_shared/fit.json");

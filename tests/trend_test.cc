@@ -17,6 +17,7 @@
 #include "ccdpsf/trend/trend.h"
 #include "gtest/gtest.h"
 #include "nlohmann/json.hpp"
+#include "support/run_ccdpsf.h"
 #include "support/simulated_stamps.h"
 
 namespace ccdpsf::trend {
@@ -32,17 +33,7 @@ std::string Fresh(const std::string& name) {
   return dir;
 }
 
-int RunCcdpsf(const std::string& args, std::string* output) {
-  const std::string command = std::string(CCDPSF_BINARY) + " " + args + " 2>&1";
-  FILE* pipe = popen(command.c_str(), "r");
-  if (pipe == nullptr) return -1;
-  char buffer[4096];
-  size_t n;
-  output->clear();
-  while ((n = fread(buffer, 1, sizeof(buffer), pipe)) > 0) output->append(buffer, n);
-  const int status = pclose(pipe);
-  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-}
+using testing_support::RunCcdpsf;
 
 json ReadJson(const std::string& path) {
   std::ifstream in(path);
