@@ -10,6 +10,7 @@
 #include "ceres/ceres.h"
 #include "ceres/gradient_checker.h"
 #include "gtest/gtest.h"
+#include "support/fit_helpers.h"
 #include "support/simulated_stamps.h"
 
 namespace ccdpsf::fit {
@@ -18,26 +19,9 @@ namespace {
 using testing_support::PaperConfig;
 using testing_support::SimulateStamps;
 
-std::unique_ptr<FitModel> MustCreate(std::vector<Stamp> stamps,
-                                     const FitModelOptions& options = FitModelOptions()) {
-  std::string error;
-  auto model = FitModel::Create(std::move(stamps), options, &error);
-  EXPECT_NE(model, nullptr) << error;
-  return model;
-}
-
-FitOptions NoMcmc() {
-  FitOptions o;
-  o.run_mcmc = false;
-  return o;
-}
-
-int IndexOf(const FitResult& r, const std::string& name) {
-  for (size_t i = 0; i < r.derived.size(); ++i) {
-    if (r.derived[i].first == name) return static_cast<int>(i);
-  }
-  return -1;
-}
+using testing_support::MustCreate;
+using testing_support::NoMcmc;
+constexpr auto IndexOf = testing_support::DerivedIndex;
 
 double TotalSigma(double defocus, double ccd) { return std::hypot(defocus, ccd); }
 

@@ -17,6 +17,7 @@
 #include "ceres/ceres.h"
 #include "ceres/gradient_checker.h"
 #include "gtest/gtest.h"
+#include "support/fit_helpers.h"
 #include "nlohmann/json.hpp"
 #include "support/run_ccdpsf.h"
 #include "support/simulated_stamps.h"
@@ -44,25 +45,9 @@ FitModelOptions FocusOptions() {
   return o;
 }
 
-std::unique_ptr<FitModel> MustCreate(std::vector<Stamp> stamps, const FitModelOptions& options) {
-  std::string error;
-  auto model = FitModel::Create(std::move(stamps), options, &error);
-  EXPECT_NE(model, nullptr) << error;
-  return model;
-}
-
-FitOptions NoMcmc() {
-  FitOptions o;
-  o.run_mcmc = false;
-  return o;
-}
-
-int DerivedIndex(const FitResult& r, const std::string& name) {
-  for (size_t i = 0; i < r.derived.size(); ++i) {
-    if (r.derived[i].first == name) return static_cast<int>(i);
-  }
-  return -1;
-}
+using testing_support::DerivedIndex;
+using testing_support::MustCreate;
+using testing_support::NoMcmc;
 
 TEST(ThroughFocus, ParameterLayoutAndPriors) {
   const SimulationConfig c =
