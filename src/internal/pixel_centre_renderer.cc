@@ -14,6 +14,7 @@
 // padding this is the same sum, term by term.
 #include "internal/pixel_centre_renderer.h"
 
+#include <algorithm>
 #include <cmath>
 #include <vector>
 
@@ -72,22 +73,36 @@ T AiryPatternOfQ2(const T& q2) {
   return a * a;
 }
 
+// The kernels are unit-peak Gaussians of sigma <= ~1 px, so most of a stamp-wide kernel is
+// far below rounding: a term whose weight is below kNegligibleWeight (relative to the unit
+// peak) changes no output by more than that fraction of the stamp's maximum, far below the
+// 1e-10 to which this renderer is checked against the 2015 recipe. Skipping them makes a
+// render several times faster.
+constexpr double kNegligibleWeight = 1e-18;
+
+inline double ValueOf(double v) { return v; }
+template <typename JetT>
+double ValueOf(const JetT& v) {
+  return v.a;
+}
+
 // out[i][j] = sum_l in[i][l] kernel[j + c - l] over 0 <= j + c - l < n: scipy 'same' along
-// the fast (x) axis. in/out are ny x nx row-major.
+// the fast (x) axis. in/out are ny x nx row-major. Looping over the kernel index outermost
+// keeps the inner loop contiguous (vectorisable) and free of bounds tests.
 template <typename T>
 void ConvolveRowsSame(const std::vector<T>& in, const std::vector<T>& kernel, int nx, int ny,
                       std::vector<T>* out) {
   const int c = (nx - 1) / 2;
   out->assign(static_cast<size_t>(nx) * ny, T(0.0));
-  for (int i = 0; i < ny; ++i) {
-    for (int j = 0; j < nx; ++j) {
-      T sum(0.0);
-      for (int l = 0; l < nx; ++l) {
-        const int kidx = j + c - l;
-        if (kidx < 0 || kidx >= nx) continue;
-        sum += in[i * nx + l] * kernel[kidx];
-      }
-      (*out)[i * nx + j] = sum;
+  for (int kidx = 0; kidx < nx; ++kidx) {
+    const T& w = kernel[kidx];
+    if (std::abs(ValueOf(w)) < kNegligibleWeight) continue;
+    const int offset = c - kidx;  // l = j + offset
+    const int j_begin = std::max(0, -offset), j_end = std::min(nx, nx - offset);
+    for (int i = 0; i < ny; ++i) {
+      const T* in_row = &in[static_cast<size_t>(i) * nx];
+      T* out_row = &(*out)[static_cast<size_t>(i) * nx];
+      for (int j = j_begin; j < j_end; ++j) out_row[j] += in_row[j + offset] * w;
     }
   }
 }
@@ -103,6 +118,7 @@ void ConvolveColumnsSame(const std::vector<T>& in, const std::vector<T>& kernel,
       const int kidx = i + c - k;
       if (kidx < 0 || kidx >= ny) continue;
       const T& w = kernel[kidx];
+      if (std::abs(ValueOf(w)) < kNegligibleWeight) continue;
       for (int j = 0; j < nx; ++j) (*out)[i * nx + j] += in[k * nx + j] * w;
     }
   }
