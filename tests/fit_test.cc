@@ -273,6 +273,33 @@ TEST(Fit, PixelCentreRecoversSeparateWidths) {
   EXPECT_NEAR(r.parameters[kFluxE].map, 1.5e5, 4 * r.parameters[kFluxE].laplace_sd);
 }
 
+// Low signal in pixel_centre (Table 1's 7.1 ke- setting, ten exposures): one exposure cannot
+// tell the posterior's basins apart, and a joint fit seeded from one used to end in a wrong
+// basin (chi^2/dof 1.28 against 0.97 at the truth on Table 1's simulation; on this data set,
+// 1.025 against 1.021, a shortfall of ~10 in log L). The MAP must be at least as likely as the
+// truth; the tolerance, 0.5 in log L, is far above the solver's convergence tolerance. Of ten
+// seeds the single-exposure seeding failed three (this is one), the joint screening none.
+TEST(Map, LowSignalPixelCentreJointFitFindsTheBestBasin) {
+  SimulationConfig c = PaperConfig(model::Sampling::kPixelCentre, 10, 45);
+  for (auto& e : c.exposures) e.flux_e = 7100;
+  FitModelOptions options;
+  options.model.sampling = model::Sampling::kPixelCentre;
+  auto model = MustCreate(SimulateStamps(c, 46), options);
+  MapResult map;
+  std::string error;
+  ASSERT_TRUE(FindMap(*model, MapOptions(), &map, &error)) << error;
+  std::vector<double> truth = {7100, c.airy_radius_px, c.defocus_px, c.ccd_sigma_x_px,
+                               c.ccd_sigma_y_px};
+  for (const auto& e : c.exposures) {
+    truth.push_back(e.x_px);
+    truth.push_back(e.y_px);
+  }
+  auto ev = model->NewEvaluator();
+  EXPECT_GE(map.log_likelihood, ev->LogLikelihood(truth.data()) - 0.5)
+      << "MAP chi2/dof " << map.chi2 / map.dof << ", truth chi2/dof "
+      << ev->ChiSquare(truth.data()) / map.dof;
+}
+
 // A short MCMC: intervals contain the identified truths, the chain is identical for 1 and 2
 // threads with one seed, and MCMC agrees with Laplace where the posterior is Gaussian.
 TEST(Fit, McmcIsDeterministicAndAgreesWithLaplace) {

@@ -396,14 +396,56 @@ double FitEvaluator::LogPosterior(const double* theta) {
 }
 
 double FitEvaluator::LeastSquaresFlux(const double* theta) {
+  return LeastSquaresFluxOver(theta, 0, fit_model_.num_exposures());
+}
+
+double FitEvaluator::ExposureLeastSquaresFlux(const double* theta, int k) {
+  return LeastSquaresFluxOver(theta, k, k + 1);
+}
+
+double FitEvaluator::BestFluxLogLikelihood(double* theta, int first, int last) {
+  const double saved_flux = theta[kFluxE];
+  theta[kFluxE] = 1.0;
+  unit_models_.resize(fit_model_.num_exposures());
+  double num = 0.0, den = 0.0;
+  for (int k = first; k < last; ++k) {
+    const Stamp& s = fit_model_.stamps()[k];
+    ModelImage(theta, k, &unit_models_[k], nullptr);
+    for (size_t q = 0; q < unit_models_[k].size(); ++q) {
+      if (!s.valid[q]) continue;
+      num += unit_models_[k][q] * s.electrons.data[q];
+      den += unit_models_[k][q] * unit_models_[k][q];
+    }
+  }
+  if (!(den > 0) || !std::isfinite(num / den)) {
+    theta[kFluxE] = saved_flux;
+    return -INFINITY;
+  }
+  const double flux =
+      std::clamp(num / den, fit_model_.lower()[kFluxE], fit_model_.upper()[kFluxE]);
+  theta[kFluxE] = flux;
+  const LikelihoodKind kind = fit_model_.options().likelihood;
+  double total = 0.0;
+  for (int k = first; k < last; ++k) {
+    const Stamp& s = fit_model_.stamps()[k];
+    const CcdNoise noise = NoiseOf(s);
+    for (size_t q = 0; q < unit_models_[k].size(); ++q) {
+      if (s.valid[q]) {
+        total += PixelLogLikelihood(kind, s.electrons.data[q], flux * unit_models_[k][q], noise);
+      }
+    }
+  }
+  return std::isfinite(total) ? total : -INFINITY;
+}
+
+double FitEvaluator::LeastSquaresFluxOver(const double* theta, int first, int last) {
   std::vector<double> unit(theta, theta + fit_model_.dim());
   unit[kFluxE] = 1.0;
   double num = 0.0, den = 0.0;
-  ForEachValidPixel(unit.data(), 0, fit_model_.num_exposures(),
-                    [&](double data_e, double model_e, const CcdNoise&) {
-                      num += model_e * data_e;
-                      den += model_e * model_e;
-                    });
+  ForEachValidPixel(unit.data(), first, last, [&](double data_e, double model_e, const CcdNoise&) {
+    num += model_e * data_e;
+    den += model_e * model_e;
+  });
   return den > 0 ? num / den : NAN;
 }
 

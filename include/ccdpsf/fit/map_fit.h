@@ -33,8 +33,8 @@ namespace ccdpsf::fit {
 struct MapOptions {
   // Starting points: every combination of these Airy radii [px] and shares of the Gaussian
   // width given to the defocus (moment starts, FitModel::MomentStart). Several starts make
-  // the answer independent of the luck of one. A joint fit runs this search on its first
-  // exposure and seeds the joint solve with the result.
+  // the answer independent of the luck of one. A joint fit without screening runs this
+  // search on its first exposure and seeds the joint solve with the result.
   std::vector<double> start_airy_radii_px = {0.35, 0.6, 0.9};
   std::vector<double> start_defocus_shares = {0.25, 0.75};
   // Generous: at low signal (~7 ke- peaks) the rugged pixel_centre joint problem needs several
@@ -55,6 +55,10 @@ struct MapOptions {
   std::vector<double> screen_defocus_px = {0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5, 0.55, 0.65};
   std::vector<double> screen_ccd_sigma_px = {0.1, 0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5};
   int screen_keep = 10;
+  // Joint fits with screening (map_fit.cc, JointScreenStarts): the grid is scored on the
+  // first three exposures, the best screen_keep shapes are rescored on all of them, and this
+  // many become starts of the joint solve.
+  int joint_screen_solves = 3;
   // Through-focus fits. A single exposure cannot separate defocus from the CCD kernel, so
   // the joint fit is not seeded from one as above. Instead: a normal single-exposure fit of
   // the exposure with the smallest moment width (the one nearest best focus) gives the Airy
