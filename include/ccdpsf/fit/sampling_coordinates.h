@@ -15,6 +15,13 @@
 // Jacobian |d(defocus, sigma_x, sigma_y) / d(defocus, t_x, t_y)| = t_x t_y / (sigma_x sigma_y).
 // Every other coordinate is unchanged (same index, same meaning).
 //
+// pixel_centre sampling (the 2015 discretisation) is different: its kernels are sampled at
+// integer offsets with unit peak, so a CCD width s acts only through the neighbour weights
+// exp(-k^2 / (2 s^2)), and below ~0.2 px not at all. The defocus and the CCD widths are then
+// identified separately, but each width's posterior is a peak plus a flat plateau down to
+// the prior's edge. Its coordinates are u = exp(-1 / (2 s^2)) + c s per axis (see
+// sampling_coordinates.cc), which shrink the plateau; the Jacobian is 1 / u'(s) per axis.
+//
 // Through-focus fits (fit_model.h) walk the fit parameters themselves (the identity map, no
 // Jacobian): there the defocus differs per exposure, so no single total width exists, and
 // the series identifies the CCD widths, so there is no ridge to straighten.
@@ -50,6 +57,7 @@ class SamplingCoordinates {
   int dim_;
   bool pillbox_;
   bool identity_;
+  bool kernel_weight_;  // pixel_centre sampling: see KernelWeightCoordinate
   std::vector<std::string> names_;
 };
 
