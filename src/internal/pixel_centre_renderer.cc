@@ -49,8 +49,8 @@ double AiryAmplitudeOfV(double v, double* da_dv) {
   return a;
 }
 double AiryAmplitudeOfV(double v) {
-  double unused;
-  return AiryAmplitudeOfV(v, &unused);
+  static const double* const table = model::AiryTableCoefficients();
+  return model::AiryAmplitudeInline(v, table);  // the same polynomial, without the derivative
 }
 template <typename JetT>
 JetT AiryAmplitudeOfV(const JetT& v) {
