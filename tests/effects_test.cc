@@ -577,8 +577,6 @@ TEST(Effects, BadConfigsAreOneLineErrorsNamingTheKey) {
       {R"({"jitter": {"motion_length_px": 50}})", "'effects.jitter.motion_length_px' must be in"},
       {R"({"jitter": {"shake": 1}})", "unknown key 'effects.jitter.shake'"},
       {R"({"defocus_offset": {"dx_px": 9}})", "'effects.defocus_offset.dx_px' must be in"},
-      {R"({"defocus_offset": {}})", "'effects.defocus_offset' needs integrated sampling",
-       Sampling::kPixelCentre},
       {R"([1, 2])", "'effects' must be a JSON object"},
   };
   for (const Case& c : cases) {

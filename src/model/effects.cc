@@ -134,7 +134,7 @@ std::vector<EffectInfo> MakeCatalogue() {
                 Param("sigma_px", "px", halo.sigma_px, 1.0, 8.0, 0.0, true, kInf, true,
                       "halo Gaussian sigma")}});
   c.push_back({EffectKind::kDefocusOffset, "defocus_offset",
-               "defocus kernel centred away from the Airy centre (integrated sampling only)",
+               "defocus kernel centred away from the Airy centre (integrated: exactly a shift)",
                true, true,
                {Param("dx_px", "px", offset.dx_px, -0.5, 0.5, -5.0, false, 5.0, false,
                       "defocus-kernel centre minus Airy centre along x"),
@@ -366,10 +366,10 @@ SpotParams AdjustSpotParams(const ModelOptions& options, const ExposureEffects& 
     p[kCcdSigmaX] = std::hypot(p[kCcdSigmaX], effects.jitter->sigma_x_px);
     p[kCcdSigmaY] = std::hypot(p[kCcdSigmaY], effects.jitter->sigma_y_px);
   }
-  if (effects.defocus_offset) {
-    CHECK(options.sampling == Sampling::kIntegrated)
-        << "defocus_offset is available in integrated sampling only";
-    // A convolution with a shifted kernel is the unshifted convolution, shifted.
+  if (effects.defocus_offset && options.sampling == Sampling::kIntegrated) {
+    // A convolution with a shifted kernel is the unshifted convolution, shifted. (In
+    // pixel_centre sampling the renderer centres its F kernel away from the Airy instead:
+    // RenderSpotWithKernelEffects.)
     p[kCentreX] += effects.defocus_offset->dx_px;
     p[kCentreY] += effects.defocus_offset->dy_px;
   }
@@ -439,8 +439,16 @@ void RenderSpotWithKernelEffects(const SpotRenderer& renderer, const ExposureEff
                               std::hypot(f, centre[kCcdSigmaY]), options.relative_tolerance);
     }
   }
+  // pixel_centre: the defocus offset goes to the renderer (AdjustSpotParams left it out).
+  const bool pc_offset = effects.defocus_offset && options.sampling == Sampling::kPixelCentre;
+  const double odx = pc_offset ? effects.defocus_offset->dx_px : 0.0;
+  const double ody = pc_offset ? effects.defocus_offset->dy_px : 0.0;
   if (n == 1) {
-    renderer.Render(centre, grid, model, nullptr);
+    if (pc_offset) {
+      renderer.RenderWithDefocusOffset(centre, odx, ody, grid, model, nullptr);
+    } else {
+      renderer.Render(centre, grid, model, nullptr);
+    }
   } else {
     std::fill(model, model + grid.size(), 0.0);
     std::vector<double> one(grid.size());
@@ -448,7 +456,11 @@ void RenderSpotWithKernelEffects(const SpotRenderer& renderer, const ExposureEff
       SpotParams p = centre;
       p[kCentreX] += node.dx_px;
       p[kCentreY] += node.dy_px;
-      renderer.Render(p, grid, one.data(), nullptr);
+      if (pc_offset) {
+        renderer.RenderWithDefocusOffset(p, odx, ody, grid, one.data(), nullptr);
+      } else {
+        renderer.Render(p, grid, one.data(), nullptr);
+      }
       for (int q = 0; q < grid.size(); ++q) model[q] += node.weight * one[q];
     }
   }
@@ -463,6 +475,8 @@ void RenderSpotWithKernelEffects(const SpotRenderer& renderer, const ExposureEff
     details->rendered_sigma_y_px = centre[kCcdSigmaY];
     details->centre_x_px = centre[kCentreX];
     details->centre_y_px = centre[kCentreY];
+    details->defocus_centre_x_px = centre[kCentreX] + odx;
+    details->defocus_centre_y_px = centre[kCentreY] + ody;
     details->motion_nodes = n;
   }
 }
@@ -644,6 +658,7 @@ bool ParseJitter(const json& object, int num_exposures, EffectsConfig* out,
 
 bool ParseEffectsConfig(const json& effects, int num_exposures, Sampling sampling,
                         EffectsConfig* out, std::string* error) {
+  (void)sampling;  // every effect renders in both samplings
   if (!effects.is_object()) {
     *error = "'effects' must be a JSON object of effects by catalogue name";
     return false;
@@ -669,11 +684,7 @@ bool ParseEffectsConfig(const json& effects, int num_exposures, Sampling samplin
       *error = "'" + path + "' must be a JSON object of parameters ({} for the defaults)";
       return false;
     }
-    if (kind == EffectKind::kDefocusOffset && sampling != Sampling::kIntegrated) {
-      *error = "'effects.defocus_offset' needs integrated sampling: the pixel_centre renderer "
-               "(the 2015 recipe) centres its defocus kernel on the Airy centre";
-      return false;
-    }
+
     if (kind == EffectKind::kJitter) {
       if (!ParseJitter(it.value(), num_exposures, &config, error)) return false;
       continue;
