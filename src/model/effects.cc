@@ -50,10 +50,15 @@ EffectParameterInfo Param(const std::string& name, const std::string& unit, doub
 //   1.14e-5 / 12 / 2.3548 = 4.03e-7 px per e-, so sigma grows by 0.064 px at I = 160 ke-.
 //   The prior reaches 5x the paper's slope.
 // serial_cti / parallel_cti: f is the total fraction of a pixel's charge found in its trail
-//   (for a linear CTI of c per transfer after n transfers, f ~ n c). Irradiated CCD273s show
-//   trail fractions of 1e-4..1e-3 for spots near the readout; 5e-4 is the middle of that range
-//   in log. Traps with release times of one to a few transfer periods give trails of 1-2 px:
-//   1.5 px. Unirradiated devices (the paper's) show far less.
+//   (for a linear CTI of c per transfer after n transfers, f ~ n c). A CCD273 quadrant has
+//   ~2066 rows and ~2048 columns per output, so a spot in the middle of it is ~1000 parallel
+//   and ~1000 serial transfers from its output. For a bright (1e5 e-) packet in an
+//   unirradiated device, as the paper's, c is of order 1e-6 per transfer: f ~ 1e-3, the
+//   default. After the Euclid end-of-life proton fluence c grows to ~1e-5 at such signals
+//   (f ~ 1e-2, the prior's upper end). Both are orders of magnitude: c depends on the signal,
+//   the temperature, the clocking and the background. Traps with release times of one to a
+//   few transfer periods give trails of 1-2 px: 1.5 px (slower traps release their charge far
+//   outside a 21 x 21 stamp, where it is a loss of flux, not a trail).
 // ipc: interpixel coupling is ~0.5-2 % per neighbour in hybrid CMOS arrays; in a CCD the
 //   analogous electrostatic coupling is expected to be smaller, so 1 % is a strong but
 //   realistic test injection.
@@ -62,8 +67,10 @@ EffectParameterInfo Param(const std::string& name, const std::string& unit, doub
 //   motion by default (a linear drift is the alternative).
 // background: a bias-subtraction residual of 20 e- (about 6 ADU at 3.1 e-/ADU): a few times
 //   the read noise, typical of a bias estimated from a drifting prescan.
-// nonlinearity: CCD273 output amplifiers are linear to 1-2 % up to 160 ke-;
-//   beta = 1e-7 / e- gives 1.6 % at 160 ke-.
+// nonlinearity: a CCD output chain is typically linear to a few tenths of a percent up to
+//   ~1 % near full well (~200 ke- for the CCD273). beta = 3e-8 / e- puts the response 0.48 %
+//   low at the paper's brightest peaks (160 ke-) and 0.6 % at full well: mid-range. (The
+//   previous default, 1e-7, was 1.6 % at 160 ke-: the pessimistic end.)
 // halo: red light (800-900 nm) penetrates deep into the silicon and is partly reflected from
 //   the back, spreading a few % of the light over 2-3 px: fraction 3 %, sigma 2.5 px.
 // defocus_offset: a misaligned pinhole image (coma-like) shifting the defocus blur by a

@@ -121,8 +121,11 @@ struct BrighterFatterParams {
   double slope_y_px_per_e = 4.0e-7;
 };
 
+// Realistic strength (effects.cc has the reasoning): f = 1e-3, the order of n c for a spot
+// ~1000 transfers from the output of an unirradiated CCD273 (c ~ 1e-6 per transfer for a
+// bright charge packet); an irradiated device at the Euclid end-of-life fluence reaches ~1e-2.
 struct CtiParams {
-  double trail_fraction = 5.0e-4;  // fraction f of each pixel's charge found in its trail
+  double trail_fraction = 1.0e-3;  // fraction f of each pixel's charge found in its trail
   double trail_length_px = 1.5;    // e-folding length L of the trail [px]
 };
 
@@ -143,8 +146,10 @@ struct BackgroundParams {
   double pedestal_e = 20.0;  // added to every pixel [e-] (may be negative)
 };
 
+// Realistic strength: beta = 3e-8 / e-, a response 0.5 % low at 160 ke- (0.6 % at the ~200 ke-
+// full well): the few-tenths-of-a-percent to one percent of a CCD output chain near full well.
 struct NonlinearityParams {
-  double beta_per_e = 1.0e-7;  // out = in (1 - beta in) [1 / e-]: 1.6 % low at 160 ke-
+  double beta_per_e = 3.0e-8;  // out = in (1 - beta in) [1 / e-]: 0.48 % low at 160 ke-
 };
 
 struct HaloParams {
