@@ -41,7 +41,7 @@ std::vector<std::vector<double>> EffectStarts(EffectKind kind) {
     case EffectKind::kBackground: return {{0.0}};
     case EffectKind::kNonlinearity: return {{2.0e-8}, {1.0e-7}};
     case EffectKind::kHalo: return {{0.01, 1.5}, {0.01, 3.0}, {0.01, 5.0}};
-    case EffectKind::kDefocusOffset: return {{0.0, 0.0}};
+    case EffectKind::kDefocusOffset: return {{0.0, 0.0}, {0.1, 0.1}, {-0.1, -0.1}};
   }
   return {};
 }
@@ -50,7 +50,9 @@ std::vector<std::vector<double>> EffectStarts(EffectKind kind) {
 // mixture); the rest of the effect's parameters count as free.
 int BoundaryParameters(EffectKind kind, int num_parameters) {
   switch (kind) {
-    case EffectKind::kBackground: return 0;  // a pedestal of either sign
+    case EffectKind::kBackground:      // a pedestal of either sign
+    case EffectKind::kDefocusOffset:  // an offset of either sign
+      return 0;
     case EffectKind::kSerialCti:
     case EffectKind::kParallelCti:
     case EffectKind::kHalo: return 1;  // the fraction; the length / width is a nuisance
@@ -97,9 +99,9 @@ std::string NotIdentifiable(const fit::FitModel& base, const ModelSpec& spec, Ef
         return "in integrated sampling a defocus kernel centred away from the Airy is exactly a "
                "shift of the spot, absorbed by the fitted position";
       }
-      return "the pixel_centre (2015) renderer does not support a defocus offset";
+      if (!spec.defocus) return "the model has no defocus to offset";
+      return "";
     default:
-      (void)spec;
       return "";
   }
 }
@@ -191,6 +193,15 @@ Tested TestCandidate(const fit::FitModel& base, const EffectModel& current,
   for (const std::vector<double>& s : EffectStarts(kind)) {
     std::vector<double> p = t.model->FromOther(current, current_fit.p);
     SetEffect(*t.model, kind, s, &p);
+    if (kind == EffectKind::kDefocusOffset) {
+      // In the 2015 model the image sits near 2 x + dx - c (the Airy at x, shifted by the F
+      // kernel's offset x + dx from the kernel centre c): keep it where the data put it.
+      for (int k = 0; k < t.model->num_exposures(); ++k) {
+        const int ix = t.model->XIndex(k), iy = t.model->YIndex(k);
+        p[ix] = std::clamp(p[ix] - 0.5 * s[0], t.model->lower()[ix], t.model->upper()[ix]);
+        p[iy] = std::clamp(p[iy] - 0.5 * s[1], t.model->lower()[iy], t.model->upper()[iy]);
+      }
+    }
     starts.push_back(p);
   }
   if (!FitEffectModel(*t.model, starts, options.fit, &t.fit, &error, data_e)) {
@@ -486,6 +497,10 @@ bool ComputeDetectionThreshold(const fit::FitModel& base, const ModelSpec& spec,
                                const std::vector<double>& p, EffectKind kind, double p_threshold,
                                const DiagnoseOptions& options, DetectionThreshold* out,
                                std::string* error) {
+  if (spec.Has(kind)) {
+    *error = model::ToString(kind) + " is already in the model";
+    return false;
+  }
   auto null_model = EffectModel::Create(base, spec, error);
   if (!null_model) return false;
   ModelSpec with = spec;
@@ -512,6 +527,7 @@ bool ComputeDetectionThreshold(const fit::FitModel& base, const ModelSpec& spec,
   int step = 0;
   for (double multiple : options.thresholds.multiples) {
     const double s = std::min(multiple * strength.default_value, strength.prior_upper);
+    if (!out->strengths.empty() && s <= out->strengths.back()) continue;  // capped: done
     std::vector<double> values = defaults;
     values[0] = s;
     if (kind == EffectKind::kBrighterFatter) values[1] = s;
