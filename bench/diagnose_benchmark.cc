@@ -10,7 +10,7 @@
 //   2. the rate of "no missing effect" on clean three-exposure sets (predictive simulations
 //      off: the decision does not use them);
 //   3. with --thresholds, the detection threshold of every effect for a five-exposure set
-//      (ComputeDetectionThreshold: weakest strength, on a grid of 0.25 to 16 times the
+//      (ComputeDetectionThreshold: weakest strength, on a grid of 1/64 to 16 times the
 //      catalogue default, named in >= 80 % of simulations). --only restricts it to the
 //      effects whose names appear in the list; --no_sets skips sections 1 and 2.
 // Not a Google Benchmark timing loop: one pass, printed as a table.
@@ -246,7 +246,8 @@ int main(int argc, char** argv) {
       options.baseline_defocus = tc.baseline_defocus;
       options.predictive.num_simulations = 0;
       options.thresholds.num_simulations = threshold_sims;
-      options.thresholds.multiples = {0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0};
+      options.thresholds.multiples = {1.0 / 64, 1.0 / 32, 1.0 / 16, 0.125, 0.25, 0.5,
+                                      1.0,      2.0,      4.0,      8.0,   16.0};
       DiagnoseResult r;
       const auto t0 = std::chrono::steady_clock::now();
       if (!base || !RunDiagnosis(*base, options, &r, &error)) {

@@ -361,6 +361,24 @@ TEST(Diagnose, ReportHasTheDocumentedFields) {
   EXPECT_EQ(j["rounds"][1]["model"]["effects"], nlohmann::json::array({"background"}));
   EXPECT_TRUE(j["final_fit"]["effects"]["background"]["pedestal_e"]["laplace_sd"].is_number());
   EXPECT_FALSE(j["detection_thresholds"]["computed"].get<bool>());
+  // Every effect not named is listed with its realistic strength; where it was tested, with a
+  // reference threshold for paper-like data; where not, with the reason.
+  const nlohmann::json& not_named = j["detection_thresholds"]["not_named"];
+  ASSERT_EQ(not_named.size(), model::AllEffectKinds().size() - 1);
+  for (const nlohmann::json& e : not_named) {
+    const std::string name = e["name"].get<std::string>();
+    EXPECT_NE(name, "background");
+    EXPECT_TRUE(e["realistic"].is_number()) << name;
+    if (name == "ipc") {
+      EXPECT_EQ(e["status"], "tested");
+      EXPECT_TRUE(e["threshold"].is_number());
+      EXPECT_EQ(e["threshold_source"].get<std::string>().rfind("reference", 0), 0u);
+    }
+    if (name == "brighter_fatter") {
+      EXPECT_EQ(e["status"], "not_identifiable");
+      EXPECT_FALSE(e["reason"].get<std::string>().empty());
+    }
+  }
   EXPECT_TRUE(fs::exists(dir + "/report.md"));
   EXPECT_TRUE(fs::exists(dir + "/stacked_residuals.gp"));
   EXPECT_TRUE(fs::exists(dir + "/flag_background.gp"));

@@ -342,6 +342,41 @@ bool DiagnoseOptions::IsValid(std::string* error) const {
   return true;
 }
 
+const std::vector<ReferenceThreshold>& ReferenceThresholds() {
+  // bench/diagnose_benchmark.cc --no_sets --thresholds (section 3), 10 simulations per
+  // strength. Sets: PaperConfig(sampling, 5 exposures, seed 77), noise seed 78.
+  using model::EffectKind;
+  using model::Sampling;
+  const std::string paper =
+      "5 exposures, ~1.5e5 e- peak, paper's spot (r 0.47, defocus 0.41, CCD 0.291/0.335), "
+      "baseline with defocus";
+  const std::string multi =
+      "5 exposures at 1.5e5 to 3.7e4 e- peak, paper's spot, baseline with defocus";
+  const std::string focus = "5 exposures at total flux 4e5 to 1e5 e-, in focus, baseline "
+                            "without defocus";
+  const std::string pc = "pixel_centre, 5 exposures, peak_e 1.5e5, paper's spot";
+  const Sampling in = Sampling::kIntegrated, px = Sampling::kPixelCentre;
+  static const std::vector<ReferenceThreshold>* const table = new std::vector<ReferenceThreshold>{
+      {EffectKind::kBackground, in, true, "background.pedestal_e", 0.625, false, paper},
+      {EffectKind::kIpc, in, true, "ipc.alpha", 0.0025, false, paper},
+      {EffectKind::kSerialCti, in, true, "serial_cti.trail_fraction", 1e-3, false, paper},
+      {EffectKind::kParallelCti, in, true, "parallel_cti.trail_fraction", 1e-3, false, paper},
+      {EffectKind::kHalo, in, true, "halo.fraction", 0.00375, false, paper + " (halo 2.5 px)"},
+      {EffectKind::kJitter, in, true, "jitter.sigma_x_px", 0.1, false,
+       paper + " (every exposure but the reference)"},
+      {EffectKind::kNonlinearity, in, true, "nonlinearity.beta_per_e", 2.4e-7, false, multi},
+      {EffectKind::kBrighterFatter, in, false, "brighter_fatter.slope_x_px_per_e", 5e-8, false,
+       focus},
+      {EffectKind::kBrighterFatter, in, true, "brighter_fatter.slope_x_px_per_e", 5e-8, false, multi},
+      {EffectKind::kDefocus, px, false, "defocus.sigma_px", 0.41 / 64, true,
+       pc + ", in focus, baseline without defocus (any defocus step is detected: the 2015 "
+            "unit-peak F kernel changes the image discontinuously from no step at all)"},
+      {EffectKind::kDefocusOffset, px, true, "defocus_offset.dx_px", 0.025, false,
+       pc + ", baseline with defocus (null fit started at the truth: optimistic)"},
+  };
+  return *table;
+}
+
 double ChiBarSquarePValue(double lr, int boundary, int free) {
   if (!(lr > 0)) return 1.0;
   double p = 0.0;
