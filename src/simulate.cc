@@ -330,6 +330,8 @@ Image ExpectedElectrons(const SimulationConfig& c, const SimulatedExposure& e,
   if (details != nullptr) {
     details->centre_x_px += c.model.sampling == model::Sampling::kPixelCentre ? ox : 0;
     details->centre_y_px += c.model.sampling == model::Sampling::kPixelCentre ? oy : 0;
+    details->defocus_centre_x_px += c.model.sampling == model::Sampling::kPixelCentre ? ox : 0;
+    details->defocus_centre_y_px += c.model.sampling == model::Sampling::kPixelCentre ? oy : 0;
   }
   for (int j = 0; j < grid.ny; ++j) {
     for (int i = 0; i < grid.nx; ++i) frame(ox + i, oy + j) = model[j * grid.nx + i];
@@ -466,8 +468,8 @@ bool RunSimulation(const SimulationConfig& c, const std::string& out_dir, bool n
                              {"motion_nodes", details.motion_nodes}};
       }
       if (effects.defocus_offset) {
-        applied["defocus_offset"] = {{"defocus_centre_x_px", details.centre_x_px},
-                                     {"defocus_centre_y_px", details.centre_y_px}};
+        applied["defocus_offset"] = {{"defocus_centre_x_px", details.defocus_centre_x_px},
+                                     {"defocus_centre_y_px", details.defocus_centre_y_px}};
       }
       if (effects.HasKernelEffects()) {
         applied["rendered_ccd_sigma_x_px"] = details.rendered_sigma_x_px;

@@ -5,23 +5,23 @@
 // Sets: the paper's simulation (tests/support/simulated_stamps.h: r 0.47, Gaussian defocus
 // 0.41, CCD 0.291 / 0.335, ~1.5e5 e- peak), 3 exposures, 8 predictive simulations per round
 // (kept small: the statistics' p-values are reported, the decision rests on the likelihood
-// evidence). Strengths, and why (catalogue defaults are in model/effects.cc):
-//   background    20 e-: the catalogue default (a bias residual of ~6 ADU);
+// evidence). Strengths, and why (the catalogue defaults are the realistic strengths; the
+// reasoning is in model/effects.cc; detection thresholds in bench/diagnose_benchmark.cc):
+//   background    20 e-: the default (a bias residual of ~6 ADU);
 //   ipc           alpha 0.01: the default;
 //   halo          3 % at sigma 2.5 px: the default;
-//   nonlinearity  beta 1e-7 / e-: the default (1.5 % low at the 1.5e5 e- peak), on a set at
-//                 three intensities (at one it is mostly absorbed by the widths);
-//   serial_cti,   trail fraction 5e-3, length 1.5 px: ten times the default. The default
-//   parallel_cti  (5e-4, mid-range for irradiated CCD273s near the readout) moves ~40 e- per
-//                 pixel next to a 1.5e5 e- peak and is below what three exposures detect (see
-//                 bench/diagnose_benchmark.cc for the thresholds); 5e-3 is a device far from
-//                 its readout or late in life;
+//   serial_cti,   trail fraction 1e-3, length 1.5 px: the default (~1000 transfers at ~1e-6
+//   parallel_cti  per transfer, an unirradiated CCD273);
+//   nonlinearity  the realistic beta 3e-8 / e- (0.45 % low at the 1.5e5 e- peak) is below
+//                 detection and must not be claimed; ten times it (3e-7) is named, on a set
+//                 at three intensities (at one it is mostly absorbed by the widths);
 //   brighter_fatter  the paper's slope 4e-7 px/e- on both axes, on a set at three intensities
 //                 (total 4e5, 2e5, 1e5 e-): the slope is identified only across intensities,
 //                 and (as a slope of the CCD widths) only where those are identified: data
 //                 without defocus and a baseline without it;
 //   jitter        per exposure 0, 0.15, 0.25 px (isotropic): vibration differing between
-//                 exposures; a jitter common to all exposures is exactly the CCD widths.
+//                 exposures; a jitter common to all exposures is exactly the CCD widths;
+//   defocus       the paper's 0.41 px, in pixel_centre sampling with a baseline without it.
 #include "ccdpsf/diagnose/diagnose.h"
 
 #include <sys/wait.h>
@@ -81,6 +81,25 @@ std::string Named(const DiagnoseResult& r) {
   return s.empty() ? "(none)" : s;
 }
 
+// One line per round: chi2/dof, and each tested candidate's LR and delta BIC (for failure
+// messages).
+std::string Rounds(const DiagnoseResult& r) {
+  std::string s;
+  char buf[160];
+  for (const RoundResult& round : r.rounds) {
+    std::snprintf(buf, sizeof buf, "\n  %s: chi2/dof %.4f;", round.spec.Describe().c_str(),
+                  round.statistics.chi2_per_dof);
+    s += buf;
+    for (const CandidateResult& c : round.candidates) {
+      if (c.status != CandidateResult::Status::kTested) continue;
+      std::snprintf(buf, sizeof buf, " %s LR %.1f dBIC %.1f;", model::ToString(c.kind).c_str(),
+                    c.lr, c.delta_bic);
+      s += buf;
+    }
+  }
+  return s;
+}
+
 // The MAP and Laplace sd of parameter `name` in the final model.
 bool FinalParameter(const DiagnoseResult& r, const std::string& name, double* map, double* sd) {
   const RoundResult& last = r.rounds.back();
@@ -99,7 +118,7 @@ void ExpectFound(const Outcome& o, const std::vector<EffectKind>& expected,
                  const std::vector<std::pair<std::string, double>>& truth) {
   ASSERT_TRUE(o.ok) << o.error;
   const DiagnoseResult& r = o.result;
-  ASSERT_EQ(r.named.size(), expected.size()) << Named(r);
+  ASSERT_EQ(r.named.size(), expected.size()) << Named(r) << Rounds(r);
   for (EffectKind k : expected) {
     EXPECT_NE(std::find(r.named.begin(), r.named.end(), k), r.named.end())
         << model::ToString(k) << " not named: " << Named(r);
@@ -166,16 +185,16 @@ TEST(Diagnose, FindsIpc) {
 
 TEST(Diagnose, FindsSerialCti) {
   SimulationConfig c = Paper();
-  c.effects.serial_cti = model::CtiParams{5e-3, 1.5};
+  c.effects.serial_cti = model::CtiParams{1e-3, 1.5};
   ExpectFound(Diagnose(testing_support::SimulateStamps(c, 8)), {EffectKind::kSerialCti},
-              {{"serial_cti.trail_fraction", 5e-3}, {"serial_cti.trail_length_px", 1.5}});
+              {{"serial_cti.trail_fraction", 1e-3}, {"serial_cti.trail_length_px", 1.5}});
 }
 
 TEST(Diagnose, FindsParallelCti) {
   SimulationConfig c = Paper();
-  c.effects.parallel_cti = model::CtiParams{5e-3, 1.5};
+  c.effects.parallel_cti = model::CtiParams{1e-3, 1.5};
   ExpectFound(Diagnose(testing_support::SimulateStamps(c, 9)), {EffectKind::kParallelCti},
-              {{"parallel_cti.trail_fraction", 5e-3}, {"parallel_cti.trail_length_px", 1.5}});
+              {{"parallel_cti.trail_fraction", 1e-3}, {"parallel_cti.trail_length_px", 1.5}});
 }
 
 TEST(Diagnose, FindsHalo) {
@@ -191,6 +210,9 @@ TEST(Diagnose, FindsNonlinearityAcrossIntensities) {
   SimulationConfig c = Paper();
   const double flux[] = {4.0e5, 2.0e5, 1.0e5};
   for (int k = 0; k < 3; ++k) c.exposures[k].flux_e = flux[k];
+  // 3e-7 / e- is ten times the realistic strength (4.5 % low at 1.5e5 e-): the realistic one
+  // is below detection (RealisticNonlinearityIsBelowDetection); this shows the effect is
+  // named, and its beta recovered, once it is strong enough to be seen.
   c.effects.nonlinearity = model::NonlinearityParams{3e-7};
   ExpectFound(Diagnose(testing_support::SimulateStamps(c, 12)), {EffectKind::kNonlinearity},
               {{"nonlinearity.beta_per_e", 3e-7}});
@@ -234,11 +256,52 @@ TEST(Diagnose, FindsJitterPerExposure) {
 
 TEST(Diagnose, FindsTwoEffects) {
   SimulationConfig c = Paper();
-  c.effects.serial_cti = model::CtiParams{5e-3, 1.5};
+  c.effects.serial_cti = model::CtiParams{1e-3, 1.5};
   c.effects.background = model::BackgroundParams{20.0};
   ExpectFound(Diagnose(testing_support::SimulateStamps(c, 15)),
               {EffectKind::kSerialCti, EffectKind::kBackground},
-              {{"serial_cti.trail_fraction", 5e-3}, {"background.pedestal_e", 20.0}});
+              {{"serial_cti.trail_fraction", 1e-3}, {"background.pedestal_e", 20.0}});
+}
+
+TEST(Diagnose, FindsDefocusInPixelCentreSampling) {
+  // In the 2015 discretisation (pixel_centre) the sampled defocus and CCD Gaussians do not
+  // combine into one Gaussian (DESIGN.md pitfall 2), so a baseline without the defocus misses
+  // something the widths cannot absorb, and "defocus" is named. The paper's defocus, 0.41 px.
+  SimulationConfig c = testing_support::PaperConfig(model::Sampling::kPixelCentre, 3, 21);
+  DiagnoseOptions options = TestOptions();
+  options.baseline_defocus = false;
+  fit::FitModelOptions fo;
+  fo.model.sampling = model::Sampling::kPixelCentre;
+  Outcome o;
+  auto base = fit::FitModel::Create(testing_support::SimulateStamps(c, 22), fo, &o.error);
+  ASSERT_TRUE(base) << o.error;
+  o.ok = RunDiagnosis(*base, options, &o.result, &o.error);
+  ExpectFound(o, {EffectKind::kDefocus}, {{"defocus_sigma_px", 0.41}});
+}
+
+Outcome DiagnosePixelCentre(const SimulationConfig& c, uint64_t noise_seed,
+                            const DiagnoseOptions& options = TestOptions()) {
+  fit::FitModelOptions fo;
+  fo.model.sampling = model::Sampling::kPixelCentre;
+  Outcome o;
+  auto base = fit::FitModel::Create(testing_support::SimulateStamps(c, noise_seed), fo, &o.error);
+  if (!base) return o;
+  o.ok = RunDiagnosis(*base, options, &o.result, &o.error);
+  return o;
+}
+
+TEST(Diagnose, CleanPixelCentreDataNamesNothing) {
+  // In pixel_centre sampling defocus_offset is tested (the 2015 F kernel can move away from
+  // the Airy); on data without it, it must not be claimed, nor anything else.
+  const Outcome o =
+      DiagnosePixelCentre(testing_support::PaperConfig(model::Sampling::kPixelCentre, 3, 25), 26);
+  ASSERT_TRUE(o.ok) << o.error;
+  EXPECT_TRUE(o.result.named.empty()) << Named(o.result) << Rounds(o.result);
+  bool tested = false;
+  for (const CandidateResult& c : o.result.rounds[0].candidates) {
+    if (c.kind == EffectKind::kDefocusOffset) tested = c.status == CandidateResult::Status::kTested;
+  }
+  EXPECT_TRUE(tested);
 }
 
 TEST(Diagnose, DefocusOffsetIsNotClaimed) {
@@ -254,13 +317,18 @@ TEST(Diagnose, DefocusOffsetIsNotClaimed) {
   EXPECT_LT(std::fabs(x - (c.exposures[0].x_px + 0.1)), 3 * sd);
 }
 
-TEST(Diagnose, WeakEffectIsNotClaimed) {
-  // The catalogue's default CTI (5e-4) moves ~40 e- next to the peak: below detection here.
+TEST(Diagnose, RealisticNonlinearityIsBelowDetection) {
+  // The catalogue's realistic nonlinearity (beta 3e-8 / e-: 0.45 % low at the 1.5e5 e- peak)
+  // across three intensities: mostly absorbed by the widths and fluxes, it is below what such
+  // data detect (bench/diagnose_benchmark.cc: named in 0 of 10 simulations of a five-intensity
+  // set up to 6e-8, 1 of 10 at 1.2e-7, 10 of 10 at 2.4e-7), so nothing may be claimed.
   SimulationConfig c = Paper();
-  c.effects.serial_cti = model::CtiParams{5e-4, 1.5};
+  const double flux[] = {4.0e5, 2.0e5, 1.0e5};
+  for (int k = 0; k < 3; ++k) c.exposures[k].flux_e = flux[k];
+  c.effects.nonlinearity = model::NonlinearityParams{3e-8};
   const Outcome o = Diagnose(testing_support::SimulateStamps(c, 17));
   ASSERT_TRUE(o.ok) << o.error;
-  EXPECT_TRUE(o.result.named.empty()) << Named(o.result);
+  EXPECT_TRUE(o.result.named.empty()) << Named(o.result) << Rounds(o.result);
 }
 
 TEST(Diagnose, ReportHasTheDocumentedFields) {
@@ -293,6 +361,24 @@ TEST(Diagnose, ReportHasTheDocumentedFields) {
   EXPECT_EQ(j["rounds"][1]["model"]["effects"], nlohmann::json::array({"background"}));
   EXPECT_TRUE(j["final_fit"]["effects"]["background"]["pedestal_e"]["laplace_sd"].is_number());
   EXPECT_FALSE(j["detection_thresholds"]["computed"].get<bool>());
+  // Every effect not named is listed with its realistic strength; where it was tested, with a
+  // reference threshold for paper-like data; where not, with the reason.
+  const nlohmann::json& not_named = j["detection_thresholds"]["not_named"];
+  ASSERT_EQ(not_named.size(), model::AllEffectKinds().size() - 1);
+  for (const nlohmann::json& e : not_named) {
+    const std::string name = e["name"].get<std::string>();
+    EXPECT_NE(name, "background");
+    EXPECT_TRUE(e["realistic"].is_number()) << name;
+    if (name == "ipc") {
+      EXPECT_EQ(e["status"], "tested");
+      EXPECT_TRUE(e["threshold"].is_number());
+      EXPECT_EQ(e["threshold_source"].get<std::string>().rfind("reference", 0), 0u);
+    }
+    if (name == "brighter_fatter") {
+      EXPECT_EQ(e["status"], "not_identifiable");
+      EXPECT_FALSE(e["reason"].get<std::string>().empty());
+    }
+  }
   EXPECT_TRUE(fs::exists(dir + "/report.md"));
   EXPECT_TRUE(fs::exists(dir + "/stacked_residuals.gp"));
   EXPECT_TRUE(fs::exists(dir + "/flag_background.gp"));

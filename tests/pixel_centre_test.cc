@@ -125,5 +125,125 @@ TEST(PixelCentreSampling, ValuesDoNotDependOnJacobianRequest) {
   }
 }
 
+// The 2015 recipe written out directly (DESIGN.md pitfall 2), with the two extensions of
+// pixel_centre_renderer.cc: F centred at (x + dx, y + dy), and sigma_f = 0 meaning no F
+// step. Full 2-D 'same' convolutions (not the renderer's separable 1-D passes) and J1 from
+// the standard library (std::cyl_bessel_j, not the renderer's table): independent code.
+std::vector<double> Direct2015(const SpotParams& p, double dx, double dy, int n) {
+  const int c = static_cast<int>(n / 2.0 - 0.5);
+  const double scale = p[kAiryRadius] / kAiryRz;
+  auto profile = [&](double X, double Y) {
+    const double q = std::hypot(X - p[kCentreX], Y - p[kCentreY]) / scale;
+    if (q == 0.0) return 1.0;
+    const double v = M_PI * q;
+    const double a = 2.0 * std::cyl_bessel_j(1.0, v) / v;
+    return a * a;
+  };
+  const double amp = p[kFlux] / profile(c, c);
+  std::vector<double> airy(n * n), f(n * n), g(n * n);
+  for (int Y = 0; Y < n; ++Y) {
+    for (int X = 0; X < n; ++X) {
+      airy[Y * n + X] = amp * profile(X, Y);
+      const double fx = X - p[kCentreX] - dx, fy = Y - p[kCentreY] - dy;
+      f[Y * n + X] = std::exp(-(fx * fx + fy * fy) / (2 * p[kDefocus] * p[kDefocus]));
+      const double gx = X - n / 2.0 + 0.5, gy = Y - n / 2.0 + 0.5;
+      g[Y * n + X] = std::exp(-gx * gx / (2 * p[kCcdSigmaX] * p[kCcdSigmaX]) -
+                              gy * gy / (2 * p[kCcdSigmaY] * p[kCcdSigmaY]));
+    }
+  }
+  // scipy's convolve2d(a, k) in 'same' mode: out[i][j] = sum a[l][m] k[i + c - l][j + c - m].
+  auto same = [&](const std::vector<double>& a, const std::vector<double>& k) {
+    std::vector<double> out(n * n, 0.0);
+    for (int i = 0; i < n; ++i) {
+      for (int j = 0; j < n; ++j) {
+        for (int l = 0; l < n; ++l) {
+          for (int m = 0; m < n; ++m) {
+            const int ki = i + c - l, kj = j + c - m;
+            if (ki < 0 || ki >= n || kj < 0 || kj >= n) continue;
+            out[i * n + j] += a[l * n + m] * k[ki * n + kj];
+          }
+        }
+      }
+    }
+    return out;
+  };
+  return same(p[kDefocus] == 0.0 ? airy : same(airy, f), g);
+}
+
+// The defocus offset and the "no defocus step" extensions against the direct recipe, within
+// the tolerance of ReproducesThe2015PythonCode (the same argument: rounding of sums of
+// non-negative terms, and the table's a(v) against the library's J1). A zero offset is
+// bit-identical to Render (the 2015 output is untouched), and an offset is not a shift of
+// the whole spot (the Airy stays put), unlike in integrated sampling.
+TEST(PixelCentreSampling, DefocusOffsetAndNoDefocusMatchTheDirectRecipe) {
+  ModelOptions options;
+  options.sampling = Sampling::kPixelCentre;
+  SpotRenderer renderer(options);
+  PixelGrid grid;
+  grid.nx = grid.ny = 15;
+  const SpotParams p = {1.5e5, 7.07, 6.96, 0.47, 0.41, 0.291, 0.335};
+  const auto max_of = [](const std::vector<double>& v) {
+    return *std::max_element(v.begin(), v.end());
+  };
+  struct Case {
+    double sigma_f, dx, dy;
+  };
+  for (const Case& c : {Case{0.41, 0.0, 0.0}, Case{0.41, 0.2, -0.15}, Case{0.6, -0.3, 0.25},
+                        Case{0.0, 0.0, 0.0}}) {
+    SpotParams q = p;
+    q[kDefocus] = c.sigma_f;
+    std::vector<double> model(grid.size());
+    renderer.RenderWithDefocusOffset(q, c.dx, c.dy, grid, model.data(), nullptr);
+    const std::vector<double> direct = Direct2015(q, c.dx, c.dy, grid.nx);
+    double worst = 0.0;
+    for (int k = 0; k < grid.size(); ++k) worst = std::max(worst, std::abs(model[k] - direct[k]));
+    EXPECT_LE(worst / max_of(direct), kRelativeTolerance)
+        << "sigma_f " << c.sigma_f << " offset " << c.dx << ", " << c.dy;
+  }
+  std::vector<double> plain(grid.size()), zero(grid.size()), moved(grid.size()),
+      offset(grid.size());
+  renderer.Render(p, grid, plain.data(), nullptr);
+  renderer.RenderWithDefocusOffset(p, 0.0, 0.0, grid, zero.data(), nullptr);
+  EXPECT_EQ(plain, zero);
+  SpotParams shifted = p;
+  shifted[kCentreX] += 0.2;
+  renderer.Render(shifted, grid, moved.data(), nullptr);
+  renderer.RenderWithDefocusOffset(p, 0.2, 0.0, grid, offset.data(), nullptr);
+  double diff = 0.0;
+  for (int k = 0; k < grid.size(); ++k) diff = std::max(diff, std::abs(moved[k] - offset[k]));
+  EXPECT_GT(diff / max_of(moved), 1e-3);
+}
+
+// The Jacobian with a defocus offset against central differences of the values: step
+// h = 1e-6 max(|p|, 1), truncation O(h^2) and rounding O(eps / h) both far below the 1e-6
+// tolerance, taken relative to the largest derivative with respect to that parameter.
+TEST(PixelCentreSampling, DefocusOffsetJacobianMatchesDifferences) {
+  ModelOptions options;
+  options.sampling = Sampling::kPixelCentre;
+  SpotRenderer renderer(options);
+  PixelGrid grid;
+  grid.nx = grid.ny = 11;
+  const SpotParams p = {1.5e5, 5.07, 4.96, 0.47, 0.41, 0.291, 0.335};
+  const double dx = 0.15, dy = -0.1;
+  std::vector<double> model(grid.size()), jacobian(grid.size() * kNumSpotParams);
+  renderer.RenderWithDefocusOffset(p, dx, dy, grid, model.data(), jacobian.data());
+  for (int k = 0; k < kNumSpotParams; ++k) {
+    const double h = 1e-6 * std::max(std::abs(p[k]), 1.0);
+    SpotParams a = p, b = p;
+    a[k] += h;
+    b[k] -= h;
+    std::vector<double> ma(grid.size()), mb(grid.size());
+    renderer.RenderWithDefocusOffset(a, dx, dy, grid, ma.data(), nullptr);
+    renderer.RenderWithDefocusOffset(b, dx, dy, grid, mb.data(), nullptr);
+    double scale = 0.0, worst = 0.0;
+    for (int q = 0; q < grid.size(); ++q) {
+      const double numeric = (ma[q] - mb[q]) / (2 * h);
+      scale = std::max(scale, std::abs(numeric));
+      worst = std::max(worst, std::abs(numeric - jacobian[q * kNumSpotParams + k]));
+    }
+    EXPECT_LE(worst, 1e-6 * scale) << "parameter " << k;
+  }
+}
+
 }  // namespace
 }  // namespace ccdpsf::model

@@ -392,14 +392,30 @@ TEST(Simulate, ExpectedImageComposesTheEffectsInTheDocumentedOrder) {
       for (int x = 0; x < 15; ++x) EXPECT_EQ(frame(x + 3, y), area[y * 15 + x]) << x << "," << y;
     }
   }
-  // defocus_offset cannot be rendered in pixel_centre sampling.
-  std::string text = WithEffects(R"({"defocus_offset": {"dx_px": 0.2}})");
+  // defocus_offset in pixel_centre sampling: the 2015 F kernel centred away from the Airy on
+  // the stamp (SpotRenderer::RenderWithDefocusOffset), nothing else changed.
+  std::string text = WithEffects(R"({"defocus_offset": {"dx_px": 0.2, "dy_px": -0.1}})");
   text.replace(text.find("\"integrated\""), 12, "\"pixel_centre\"");
-  text.replace(text.find("\"flux_e\""), 8, "\"peak_e\"");
-  std::string error;
-  EXPECT_FALSE(ParseSimulationConfig(text, &error).has_value());
-  EXPECT_NE(error.find("'effects.defocus_offset' needs integrated sampling"), std::string::npos)
-      << error;
+  text.replace(text.find("\"flux_e\": 3.0e5"), 15, "\"peak_e\": 1.5e5");
+  const SimulationConfig c = MustParse(text);
+  const SimulatedExposure& e = c.exposures[0];
+  model::KernelEffectDetails details;
+  const Image frame = ExpectedElectrons(c, e, &details);
+  model::SpotRenderer renderer(c.model);
+  model::SpotParams p = c.Params(e);
+  const int ox = static_cast<int>(std::lround(e.x_px)) - 6;
+  const int oy = static_cast<int>(std::lround(e.y_px)) - 6;
+  p[model::kCentreX] -= ox;
+  p[model::kCentreY] -= oy;
+  const model::PixelGrid grid{13, 13, 0.0, 0.0};
+  std::vector<double> stamp(grid.size());
+  renderer.RenderWithDefocusOffset(p, 0.2, -0.1, grid, stamp.data(), nullptr);
+  for (int j = 0; j < 13; ++j) {
+    for (int i = 0; i < 13; ++i) EXPECT_EQ(frame(ox + i, oy + j), stamp[j * 13 + i]) << i << "," << j;
+  }
+  EXPECT_DOUBLE_EQ(details.centre_x_px, e.x_px);  // the Airy stays where it was
+  EXPECT_DOUBLE_EQ(details.defocus_centre_x_px, e.x_px + 0.2);
+  EXPECT_DOUBLE_EQ(details.defocus_centre_y_px, e.y_px - 0.1);
 }
 
 // The pedestal shifts the mean of (ADU - bias) g by pedestal_e: over 15 x 13 pixels x 300

@@ -17,7 +17,8 @@
 // brighter-fatter signal of an exposure is the peak pixel of its spot rendered with the other
 // kernel effects (model::BrighterFatterSignal, on the image area or the pixel_centre stamp).
 // "defocus" is the model's own component ("model.defocus") and cannot be injected;
-// "defocus_offset" needs integrated sampling. "effects": {} is the same as no "effects".
+// "defocus_offset" in pixel_centre sampling centres the 2015 F kernel away from the Airy
+// (model/effects.h). "effects": {} is the same as no "effects".
 //
 // The configuration is the JSON of DESIGN.md section 2. Extensions beyond it:
 //   "image": {"prescan_x": N}   N bias-only columns at the left of the frame (written as

@@ -41,7 +41,7 @@ std::vector<std::vector<double>> EffectStarts(EffectKind kind) {
     case EffectKind::kBackground: return {{0.0}};
     case EffectKind::kNonlinearity: return {{2.0e-8}, {1.0e-7}};
     case EffectKind::kHalo: return {{0.01, 1.5}, {0.01, 3.0}, {0.01, 5.0}};
-    case EffectKind::kDefocusOffset: return {{0.0, 0.0}};
+    case EffectKind::kDefocusOffset: return {{0.0, 0.0}, {0.1, 0.1}, {-0.1, -0.1}};
   }
   return {};
 }
@@ -50,7 +50,9 @@ std::vector<std::vector<double>> EffectStarts(EffectKind kind) {
 // mixture); the rest of the effect's parameters count as free.
 int BoundaryParameters(EffectKind kind, int num_parameters) {
   switch (kind) {
-    case EffectKind::kBackground: return 0;  // a pedestal of either sign
+    case EffectKind::kBackground:      // a pedestal of either sign
+    case EffectKind::kDefocusOffset:  // an offset of either sign
+      return 0;
     case EffectKind::kSerialCti:
     case EffectKind::kParallelCti:
     case EffectKind::kHalo: return 1;  // the fraction; the length / width is a nuisance
@@ -97,9 +99,9 @@ std::string NotIdentifiable(const fit::FitModel& base, const ModelSpec& spec, Ef
         return "in integrated sampling a defocus kernel centred away from the Airy is exactly a "
                "shift of the spot, absorbed by the fitted position";
       }
-      return "the pixel_centre (2015) renderer does not support a defocus offset";
+      if (!spec.defocus) return "the model has no defocus to offset";
+      return "";
     default:
-      (void)spec;
       return "";
   }
 }
@@ -191,6 +193,15 @@ Tested TestCandidate(const fit::FitModel& base, const EffectModel& current,
   for (const std::vector<double>& s : EffectStarts(kind)) {
     std::vector<double> p = t.model->FromOther(current, current_fit.p);
     SetEffect(*t.model, kind, s, &p);
+    if (kind == EffectKind::kDefocusOffset) {
+      // In the 2015 model the image sits near 2 x + dx - c (the Airy at x, shifted by the F
+      // kernel's offset x + dx from the kernel centre c): keep it where the data put it.
+      for (int k = 0; k < t.model->num_exposures(); ++k) {
+        const int ix = t.model->XIndex(k), iy = t.model->YIndex(k);
+        p[ix] = std::clamp(p[ix] - 0.5 * s[0], t.model->lower()[ix], t.model->upper()[ix]);
+        p[iy] = std::clamp(p[iy] - 0.5 * s[1], t.model->lower()[iy], t.model->upper()[iy]);
+      }
+    }
     starts.push_back(p);
   }
   if (!FitEffectModel(*t.model, starts, options.fit, &t.fit, &error, data_e)) {
@@ -329,6 +340,41 @@ bool DiagnoseOptions::IsValid(std::string* error) const {
     }
   }
   return true;
+}
+
+const std::vector<ReferenceThreshold>& ReferenceThresholds() {
+  // bench/diagnose_benchmark.cc --no_sets --thresholds (section 3), 10 simulations per
+  // strength. Sets: PaperConfig(sampling, 5 exposures, seed 77), noise seed 78.
+  using model::EffectKind;
+  using model::Sampling;
+  const std::string paper =
+      "5 exposures, ~1.5e5 e- peak, paper's spot (r 0.47, defocus 0.41, CCD 0.291/0.335), "
+      "baseline with defocus";
+  const std::string multi =
+      "5 exposures at 1.5e5 to 3.7e4 e- peak, paper's spot, baseline with defocus";
+  const std::string focus = "5 exposures at total flux 4e5 to 1e5 e-, in focus, baseline "
+                            "without defocus";
+  const std::string pc = "pixel_centre, 5 exposures, peak_e 1.5e5, paper's spot";
+  const Sampling in = Sampling::kIntegrated, px = Sampling::kPixelCentre;
+  static const std::vector<ReferenceThreshold>* const table = new std::vector<ReferenceThreshold>{
+      {EffectKind::kBackground, in, true, "background.pedestal_e", 0.625, false, paper},
+      {EffectKind::kIpc, in, true, "ipc.alpha", 0.0025, false, paper},
+      {EffectKind::kSerialCti, in, true, "serial_cti.trail_fraction", 1e-3, false, paper},
+      {EffectKind::kParallelCti, in, true, "parallel_cti.trail_fraction", 1e-3, false, paper},
+      {EffectKind::kHalo, in, true, "halo.fraction", 0.00375, false, paper + " (halo 2.5 px)"},
+      {EffectKind::kJitter, in, true, "jitter.sigma_x_px", 0.1, false,
+       paper + " (every exposure but the reference)"},
+      {EffectKind::kNonlinearity, in, true, "nonlinearity.beta_per_e", 2.4e-7, false, multi},
+      {EffectKind::kBrighterFatter, in, false, "brighter_fatter.slope_x_px_per_e", 5e-8, false,
+       focus},
+      {EffectKind::kBrighterFatter, in, true, "brighter_fatter.slope_x_px_per_e", 5e-8, false, multi},
+      {EffectKind::kDefocus, px, false, "defocus.sigma_px", 0.41 / 64, true,
+       pc + ", in focus, baseline without defocus (any defocus step is detected: the 2015 "
+            "unit-peak F kernel changes the image discontinuously from no step at all)"},
+      {EffectKind::kDefocusOffset, px, true, "defocus_offset.dx_px", 0.025, false,
+       pc + ", baseline with defocus (null fit started at the truth: optimistic)"},
+  };
+  return *table;
 }
 
 double ChiBarSquarePValue(double lr, int boundary, int free) {
@@ -486,6 +532,10 @@ bool ComputeDetectionThreshold(const fit::FitModel& base, const ModelSpec& spec,
                                const std::vector<double>& p, EffectKind kind, double p_threshold,
                                const DiagnoseOptions& options, DetectionThreshold* out,
                                std::string* error) {
+  if (spec.Has(kind)) {
+    *error = model::ToString(kind) + " is already in the model";
+    return false;
+  }
   auto null_model = EffectModel::Create(base, spec, error);
   if (!null_model) return false;
   ModelSpec with = spec;
@@ -512,6 +562,7 @@ bool ComputeDetectionThreshold(const fit::FitModel& base, const ModelSpec& spec,
   int step = 0;
   for (double multiple : options.thresholds.multiples) {
     const double s = std::min(multiple * strength.default_value, strength.prior_upper);
+    if (!out->strengths.empty() && s <= out->strengths.back()) continue;  // capped: done
     std::vector<double> values = defaults;
     values[0] = s;
     if (kind == EffectKind::kBrighterFatter) values[1] = s;

@@ -147,6 +147,57 @@ int FlaggingStatistic(const ResidualStatistics& st) {
 
 }  // namespace
 
+// For every catalogue effect not named: its realistic strength, whether it was tested in the
+// last round of testing (and why not), and the weakest strength that would have been
+// detected: simulated for these data (--thresholds) or, failing that, the reference value for
+// paper-like data (ReferenceThresholds).
+json NotNamed(const fit::FitModel& base, const DiagnoseResult& result) {
+  const RoundResult* tested = nullptr;
+  for (const RoundResult& r : result.rounds) {
+    if (r.tested) tested = &r;
+  }
+  const model::Sampling sampling = base.options().model.sampling;
+  json out = json::array();
+  for (model::EffectKind kind : model::AllEffectKinds()) {
+    if (std::find(result.named.begin(), result.named.end(), kind) != result.named.end()) continue;
+    const model::EffectInfo& info = model::DescribeEffect(kind);
+    json e = {{"name", info.name},
+              {"parameter", info.name + "." + info.parameters[0].name},
+              {"realistic", info.parameters[0].default_value}};
+    std::string status = "not_a_candidate", reason;
+    if (tested != nullptr) {
+      for (const CandidateResult& c : tested->candidates) {
+        if (c.kind != kind) continue;
+        status = ToString(c.status);
+        reason = c.reason;
+      }
+    }
+    e["status"] = status;
+    e["reason"] = reason.empty() ? json(nullptr) : json(reason);
+    e["threshold"] = nullptr;
+    e["threshold_source"] = nullptr;
+    for (const DetectionThreshold& t : result.thresholds) {
+      if (t.kind != kind) continue;
+      e["threshold"] = Num(t.threshold);
+      e["threshold_source"] = "simulated for these data";
+      e["weakest_tried"] = !t.strengths.empty() && t.threshold == t.strengths.front();
+    }
+    if (e["threshold_source"].is_null()) {
+      for (const ReferenceThreshold& r : ReferenceThresholds()) {
+        if (r.kind != kind || r.sampling != sampling ||
+            r.baseline_defocus != result.rounds.front().spec.defocus) {
+          continue;
+        }
+        e["threshold"] = Num(r.threshold);
+        e["threshold_source"] = "reference: " + r.conditions;
+        e["weakest_tried"] = r.weakest_tried;
+      }
+    }
+    out.push_back(e);
+  }
+  return out;
+}
+
 json DiagnoseJson(const fit::FitModel& base, const DiagnoseResult& result,
                   const DiagnoseOptions& options) {
   json j;
@@ -239,7 +290,8 @@ json DiagnoseJson(const fit::FitModel& base, const DiagnoseResult& result,
                     {"effects", EffectParameters(result)}};
   json th = {{"computed", result.thresholds_computed}};
   if (!result.thresholds_computed) {
-    th["note"] = "not computed (run with --thresholds to simulate them)";
+    th["note"] = "not simulated for these data (run with --thresholds); not_named gives "
+                 "reference thresholds measured on paper-like five-exposure sets";
   } else {
     th["detection_rate"] = options.thresholds.detection_rate;
     th["effects"] = json::array();
@@ -252,6 +304,7 @@ json DiagnoseJson(const fit::FitModel& base, const DiagnoseResult& result,
                                {"simulations_per_strength", t.num_simulations}});
     }
   }
+  th["not_named"] = NotNamed(base, result);
   j["detection_thresholds"] = th;
   j["notes"] = result.notes;
   j["seconds"] = result.seconds;
@@ -318,16 +371,28 @@ std::string Markdown(const DiagnoseResult& result, const json& doc,
     }
   }
   md << "\n## Detection thresholds\n\n";
-  if (!result.thresholds_computed) {
-    md << "Not computed (run with --thresholds): effects not named may still be present below "
-          "the strength these data can detect.\n";
-  } else {
-    for (const DetectionThreshold& t : result.thresholds) {
-      md << "- " << t.parameter << ": "
-         << (std::isfinite(t.threshold) ? "detected (>= 80 % of simulations) from " + Fmt(t.threshold)
-                                        : std::string("not detected up to ") + Fmt(t.strengths.back()))
-         << "\n";
+  md << (result.thresholds_computed
+             ? "Simulated for these data (named in >= 80 % of the simulations at that strength)."
+             : "Not simulated for these data (run with --thresholds); the values are reference "
+               "thresholds for paper-like data, measured by bench/diagnose_benchmark.cc.")
+     << " For each effect not named: its realistic strength, and the weakest strength that "
+        "would have been detected.\n\n";
+  for (const json& e : doc["detection_thresholds"]["not_named"]) {
+    md << "- " << e["parameter"].get<std::string>() << " (realistic "
+       << Fmt(e["realistic"].get<double>()) << "): ";
+    if (e["threshold_source"].is_null()) {
+      md << "no threshold";
+    } else if (e["threshold"].is_null()) {
+      md << "not detected at any strength tried (" << e["threshold_source"].get<std::string>()
+         << ")";
+    } else {
+      md << "detected from " << (e.value("weakest_tried", false) ? "<= " : "")
+         << Fmt(e["threshold"].get<double>()) << " ("
+         << e["threshold_source"].get<std::string>() << ")";
     }
+    if (!e["reason"].is_null()) md << "; here " << e["status"].get<std::string>() << ": "
+                                   << e["reason"].get<std::string>();
+    md << "\n";
   }
   if (!result.notes.empty() || !plot_notes.empty()) {
     md << "\n## Notes\n\n";

@@ -42,9 +42,11 @@ void SetUnchecked(EffectKind kind, const double* v, model::ExposureEffects* e) {
     case EffectKind::kHalo:
       e->halo = model::HaloParams{v[0], v[1]};
       return;
+    case EffectKind::kDefocusOffset:
+      e->defocus_offset = model::DefocusOffsetParams{v[0], v[1]};
+      return;
     case EffectKind::kDefocus:
     case EffectKind::kJitter:
-    case EffectKind::kDefocusOffset:
       break;
   }
   LOG(FATAL) << "SetUnchecked: " << model::ToString(kind);
@@ -195,9 +197,14 @@ std::unique_ptr<EffectModel> EffectModel::Create(const fit::FitModel& base, cons
       *error = "defocus is a baseline component (ModelSpec::defocus), not an added effect";
       return nullptr;
     }
-    if (kind == EffectKind::kDefocusOffset) {
-      *error = "defocus_offset cannot be fitted: in integrated sampling it is exactly a shift of "
-               "the spot, and the pixel_centre renderer does not support it";
+    if (kind == EffectKind::kDefocusOffset &&
+        base.options().model.sampling == model::Sampling::kIntegrated) {
+      *error = "defocus_offset cannot be fitted in integrated sampling: there it is exactly a "
+               "shift of the spot (the positions absorb it)";
+      return nullptr;
+    }
+    if (kind == EffectKind::kDefocusOffset && !spec.defocus) {
+      *error = "defocus_offset needs the defocus component in the model";
       return nullptr;
     }
     if (kind == EffectKind::kJitter && n < 2) {
@@ -387,9 +394,10 @@ model::SpotParams EffectModel::SpotFor(const double* p, int k) const {
   theta[fit::kFluxE] = p[FluxIndex(k)];
   for (int i = fit::kAiryRadiusPx; i <= fit::kCcdSigmaYPx; ++i) {
     const int j = ShapeIndex(i);
-    // Without the defocus component it is held at its smallest allowed value (0 in
-    // integrated sampling; the 2015 model needs a positive width).
-    theta[i] = j >= 0 ? p[j] : base_.lower()[i];
+    // Without the defocus component it is 0: no blur in integrated sampling, no defocus step
+    // at all in the 2015 model (pixel_centre_renderer.cc), whose unit-peak F kernel has no
+    // useful limit at small widths.
+    theta[i] = j >= 0 ? p[j] : 0.0;
   }
   theta[fit::FitModel::XIndex(k)] = p[XIndex(k)];
   theta[fit::FitModel::YIndex(k)] = p[YIndex(k)];

@@ -8,6 +8,15 @@
 //   G = exp(-(X - nx/2 + 0.5)^2 / (2 sigma_x^2) - (Y - ny/2 + 0.5)^2 / (2 sigma_y^2));
 //   M = convolve2d(M1, G, mode='same').
 //
+// Two extensions beyond the 2015 code, neither of which changes its output:
+//   - a defocus offset (dx, dy): F is centred on (x + dx, y + dy) instead of the Airy centre
+//     (the catalogue's defocus_offset). With dx = dy = 0 the arithmetic is the 2015 one
+//     (x + 0.0 is x exactly, for doubles and for Jets alike);
+//   - sigma_f = 0 means "no defocus step": M1 = A. The unit-peak F has no useful limit as
+//     sigma_f -> 0 (at a non-integer x every sample of it goes to 0), so a model without
+//     the defocus component (the paper's first model; diagnose's baseline_defocus = false)
+//     leaves the convolution out instead.
+//
 // Nothing is normalised: m is not the flux. In scipy's 'same' mode the output element (i, j)
 // is the full convolution's element (i + cy, j + cx), so kernel index (cy, cx) is the zero
 // shift. F and G are separable, so each 2-D convolution is done as two 1-D ones; with zero
@@ -125,7 +134,8 @@ void ConvolveColumnsSame(const std::vector<T>& in, const std::vector<T>& kernel,
 }
 
 template <typename T>
-void RenderTemplated(const T* p, int nx, int ny, std::vector<T>* model) {
+void RenderTemplated(const T* p, double defocus_dx, double defocus_dy, int nx, int ny,
+                     std::vector<T>* model) {
   const T& m = p[kFlux];
   const T& x = p[kCentreX];
   const T& y = p[kCentreY];
@@ -145,13 +155,18 @@ void RenderTemplated(const T* p, int nx, int ny, std::vector<T>* model) {
     }
   }
 
-  const T two_sf2 = 2.0 * p[kDefocus] * p[kDefocus];
-  std::vector<T> fx(nx), fy(ny);
-  for (int i = 0; i < nx; ++i) fx[i] = exp(-(double(i) - x) * (double(i) - x) / two_sf2);
-  for (int j = 0; j < ny; ++j) fy[j] = exp(-(double(j) - y) * (double(j) - y) / two_sf2);
   std::vector<T> tmp, m1;
-  ConvolveRowsSame(airy, fx, nx, ny, &tmp);
-  ConvolveColumnsSame(tmp, fy, nx, ny, &m1);
+  if (p[kDefocus] == 0.0) {
+    m1 = airy;  // no defocus step
+  } else {
+    const T two_sf2 = 2.0 * p[kDefocus] * p[kDefocus];
+    const T fcx = x + defocus_dx, fcy = y + defocus_dy;  // F's centre
+    std::vector<T> fx(nx), fy(ny);
+    for (int i = 0; i < nx; ++i) fx[i] = exp(-(double(i) - fcx) * (double(i) - fcx) / two_sf2);
+    for (int j = 0; j < ny; ++j) fy[j] = exp(-(double(j) - fcy) * (double(j) - fcy) / two_sf2);
+    ConvolveRowsSame(airy, fx, nx, ny, &tmp);
+    ConvolveColumnsSame(tmp, fy, nx, ny, &m1);
+  }
 
   const T two_sx2 = 2.0 * p[kCcdSigmaX] * p[kCcdSigmaX];
   const T two_sy2 = 2.0 * p[kCcdSigmaY] * p[kCcdSigmaY];
@@ -171,12 +186,13 @@ void RenderTemplated(const T* p, int nx, int ny, std::vector<T>* model) {
 }  // namespace
 
 void RenderPixelCentre(const model::SpotParams& params, const model::PixelGrid& grid,
-                       double* model_out, double* jacobian) {
+                       double* model_out, double* jacobian, double defocus_dx_px,
+                       double defocus_dy_px) {
   CHECK(grid.x0 == 0.0 && grid.y0 == 0.0) << "pixel_centre sampling works on stamp indices";
   const int npix = grid.size();
   if (jacobian == nullptr) {
     std::vector<double> out;
-    RenderTemplated(params.data(), grid.nx, grid.ny, &out);
+    RenderTemplated(params.data(), defocus_dx_px, defocus_dy_px, grid.nx, grid.ny, &out);
     std::copy(out.begin(), out.end(), model_out);
     return;
   }
@@ -184,7 +200,7 @@ void RenderPixelCentre(const model::SpotParams& params, const model::PixelGrid& 
   Jet p[kNumSpotParams];
   for (int k = 0; k < kNumSpotParams; ++k) p[k] = Jet(params[k], k);
   std::vector<Jet> out;
-  RenderTemplated(p, grid.nx, grid.ny, &out);
+  RenderTemplated(p, defocus_dx_px, defocus_dy_px, grid.nx, grid.ny, &out);
   for (int q = 0; q < npix; ++q) {
     model_out[q] = out[q].a;
     for (int k = 0; k < kNumSpotParams; ++k) jacobian[q * kNumSpotParams + k] = out[q].v[k];

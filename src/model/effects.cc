@@ -50,10 +50,15 @@ EffectParameterInfo Param(const std::string& name, const std::string& unit, doub
 //   1.14e-5 / 12 / 2.3548 = 4.03e-7 px per e-, so sigma grows by 0.064 px at I = 160 ke-.
 //   The prior reaches 5x the paper's slope.
 // serial_cti / parallel_cti: f is the total fraction of a pixel's charge found in its trail
-//   (for a linear CTI of c per transfer after n transfers, f ~ n c). Irradiated CCD273s show
-//   trail fractions of 1e-4..1e-3 for spots near the readout; 5e-4 is the middle of that range
-//   in log. Traps with release times of one to a few transfer periods give trails of 1-2 px:
-//   1.5 px. Unirradiated devices (the paper's) show far less.
+//   (for a linear CTI of c per transfer after n transfers, f ~ n c). A CCD273 quadrant has
+//   ~2066 rows and ~2048 columns per output, so a spot in the middle of it is ~1000 parallel
+//   and ~1000 serial transfers from its output. For a bright (1e5 e-) packet in an
+//   unirradiated device, as the paper's, c is of order 1e-6 per transfer: f ~ 1e-3, the
+//   default. After the Euclid end-of-life proton fluence c grows to ~1e-5 at such signals
+//   (f ~ 1e-2, the prior's upper end). Both are orders of magnitude: c depends on the signal,
+//   the temperature, the clocking and the background. Traps with release times of one to a
+//   few transfer periods give trails of 1-2 px: 1.5 px (slower traps release their charge far
+//   outside a 21 x 21 stamp, where it is a loss of flux, not a trail).
 // ipc: interpixel coupling is ~0.5-2 % per neighbour in hybrid CMOS arrays; in a CCD the
 //   analogous electrostatic coupling is expected to be smaller, so 1 % is a strong but
 //   realistic test injection.
@@ -62,8 +67,10 @@ EffectParameterInfo Param(const std::string& name, const std::string& unit, doub
 //   motion by default (a linear drift is the alternative).
 // background: a bias-subtraction residual of 20 e- (about 6 ADU at 3.1 e-/ADU): a few times
 //   the read noise, typical of a bias estimated from a drifting prescan.
-// nonlinearity: CCD273 output amplifiers are linear to 1-2 % up to 160 ke-;
-//   beta = 1e-7 / e- gives 1.6 % at 160 ke-.
+// nonlinearity: a CCD output chain is typically linear to a few tenths of a percent up to
+//   ~1 % near full well (~200 ke- for the CCD273). beta = 3e-8 / e- puts the response 0.48 %
+//   low at the paper's brightest peaks (160 ke-) and 0.6 % at full well: mid-range. (The
+//   previous default, 1e-7, was 1.6 % at 160 ke-: the pessimistic end.)
 // halo: red light (800-900 nm) penetrates deep into the silicon and is partly reflected from
 //   the back, spreading a few % of the light over 2-3 px: fraction 3 %, sigma 2.5 px.
 // defocus_offset: a misaligned pinhole image (coma-like) shifting the defocus blur by a
@@ -134,7 +141,7 @@ std::vector<EffectInfo> MakeCatalogue() {
                 Param("sigma_px", "px", halo.sigma_px, 1.0, 8.0, 0.0, true, kInf, true,
                       "halo Gaussian sigma")}});
   c.push_back({EffectKind::kDefocusOffset, "defocus_offset",
-               "defocus kernel centred away from the Airy centre (integrated sampling only)",
+               "defocus kernel centred away from the Airy centre (integrated: exactly a shift)",
                true, true,
                {Param("dx_px", "px", offset.dx_px, -0.5, 0.5, -5.0, false, 5.0, false,
                       "defocus-kernel centre minus Airy centre along x"),
@@ -366,10 +373,10 @@ SpotParams AdjustSpotParams(const ModelOptions& options, const ExposureEffects& 
     p[kCcdSigmaX] = std::hypot(p[kCcdSigmaX], effects.jitter->sigma_x_px);
     p[kCcdSigmaY] = std::hypot(p[kCcdSigmaY], effects.jitter->sigma_y_px);
   }
-  if (effects.defocus_offset) {
-    CHECK(options.sampling == Sampling::kIntegrated)
-        << "defocus_offset is available in integrated sampling only";
-    // A convolution with a shifted kernel is the unshifted convolution, shifted.
+  if (effects.defocus_offset && options.sampling == Sampling::kIntegrated) {
+    // A convolution with a shifted kernel is the unshifted convolution, shifted. (In
+    // pixel_centre sampling the renderer centres its F kernel away from the Airy instead:
+    // RenderSpotWithKernelEffects.)
     p[kCentreX] += effects.defocus_offset->dx_px;
     p[kCentreY] += effects.defocus_offset->dy_px;
   }
@@ -439,8 +446,16 @@ void RenderSpotWithKernelEffects(const SpotRenderer& renderer, const ExposureEff
                               std::hypot(f, centre[kCcdSigmaY]), options.relative_tolerance);
     }
   }
+  // pixel_centre: the defocus offset goes to the renderer (AdjustSpotParams left it out).
+  const bool pc_offset = effects.defocus_offset && options.sampling == Sampling::kPixelCentre;
+  const double odx = pc_offset ? effects.defocus_offset->dx_px : 0.0;
+  const double ody = pc_offset ? effects.defocus_offset->dy_px : 0.0;
   if (n == 1) {
-    renderer.Render(centre, grid, model, nullptr);
+    if (pc_offset) {
+      renderer.RenderWithDefocusOffset(centre, odx, ody, grid, model, nullptr);
+    } else {
+      renderer.Render(centre, grid, model, nullptr);
+    }
   } else {
     std::fill(model, model + grid.size(), 0.0);
     std::vector<double> one(grid.size());
@@ -448,7 +463,11 @@ void RenderSpotWithKernelEffects(const SpotRenderer& renderer, const ExposureEff
       SpotParams p = centre;
       p[kCentreX] += node.dx_px;
       p[kCentreY] += node.dy_px;
-      renderer.Render(p, grid, one.data(), nullptr);
+      if (pc_offset) {
+        renderer.RenderWithDefocusOffset(p, odx, ody, grid, one.data(), nullptr);
+      } else {
+        renderer.Render(p, grid, one.data(), nullptr);
+      }
       for (int q = 0; q < grid.size(); ++q) model[q] += node.weight * one[q];
     }
   }
@@ -463,6 +482,8 @@ void RenderSpotWithKernelEffects(const SpotRenderer& renderer, const ExposureEff
     details->rendered_sigma_y_px = centre[kCcdSigmaY];
     details->centre_x_px = centre[kCentreX];
     details->centre_y_px = centre[kCentreY];
+    details->defocus_centre_x_px = centre[kCentreX] + odx;
+    details->defocus_centre_y_px = centre[kCentreY] + ody;
     details->motion_nodes = n;
   }
 }
@@ -644,6 +665,7 @@ bool ParseJitter(const json& object, int num_exposures, EffectsConfig* out,
 
 bool ParseEffectsConfig(const json& effects, int num_exposures, Sampling sampling,
                         EffectsConfig* out, std::string* error) {
+  (void)sampling;  // every effect renders in both samplings
   if (!effects.is_object()) {
     *error = "'effects' must be a JSON object of effects by catalogue name";
     return false;
@@ -669,11 +691,7 @@ bool ParseEffectsConfig(const json& effects, int num_exposures, Sampling samplin
       *error = "'" + path + "' must be a JSON object of parameters ({} for the defaults)";
       return false;
     }
-    if (kind == EffectKind::kDefocusOffset && sampling != Sampling::kIntegrated) {
-      *error = "'effects.defocus_offset' needs integrated sampling: the pixel_centre renderer "
-               "(the 2015 recipe) centres its defocus kernel on the Airy centre";
-      return false;
-    }
+
     if (kind == EffectKind::kJitter) {
       if (!ParseJitter(it.value(), num_exposures, &config, error)) return false;
       continue;

@@ -35,4 +35,21 @@ void SpotRenderer::Render(const SpotParams& params, const PixelGrid& grid, doubl
   }
 }
 
+void SpotRenderer::RenderWithDefocusOffset(const SpotParams& params, double dx_px, double dy_px,
+                                           const PixelGrid& grid, double* model,
+                                           double* jacobian) const {
+  if (options_.sampling == Sampling::kPixelCentre) {
+    std::string error;
+    CHECK(ValidSpotParams(options_, params, &error)) << error;
+    CHECK_GT(grid.nx, 0);
+    CHECK_GT(grid.ny, 0);
+    internal::RenderPixelCentre(params, grid, model, jacobian, dx_px, dy_px);
+    return;
+  }
+  SpotParams shifted = params;
+  shifted[kCentreX] += dx_px;
+  shifted[kCentreY] += dy_px;
+  Render(shifted, grid, model, jacobian);
+}
+
 }  // namespace ccdpsf::model

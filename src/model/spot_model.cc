@@ -63,8 +63,9 @@ bool ValidSpotParams(const ModelOptions& options, const SpotParams& p, std::stri
     if (p[kAiryRadius] < kMinAiryRadiusPx) {
       why << "airy radius must be >= " << kMinAiryRadiusPx << " px";
     }
-  } else if (p[kDefocus] <= 0 || p[kCcdSigmaX] <= 0 || p[kCcdSigmaY] <= 0) {
-    why << "pixel_centre sampling needs defocus and ccd sigmas > 0 px";
+  } else if (p[kCcdSigmaX] <= 0 || p[kCcdSigmaY] <= 0) {
+    // (A defocus of 0 is "no defocus step" there: pixel_centre_renderer.cc.)
+    why << "pixel_centre sampling needs ccd sigmas > 0 px";
   }
   if (!why.str().empty()) {
     *error = why.str();

@@ -5,7 +5,12 @@
 //                         p-values, the candidate table with the evidence, the named effect or
 //                         null, a one-line verdict), final_fit (every parameter's MAP and
 //                         Laplace sd; the named effects' parameters with 68 % and 99.7 %
-//                         Laplace intervals), detection_thresholds, notes. Written last.
+//                         Laplace intervals), detection_thresholds (computed: the simulated
+//                         studies of --thresholds; not_named: for every effect not named, its
+//                         realistic strength, its status and reason in the last round tested,
+//                         and the weakest strength that would have been detected, simulated
+//                         for these data or else the reference value for paper-like data,
+//                         ReferenceThresholds in diagnose.h), notes. Written last.
 //   report.md             a readable summary
 //   stacked_residuals.*   stacked data / model / residual / normalised residual, one row per
 //                         round (the gap before and after each named effect)

@@ -82,7 +82,8 @@ class EffectModel {
   // `base` supplies the stamps, the model options (sampling, defocus kind) and the baseline
   // priors; it must not be in through-focus mode. Returns nullptr with a one-line reason for a
   // spec the data cannot support (jitter with one exposure, a jitter reference out of range,
-  // defocus_offset, kDefocus in `effects`, a non-Gaussian likelihood).
+  // defocus_offset in integrated sampling or without the defocus, kDefocus in `effects`, a
+  // non-Gaussian likelihood).
   static std::unique_ptr<EffectModel> Create(const fit::FitModel& base, const ModelSpec& spec,
                                              std::string* error);
 

@@ -40,9 +40,10 @@
 //                         centre (x, y). In integrated sampling a convolution with a shifted
 //                         kernel is exactly a shift of the whole image, so this is rendered as
 //                         a spot centred at (x + dx, y + dy): on its own it is
-//                         indistinguishable from a change of position. pixel_centre sampling
-//                         would need the 2015 renderer to centre its F kernel away from the
-//                         Airy; it does not support that, so the offset is integrated-only.
+//                         indistinguishable from a change of position. In pixel_centre
+//                         sampling the 2015 renderer centres its sampled F kernel at
+//                         (x + dx, y + dy) while the Airy stays at (x, y)
+//                         (SpotRenderer::RenderWithDefocusOffset): not a pure shift there.
 //   2. Image effects act on an image of expected electrons, pixel by pixel or between pixels,
 //      in this order:
 //        halo          image = (1 - f) image + f * flux * H, H the unit-integral isotropic
@@ -120,8 +121,11 @@ struct BrighterFatterParams {
   double slope_y_px_per_e = 4.0e-7;
 };
 
+// Realistic strength (effects.cc has the reasoning): f = 1e-3, the order of n c for a spot
+// ~1000 transfers from the output of an unirradiated CCD273 (c ~ 1e-6 per transfer for a
+// bright charge packet); an irradiated device at the Euclid end-of-life fluence reaches ~1e-2.
 struct CtiParams {
-  double trail_fraction = 5.0e-4;  // fraction f of each pixel's charge found in its trail
+  double trail_fraction = 1.0e-3;  // fraction f of each pixel's charge found in its trail
   double trail_length_px = 1.5;    // e-folding length L of the trail [px]
 };
 
@@ -142,8 +146,10 @@ struct BackgroundParams {
   double pedestal_e = 20.0;  // added to every pixel [e-] (may be negative)
 };
 
+// Realistic strength: beta = 3e-8 / e-, a response 0.5 % low at 160 ke- (0.6 % at the ~200 ke-
+// full well): the few-tenths-of-a-percent to one percent of a CCD output chain near full well.
 struct NonlinearityParams {
-  double beta_per_e = 1.0e-7;  // out = in (1 - beta in) [1 / e-]: 1.6 % low at 160 ke-
+  double beta_per_e = 3.0e-8;  // out = in (1 - beta in) [1 / e-]: 0.48 % low at 160 ke-
 };
 
 struct HaloParams {
@@ -241,8 +247,9 @@ void AddDefaultEffect(EffectKind kind, ExposureEffects* effects);
 // The spot parameters handed to the renderer for one exposure when there is no motion blur,
 // or the parameters at the centre of the motion segment otherwise: brighter_fatter with the
 // peak signal `peak_e` [e-] (ignored without brighter_fatter), the Gaussian jitter added in
-// quadrature, and the defocus offset added to the centre. `params` are the model's own
-// (zero-signal CCD widths). CHECK-fails on a defocus offset with pixel_centre sampling.
+// quadrature, and (integrated sampling) the defocus offset added to the centre. `params` are
+// the model's own (zero-signal CCD widths). In pixel_centre sampling the centre is left
+// alone: RenderSpotWithKernelEffects hands the offset to the renderer.
 SpotParams AdjustSpotParams(const ModelOptions& options, const ExposureEffects& effects,
                             const SpotParams& params, double peak_e);
 
@@ -277,8 +284,10 @@ struct KernelEffectDetails {
   double ccd_sigma_y_px = 0.0;
   double rendered_sigma_x_px = 0.0;    // widths handed to the renderer (jitter included)
   double rendered_sigma_y_px = 0.0;
-  double centre_x_px = 0.0;            // centre handed to the renderer (defocus offset
-  double centre_y_px = 0.0;            // included; the motion segment's centre)
+  double centre_x_px = 0.0;            // centre handed to the renderer (integrated: defocus
+  double centre_y_px = 0.0;            // offset included; the motion segment's centre)
+  double defocus_centre_x_px = 0.0;    // where the defocus kernel is centred (the Airy
+  double defocus_centre_y_px = 0.0;    // centre plus the defocus offset, both samplings)
   int motion_nodes = 1;                // renders averaged (1 without motion blur)
 };
 
@@ -351,7 +360,8 @@ struct EffectsConfig {
 };
 
 // Parses the "effects" object of a simulation config. `num_exposures` is the length any
-// per-exposure list must have; `sampling` rejects what that sampling cannot render. Unknown
+// per-exposure list must have; `sampling` is for checks that depend on it (none at present:
+// every effect renders in both samplings). Unknown
 // effect names and keys, wrong types and values outside the physical domain are one-line
 // errors naming the key (e.g. "'effects.ipc.alpha' must be in [0, 0.25) (got 0.3)"); "defocus"
 // is rejected with a pointer to "model.defocus". Missing parameters take the catalogue

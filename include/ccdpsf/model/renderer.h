@@ -33,6 +33,15 @@ class SpotRenderer {
   void Render(const SpotParams& params, const PixelGrid& grid, double* model,
               double* jacobian) const;
 
+  // The same with the defocus kernel centred at (x + dx_px, y + dy_px) instead of the Airy
+  // centre (the catalogue's defocus_offset). Integrated sampling: exactly the spot centred at
+  // (x + dx_px, y + dy_px) (a convolution with a shifted kernel is the shifted convolution),
+  // so the Jacobian's centre columns are the derivatives with respect to the shifted centre.
+  // pixel_centre: the 2015 F kernel centred there (pixel_centre_renderer.h). Zero offsets give
+  // exactly Render's output.
+  void RenderWithDefocusOffset(const SpotParams& params, double dx_px, double dy_px,
+                               const PixelGrid& grid, double* model, double* jacobian) const;
+
  private:
   struct Workspace;
   ModelOptions options_;
