@@ -395,14 +395,6 @@ double FitEvaluator::LogPosterior(const double* theta) {
   return std::isfinite(ll) ? ll : -INFINITY;
 }
 
-double FitEvaluator::LeastSquaresFlux(const double* theta) {
-  return LeastSquaresFluxOver(theta, 0, fit_model_.num_exposures());
-}
-
-double FitEvaluator::ExposureLeastSquaresFlux(const double* theta, int k) {
-  return LeastSquaresFluxOver(theta, k, k + 1);
-}
-
 double FitEvaluator::BestFluxLogLikelihood(double* theta, int first, int last) {
   const double saved_flux = theta[kFluxE];
   theta[kFluxE] = 1.0;
@@ -438,14 +430,15 @@ double FitEvaluator::BestFluxLogLikelihood(double* theta, int first, int last) {
   return std::isfinite(total) ? total : -INFINITY;
 }
 
-double FitEvaluator::LeastSquaresFluxOver(const double* theta, int first, int last) {
+double FitEvaluator::LeastSquaresFlux(const double* theta) {
   std::vector<double> unit(theta, theta + fit_model_.dim());
   unit[kFluxE] = 1.0;
   double num = 0.0, den = 0.0;
-  ForEachValidPixel(unit.data(), first, last, [&](double data_e, double model_e, const CcdNoise&) {
-    num += model_e * data_e;
-    den += model_e * model_e;
-  });
+  ForEachValidPixel(unit.data(), 0, fit_model_.num_exposures(),
+                    [&](double data_e, double model_e, const CcdNoise&) {
+                      num += model_e * data_e;
+                      den += model_e * model_e;
+                    });
   return den > 0 ? num / den : NAN;
 }
 

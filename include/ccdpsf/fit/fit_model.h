@@ -187,8 +187,6 @@ class FitEvaluator {
   // exposure) for the shape and positions in theta; theta[kFluxE] is ignored. The model is
   // linear in the flux, so this is exact for that criterion. NaN if the model is all zero.
   double LeastSquaresFlux(const double* theta);
-  // The same over exposure k alone (a flux that fits that exposure by itself).
-  double ExposureLeastSquaresFlux(const double* theta, int k);
 
   // Sets theta[kFluxE] to the least-squares flux of exposures [first, last), clamped to the
   // prior, and returns those exposures' log-likelihood there (-inf if it is not finite). One
@@ -200,7 +198,6 @@ class FitEvaluator {
   double ChiSquare(const double* theta);
 
  private:
-  double LeastSquaresFluxOver(const double* theta, int first, int last);
   // Renders exposures [first, last) at theta and calls visit(data_e, model_e, noise) for each
   // valid pixel: the one loop behind the log-likelihood, chi^2 and least-squares flux.
   template <typename Visit>
