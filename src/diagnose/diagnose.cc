@@ -203,6 +203,26 @@ Tested TestCandidate(const fit::FitModel& base, const EffectModel& current,
       }
     }
     starts.push_back(p);
+    // A CCD width pinned at its bound in the current model is usually absorbing the missing
+    // effect (measured: a pixel_centre defocus offset along x drove ccd_sigma_x to its lower
+    // bound, and from there the offset's fit stayed in that optimum, 53 in log L below the
+    // one near the truth, and IPC was claimed next to make up the difference). Also start
+    // with such a width set to the other axis's width.
+    const int sx = t.model->ShapeIndex(fit::kCcdSigmaXPx);
+    const int sy = t.model->ShapeIndex(fit::kCcdSigmaYPx);
+    const auto pinned = [&](int i) {
+      const double w = t.model->upper()[i] - t.model->lower()[i];
+      return p[i] - t.model->lower()[i] < 1e-6 * w || t.model->upper()[i] - p[i] < 1e-6 * w;
+    };
+    if (pinned(sx) != pinned(sy)) {
+      std::vector<double> q = p;
+      if (pinned(sx)) {
+        q[sx] = q[sy];
+      } else {
+        q[sy] = q[sx];
+      }
+      starts.push_back(q);
+    }
   }
   if (!FitEffectModel(*t.model, starts, options.fit, &t.fit, &error, data_e)) {
     t.candidate.status = CandidateResult::Status::kFitFailed;

@@ -7,7 +7,9 @@
 //      from simulations of M at its MAP (statistics.h).
 //   2. Every catalogue effect not in M is either skipped with a reason, when the data cannot
 //      identify it (see below), or fitted as M + effect (MAP from the current MAP with the
-//      effect at 2-3 starting strengths) and scored against M:
+//      effect at 2-3 starting strengths, each also with a CCD width that sits at its bound
+//      reset to the other axis's width: such a width is usually absorbing the missing
+//      effect) and scored against M:
 //        delta log L  = log L(M + effect) - log L(M), both at their MAP (>= 0; a fit that
 //                       ends lower is counted as 0);
 //        LR           = 2 delta log L, with a p-value from the chi-bar-square mixture of a
