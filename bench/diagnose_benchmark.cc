@@ -1,6 +1,7 @@
 // The missing-effect workflow on many simulated sets: what the unit tests cannot afford.
 // Run: ./build/diagnose_benchmark [--clean_sets=40] [--thresholds] [--threshold_sims=10]
 //                                 [--no_sets] [--only=serial_cti,ipc] [--clean_pixel_centre]
+//                                 [--clean_only]
 //   1. per catalogue effect, a five-exposure set (paper's simulation, ~1.5e5 e- peak; five
 //      intensities from 1.5e5 down to 3.7e4 e- peak for nonlinearity and brighter_fatter)
 //      with the effect hidden at its realistic strength (the catalogue default) or, where
@@ -85,7 +86,7 @@ std::string Named(const DiagnoseResult& r) {
 int main(int argc, char** argv) {
   int clean_sets = 40, threshold_sims = 10;
   model::Sampling clean_sampling = model::Sampling::kIntegrated;
-  bool thresholds = false, sets = true;
+  bool thresholds = false, sets = true, cases_too = true;
   std::string only;  // --only=serial_cti,ipc: thresholds of these effects only
   for (int i = 1; i < argc; ++i) {
     if (std::strncmp(argv[i], "--clean_sets=", 13) == 0) clean_sets = std::atoi(argv[i] + 13);
@@ -93,6 +94,7 @@ int main(int argc, char** argv) {
     if (std::strcmp(argv[i], "--thresholds") == 0) thresholds = true;
     if (std::strncmp(argv[i], "--threshold_sims=", 17) == 0) threshold_sims = std::atoi(argv[i] + 17);
     if (std::strcmp(argv[i], "--no_sets") == 0) sets = false;
+    if (std::strcmp(argv[i], "--clean_only") == 0) cases_too = false;
     if (std::strncmp(argv[i], "--only=", 7) == 0) only = argv[i] + 7;
   }
   using model::Sampling;
@@ -171,6 +173,7 @@ int main(int argc, char** argv) {
               "chi2 bef", "chi2 aft", "sec");
   int seed = 100;
   for (const Case& c : cases) {
+    if (!cases_too) break;
     SimulationConfig config = testing_support::PaperConfig(c.sampling, 5, seed);
     c.inject(&config);
     if (c.in_focus) config.defocus_px = 0.0;
