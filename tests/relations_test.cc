@@ -295,6 +295,104 @@ TEST(Relations, WeightsFollowThePointErrors) {
   EXPECT_GT(std::fabs(g.dot(ols.beta) - truth_pivot), 2.0 * sp);  // the unweighted fit would move
 }
 
+// Draws from a posterior p(y) ∝ L(y) prior(y), prior(y) ∝ y on [0, top] (the prior a
+// width's square root would induce), by rejection from the prior: y = top sqrt(U), kept with
+// probability L(y) / max L. `like` returns L(y) in [0, 1].
+template <typename Like>
+std::vector<double> PosteriorOverRampPrior(const Like& like, double top, int n, uint64_t seed) {
+  std::mt19937_64 engine(seed);
+  std::vector<double> out;
+  while (static_cast<int>(out.size()) < n) {
+    const double y = top * std::sqrt(Uniform01(engine));
+    if (Uniform01(engine) < like(y)) out.push_back(y);
+  }
+  return out;
+}
+
+std::vector<double> RampPriorDraws(double top, int n, uint64_t seed) {
+  std::mt19937_64 engine(seed);
+  std::vector<double> out(n);
+  for (double& y : out) y = top * std::sqrt(Uniform01(engine));
+  return out;
+}
+
+// With the prior's draws, a point enters through its likelihood, not its posterior: points
+// whose likelihood is N(m_i, s_i^2) but whose posteriors carry a ramp prior (which moves
+// each posterior mean up by ~s_i^2 / m_i, 0.2-0.3 s_i here) are fitted as the weighted closed
+// form on (m_i, s_i). Tolerance 0.15 sd: the split-normal fit of 4000 draws per point
+// (its mode and widths to ~2 % of s_i) and the rejection draws' own noise. The same draws
+// without the prior are >= 0.3 sd off (the check can fail).
+TEST(Relations, PriorDrawsTurnPosteriorsIntoLikelihoods) {
+  const std::vector<double> x = {7.0e3, 2.0e4, 4.0e4, 8.0e4, 1.2e5, 1.6e5};
+  const std::vector<double> sd = {2.2, 2.0, 2.1, 1.9, 2.2, 2.0};
+  std::vector<double> m;
+  std::vector<RelationPoint> with_prior, without_prior;
+  for (size_t i = 0; i < x.size(); ++i) {
+    m.push_back(6.61 + 1.14e-5 * x[i] + 0.3 * sd[i] * (i % 2 == 0 ? 1.0 : -1.0));
+    auto like = [&](double y) { return std::exp(-0.5 * std::pow((y - m[i]) / sd[i], 2)); };
+    std::vector<double> post = PosteriorOverRampPrior(like, 20.0, 4000, 10 + i);
+    with_prior.push_back(
+        RelationPoint::FromDraws("", x[i], post, RampPriorDraws(20.0, 20000, 50 + i)));
+    without_prior.push_back(RelationPoint::FromDraws("", x[i], post));
+  }
+  const Wls wls = ClosedForm(x, m, sd);
+  const double s0 = std::sqrt(wls.cov(0, 0)), s1 = std::sqrt(wls.cov(1, 1));
+  const RelationFit fit = MustFit(RelationKind::kLinear, with_prior);
+  for (const PointSummary& p : fit.points) EXPECT_TRUE(p.prior_divided);
+  EXPECT_NEAR(fit.Find("intercept")->estimate.median, wls.beta(0), 0.15 * s0);
+  EXPECT_NEAR(fit.Find("slope")->estimate.median, wls.beta(1), 0.15 * s1);
+  EXPECT_NEAR(HalfWidth(fit.Find("intercept")->estimate), s0, 0.08 * s0);
+  EXPECT_NEAR(HalfWidth(fit.Find("slope")->estimate), s1, 0.08 * s1);
+  const RelationFit naive = MustFit(RelationKind::kLinear, without_prior);
+  EXPECT_FALSE(naive.points[0].prior_divided);
+  EXPECT_GT(std::fabs(naive.Find("intercept")->estimate.median - wls.beta(0)), 0.3 * s0);
+}
+
+// A low-signal setting whose data only bound the metric from above ("at most b"): its
+// posterior is the prior below b. Such points are not fitted but listed as gaps that say
+// so; the relation is then what the informative points alone give (closed form; tolerance
+// 0.1 sd on the medians and 10 % on the half-widths, the split-normal fit of 2000 draws).
+// A point with a lower bound too (a peak above the prior's edge) stays in.
+TEST(Relations, UpperBoundPointsDoNotPullTheRelation) {
+  const std::vector<double> x_info = {8.0e4, 1.1e5, 1.3e5, 1.6e5};
+  const std::vector<double> x_bound = {7.0e3, 2.3e4};
+  const double sd = 0.05;
+  std::vector<double> centre;
+  std::vector<RelationPoint> points;
+  for (size_t i = 0; i < x_info.size(); ++i) {
+    centre.push_back(6.61 + 1.14e-5 * x_info[i] + sd * (i % 2 == 0 ? 0.5 : -0.5));
+    points.push_back(
+        RelationPoint::FromDraws("", x_info[i], ExactGaussian(centre[i], sd, 2000, 70 + i)));
+  }
+  for (size_t i = 0; i < x_bound.size(); ++i) {
+    const double bound = 7.5;  // the line is at 6.69 and 6.87 um there
+    auto like = [&](double y) { return 0.5 * std::erfc((y - bound) / (0.1 * std::sqrt(2.0))); };
+    std::vector<double> post = PosteriorOverRampPrior(like, 20.0, 2000, 80 + i);
+    points.push_back(
+        RelationPoint::FromDraws("", x_bound[i], post, RampPriorDraws(20.0, 20000, 90 + i)));
+  }
+  const Wls wls = ClosedForm(x_info, centre, std::vector<double>(x_info.size(), sd));
+  const double s0 = std::sqrt(wls.cov(0, 0)), s1 = std::sqrt(wls.cov(1, 1));
+  const RelationFit fit = MustFit(RelationKind::kLinear, points);
+  EXPECT_NEAR(fit.Find("intercept")->estimate.median, wls.beta(0), 0.1 * s0);
+  EXPECT_NEAR(fit.Find("slope")->estimate.median, wls.beta(1), 0.1 * s1);
+  EXPECT_NEAR(HalfWidth(fit.Find("intercept")->estimate), s0, 0.1 * s0);
+  EXPECT_NEAR(HalfWidth(fit.Find("slope")->estimate), s1, 0.1 * s1);
+  ASSERT_EQ(fit.gaps.size(), 2u);
+  for (const RelationGap& g : fit.gaps) {
+    EXPECT_NE(g.reason.find("bound only"), std::string::npos) << g.reason;
+  }
+  EXPECT_EQ(fit.points.size(), x_info.size());
+  // The same prior with a likelihood N(5, 1): bounded below (5 sd above the prior's edge).
+  auto peaked = [](double y) { return std::exp(-0.5 * std::pow(y - 5.0, 2)); };
+  std::vector<RelationPoint> with_peak = points;
+  with_peak[4] = RelationPoint::FromDraws("", x_bound[0], PosteriorOverRampPrior(peaked, 20.0, 2000, 5),
+                                          RampPriorDraws(20.0, 20000, 6));
+  const RelationFit kept = MustFit(RelationKind::kLinear, with_peak);
+  EXPECT_EQ(kept.points.size(), x_info.size() + 1);
+  EXPECT_EQ(kept.gaps.size(), 1u);
+}
+
 TEST(Relations, ThreePointsArePoorlyConstrained) {
   const std::vector<double> x = {2.0e4, 8.0e4, 1.5e5};
   std::vector<RelationPoint> points;

@@ -6,6 +6,7 @@
 #include <chrono>
 #include <mutex>
 #include <numeric>
+#include <random>
 #include <thread>
 
 #include "ccdpsf/exposure.h"
@@ -94,6 +95,19 @@ GroupResult FitOne(const CampaignGroup& group, int index, const GroupFitOptions&
         if (std::isfinite(d[j])) out.draws[names[j]].push_back(d[j]);
       }
       for (int i = 0; i < fit::kNumShared; ++i) out.draws[result.names[i]].push_back(theta[i]);
+    }
+    // The prior those draws came from, pushed through the same metrics: every parameter
+    // uniform within its bounds (fit_model.h: the priors are flat).
+    std::mt19937_64 engine(DeriveSeed(fo.mcmc.seed, 1));
+    std::vector<double> theta(model->lower().size());
+    for (int t = 0; t < options.prior_draws; ++t) {
+      for (size_t i = 0; i < theta.size(); ++i) {
+        theta[i] = model->lower()[i] + Uniform01(engine) * (model->upper()[i] - model->lower()[i]);
+      }
+      const std::vector<double> d = fit::DerivedAt(*model, theta.data());
+      for (size_t j = 0; j < names.size(); ++j) {
+        if (std::isfinite(d[j])) out.prior_draws[names[j]].push_back(d[j]);
+      }
     }
   }
 

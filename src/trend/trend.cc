@@ -29,7 +29,10 @@ RelationPoint PointOf(const GroupResult& g, const std::string& metric, double ab
                                   "trusted (see the group's fit report)");
   }
   if (draws != g.draws.end() && draws->second.size() >= 2) {
-    return RelationPoint::FromDraws(label, abscissa, draws->second);
+    auto prior = g.prior_draws.find(metric);
+    return RelationPoint::FromDraws(
+        label, abscissa, draws->second,
+        prior != g.prior_draws.end() ? prior->second : std::vector<double>());
   }
   auto s = g.summaries.find(metric);
   if (s != g.summaries.end() && std::isfinite(s->second.laplace_sd)) {
@@ -181,6 +184,12 @@ bool ComputeTrend(std::vector<GroupResult> groups, const TrendOptions& options,
         for (size_t j = 0; j < p.draws.size(); ++j) {
           const size_t r = j % at_i0.size();
           p.draws[j] *= at_i0[r] / at_i[r];
+        }
+        // The prior is carried through the same correction, so the likelihood is that of
+        // the corrected value.
+        for (size_t j = 0; j < p.prior_draws.size(); ++j) {
+          const size_t r = j % at_i0.size();
+          p.prior_draws[j] *= at_i0[r] / at_i[r];
         }
       }
       points.push_back(std::move(p));
