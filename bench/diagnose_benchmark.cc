@@ -1,7 +1,7 @@
 // The missing-effect workflow on many simulated sets: what the unit tests cannot afford.
 // Run: ./build/diagnose_benchmark [--clean_sets=40] [--thresholds] [--threshold_sims=10]
 //                                 [--no_sets] [--only=serial_cti,ipc] [--clean_pixel_centre]
-//                                 [--clean_only]
+//                                 [--clean_only] [--cases=TEXT] [--threads=N]
 //   1. per catalogue effect, a five-exposure set (paper's simulation, ~1.5e5 e- peak; five
 //      intensities from 1.5e5 down to 3.7e4 e- peak for nonlinearity and brighter_fatter)
 //      with the effect hidden at its realistic strength (the catalogue default) or, where
@@ -14,7 +14,9 @@
 //      (ComputeDetectionThreshold: weakest strength, on a grid of 1/64 to 16 times the
 //      catalogue default, named in >= 80 % of simulations). --only restricts it to the
 //      effects whose names appear in the list; --no_sets skips sections 1 and 2.
-// Not a Google Benchmark timing loop: one pass, printed as a table.
+// --threads=N: as `ccdpsf diagnose --threads` (Ceres threads, predictive simulations N at a
+// time; default 1). --cases=TEXT runs only the section-1 sets whose name contains TEXT (same data as in the full
+// run: every set keeps its seed). Not a Google Benchmark timing loop: one pass, printed as a table.
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -88,6 +90,8 @@ int main(int argc, char** argv) {
   model::Sampling clean_sampling = model::Sampling::kIntegrated;
   bool thresholds = false, sets = true, cases_too = true;
   std::string only;  // --only=serial_cti,ipc: thresholds of these effects only
+  std::string cases_filter;  // --cases=TEXT: section-1 sets whose name contains TEXT
+  int threads = 1;
   for (int i = 1; i < argc; ++i) {
     if (std::strncmp(argv[i], "--clean_sets=", 13) == 0) clean_sets = std::atoi(argv[i] + 13);
     if (std::strcmp(argv[i], "--clean_pixel_centre") == 0) clean_sampling = model::Sampling::kPixelCentre;
@@ -96,6 +100,8 @@ int main(int argc, char** argv) {
     if (std::strcmp(argv[i], "--no_sets") == 0) sets = false;
     if (std::strcmp(argv[i], "--clean_only") == 0) cases_too = false;
     if (std::strncmp(argv[i], "--only=", 7) == 0) only = argv[i] + 7;
+    if (std::strncmp(argv[i], "--cases=", 8) == 0) cases_filter = argv[i] + 8;
+    if (std::strncmp(argv[i], "--threads=", 10) == 0) threads = std::max(1, std::atoi(argv[i] + 10));
   }
   using model::Sampling;
   const std::vector<Case> cases = {
@@ -177,14 +183,18 @@ int main(int argc, char** argv) {
     SimulationConfig config = testing_support::PaperConfig(c.sampling, 5, seed);
     c.inject(&config);
     if (c.in_focus) config.defocus_px = 0.0;
-    const auto stamps = testing_support::SimulateStamps(config, seed + 1);
+    const uint64_t noise_seed = seed + 1;
     seed += 2;
+    if (!cases_filter.empty() && c.name.find(cases_filter) == std::string::npos) continue;
+    const auto stamps = testing_support::SimulateStamps(config, noise_seed);
     fit::FitModelOptions fo;
     fo.model.sampling = c.sampling;
     std::string error;
     auto base = fit::FitModel::Create(stamps, fo, &error);
     DiagnoseOptions options;
     options.baseline_defocus = c.baseline_defocus;
+    options.fit.num_threads = threads;
+    options.map.num_threads = threads;
     DiagnoseResult r;
     if (!base || !RunDiagnosis(*base, options, &r, &error)) {
       std::printf("%-58s failed: %s\n", c.name.c_str(), error.c_str());
