@@ -150,6 +150,37 @@ TEST(Diagnose, ChiBarSquareMatchesClosedForms) {
   EXPECT_EQ(ChiBarSquarePValue(0.0, 1, 0), 1.0);
 }
 
+// The predictive simulations run in parallel (`ccdpsf diagnose --threads`): simulation s has
+// its own engine and is refit on one thread, so one thread and two give the same numbers,
+// bit for bit, and differ only in time.
+TEST(Diagnose, PredictiveCheckIsTheSameOnAnyNumberOfThreads) {
+  const std::vector<Stamp> stamps = testing_support::SimulateStamps(Paper(), 5);
+  DiagnoseOptions one = TestOptions();
+  one.candidates = {EffectKind::kBackground};  // quick: the baseline's check is what counts
+  DiagnoseOptions two = one;
+  two.predictive.threads = 2;
+  const Outcome a = Diagnose(stamps, one), b = Diagnose(stamps, two);
+  ASSERT_TRUE(a.ok && b.ok) << a.error << b.error;
+  const RoundResult& ra = a.result.rounds.at(0);
+  const RoundResult& rb = b.result.rounds.at(0);
+  ASSERT_FALSE(ra.predictive_draws.empty());
+  EXPECT_EQ(ra.predictive_draws.at(0).size(), 8u);
+  // Equal, or both NaN (a statistic undefined for this set is NaN in every simulation).
+  auto same = [](double x, double y) { return (std::isnan(x) && std::isnan(y)) || x == y; };
+  ASSERT_EQ(ra.predictive_draws.size(), rb.predictive_draws.size());
+  for (size_t i = 0; i < ra.predictive_draws.size(); ++i) {
+    ASSERT_EQ(ra.predictive_draws[i].size(), rb.predictive_draws[i].size());
+    for (size_t s = 0; s < ra.predictive_draws[i].size(); ++s) {
+      EXPECT_TRUE(same(ra.predictive_draws[i][s], rb.predictive_draws[i][s])) << i << " " << s;
+    }
+  }
+  ASSERT_EQ(ra.statistics.values.size(), rb.statistics.values.size());
+  for (size_t i = 0; i < ra.statistics.values.size(); ++i) {
+    EXPECT_TRUE(same(ra.statistics.values[i].p_value, rb.statistics.values[i].p_value))
+        << ra.statistics.values[i].name;
+  }
+}
+
 TEST(Diagnose, CleanDataNamesNothing) {
   const Outcome o = Diagnose(testing_support::SimulateStamps(Paper(), 5));
   ASSERT_TRUE(o.ok) << o.error;

@@ -33,7 +33,7 @@ DEFINE_int32(walkers, 0,
 DEFINE_int32(max_steps, 20000, "fit: MCMC step limit");
 DEFINE_double(target_ess, 1000,
               "fit: effective sample size every parameter must reach (trend: 400 unless given)");
-DEFINE_int32(threads, 2, "fit: threads for the MCMC");
+DEFINE_int32(threads, 2, "fit: threads for the MCMC; trend: groups fitted at a time; diagnose: Ceres threads and predictive simulations run at a time");
 DEFINE_bool(mcmc, true, "fit: run the MCMC (--nomcmc: MAP and Laplace only)");
 DEFINE_double(gain_e_per_adu, 0, "fit: gain [e-/ADU], overrides GAIN");
 DEFINE_double(read_noise_e, 0, "fit: read noise [e-], overrides RDNOISE");

@@ -452,6 +452,7 @@ bool RunDiagnosis(const fit::FitModel& base, const DiagnoseOptions& options,
     if (options.predictive.num_simulations > 0) {
       PredictiveOptions po = options.predictive;
       po.fit = options.fit;
+      po.threads = std::max(po.threads, options.fit.num_threads);
       po.seed = DeriveSeed(options.predictive.seed, static_cast<uint64_t>(round));
       PredictiveCheck(*current, current_fit.p, po, &r.statistics, &r.predictive_draws);
     }

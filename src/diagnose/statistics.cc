@@ -1,7 +1,9 @@
 #include "ccdpsf/diagnose/statistics.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
+#include <thread>
 
 #include "ccdpsf/noise.h"
 #include "ccdpsf/random.h"
@@ -239,18 +241,38 @@ void PredictiveCheck(const EffectModel& model, const std::vector<double>& p,
                      const PredictiveOptions& options, ResidualStatistics* observed,
                      std::vector<std::vector<double>>* draws) {
   const int ns = static_cast<int>(observed->values.size());
-  std::vector<std::vector<double>> values(ns);
-  for (int s = 0; s < options.num_simulations; ++s) {
+  const int num = std::max(0, options.num_simulations);
+  EffectFitOptions fit_options = options.fit;
+  fit_options.num_threads = 1;
+  // Simulation s uses its own engine and writes only its own row: any thread count gives
+  // the same rows, gathered in simulation order below.
+  std::vector<std::vector<double>> rows(num);
+  auto simulate = [&](int s) {
     std::mt19937_64 engine(DeriveSeed(options.seed, static_cast<uint64_t>(s)));
     const std::vector<Image> data = SimulateData(model, p, engine);
     std::vector<double> at = p;
     if (options.refit) {
       EffectFitResult refit;
       std::string error;
-      if (FitEffectModel(model, {p}, options.fit, &refit, &error, &data)) at = refit.p;
+      if (FitEffectModel(model, {p}, fit_options, &refit, &error, &data)) at = refit.p;
     }
     const ResidualStatistics sim = ComputeStatistics(ComputeResiduals(model, at, &data), model.dim());
-    for (int i = 0; i < ns; ++i) values[i].push_back(sim.values[i].value);
+    rows[s].resize(ns, NAN);
+    for (int i = 0; i < ns && i < static_cast<int>(sim.values.size()); ++i) {
+      rows[s][i] = sim.values[i].value;
+    }
+  };
+  std::atomic<int> next{0};
+  auto worker = [&]() {
+    for (int s = next.fetch_add(1); s < num; s = next.fetch_add(1)) simulate(s);
+  };
+  std::vector<std::thread> pool;
+  for (int t = 1; t < std::clamp(options.threads, 1, std::max(1, num)); ++t) pool.emplace_back(worker);
+  worker();
+  for (std::thread& t : pool) t.join();
+  std::vector<std::vector<double>> values(ns);
+  for (int s = 0; s < num; ++s) {
+    for (int i = 0; i < ns; ++i) values[i].push_back(rows[s][i]);
   }
   for (int i = 0; i < ns; ++i) {
     NamedStatistic& o = observed->values[i];

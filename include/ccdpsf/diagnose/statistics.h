@@ -110,6 +110,9 @@ struct PredictiveOptions {
   // p-values conservative for statistics the fit absorbs.
   bool refit = true;
   EffectFitOptions fit;
+  // Simulations run this many at a time, each refit on one thread (fit.num_threads is not
+  // used here), so the numbers do not depend on the thread count.
+  int threads = 1;
 };
 
 // Simulates the model at `p` num_simulations times (SimulateData, noise only), computes the
