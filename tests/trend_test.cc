@@ -137,6 +137,49 @@ GroupResult SyntheticGroup(const std::string& name, double wavelength, double pe
   return g;
 }
 
+// A low-signal setting whose MAP puts a CCD width at its prior's lower bound: its CCD-only
+// metrics are gaps marked "bound only", its total widths stay in. Its draws sit at 70 % of
+// the truth with a 0.1 % spread (as a plateau posterior's median would), so as a point it
+// would move the slope by far more than 3 sd (checked, so the test can fail).
+TEST(Trend, SettingsWithACcdWidthAtItsBoundAreBoundOnly) {
+  const double c = 6.61, s = 1.14e-5, i0 = 157800;
+  std::mt19937_64 engine(23);
+  std::vector<GroupResult> groups;
+  for (double f : {0.5, 0.7, 0.9, 1.0}) {
+    groups.push_back(SyntheticGroup("i" + std::to_string(f), 800, f * i0, c + s * f * i0, 0.001,
+                                    engine));
+  }
+  GroupResult low = SyntheticGroup("low", 800, 0.05 * i0, 0.7 * (c + s * 0.05 * i0), 0.001, engine);
+  low.summaries["fwhm_um"].median = 4.7;
+  low.summaries["fwhm_um"].hi68 = 6.1;
+  low.unbounded_below = {"ccd_sigma_y_px"};
+  groups.push_back(low);
+  TrendResult r;
+  std::string error;
+  ASSERT_TRUE(ComputeTrend(groups, TrendOptions(), &r, &error)) << error;
+  for (const char* name : {"fwhm_um_vs_intensity", "fwhm_y_um_vs_intensity",
+                                  "r2_px2_vs_intensity", "ellipticity_vs_intensity"}) {
+    const RelationFit& fit = r.relations.at(name);
+    ASSERT_EQ(fit.gaps.size(), 1u) << name;
+    EXPECT_EQ(fit.gaps[0].label, "low");
+    EXPECT_NE(fit.gaps[0].reason.find("bound only"), std::string::npos) << fit.gaps[0].reason;
+    EXPECT_NE(fit.gaps[0].reason.find("ccd_sigma_y_px"), std::string::npos);
+    EXPECT_EQ(fit.points.size(), 4u);
+  }
+  EXPECT_NE(r.relations.at("fwhm_um_vs_intensity").gaps[0].reason.find("posterior median 4.7"),
+            std::string::npos);
+  EXPECT_TRUE(r.relations.at("fwhm_x_um_vs_intensity").gaps.empty());
+  EXPECT_TRUE(r.relations.at("total_fwhm_um_vs_intensity").gaps.empty());
+  const Estimate& slope = r.relations.at("fwhm_um_vs_intensity").Find("slope")->estimate;
+  const double half = 0.5 * (slope.hi68 - slope.lo68);
+  EXPECT_NEAR(slope.median, s, 3 * half);
+  groups.back().unbounded_below.clear();
+  TrendResult pulled;
+  ASSERT_TRUE(ComputeTrend(groups, TrendOptions(), &pulled, &error)) << error;
+  EXPECT_GT(std::fabs(pulled.relations.at("fwhm_um_vs_intensity").Find("slope")->estimate.median - s),
+            3 * half);
+}
+
 // Truth: FWHM(I, lambda) = (c + s I) / (c + s I0) * a lambda^alpha, the combined model. The
 // wavelength points sit at intensities up to 20 % below I0 (the reddest lowest, as in Table
 // 1's 890 nm setting), so without the correction to I0 alpha is biased by ~0.02, several

@@ -1,7 +1,6 @@
 #include "ccdpsf/trend/relations.h"
 
 #include <algorithm>
-#include <array>
 #include <cstdio>
 #include <initializer_list>
 #include <limits>
@@ -102,7 +101,6 @@ struct UsablePoint {
   double x = NAN;
   double u = NAN;                 // transformed abscissa
   std::vector<double> y_draws;    // empty for a Gaussian point
-  std::vector<double> prior_y;    // prior draws in y (empty: flat prior)
   double y_mean = NAN, y_sd = NAN;  // Gaussian point's parameters in y
   double y_center = NAN;          // median in y
   double s = NAN;                 // sd in y: the weight is 1 / s^2
@@ -143,12 +141,6 @@ std::string PreparePoint(RelationKind kind, const RelationPoint& p, double pivot
     if (power) {
       for (double& y : out->y_draws) y = std::log(y);
     }
-    // Prior draws outside the fitted space's domain (X <= 0 for a power law) carry no
-    // density where the posterior lives: dropped.
-    for (double d : p.prior_draws) {
-      if (!std::isfinite(d) || (power && d <= 0.0)) continue;
-      out->prior_y.push_back(power ? std::log(d) : d);
-    }
     out->s = SampleSd(out->y_draws);
     if (!(out->s > 0.0) || !std::isfinite(out->s)) {
       return "posterior draws have no spread: the weight 1/sd^2 is undefined";
@@ -174,341 +166,6 @@ std::string PreparePoint(RelationKind kind, const RelationPoint& p, double pivot
   out->value.hi68 = p.median + p.sd;
   out->value.sd = p.sd;
   return "";
-}
-
-// Minimises f over R^3 by Nelder-Mead from x0 with initial steps `step` (deterministic).
-template <typename F>
-std::array<double, 3> NelderMead3(const F& f, std::array<double, 3> x0, std::array<double, 3> step,
-                                  int max_evaluations) {
-  using P = std::array<double, 3>;
-  std::array<P, 4> x;
-  std::array<double, 4> fx;
-  x[0] = x0;
-  for (int i = 0; i < 3; ++i) {
-    x[i + 1] = x0;
-    x[i + 1][i] += step[i];
-  }
-  for (int i = 0; i < 4; ++i) fx[i] = f(x[i]);
-  int evaluations = 4;
-  auto along = [](const P& c, const P& w, double t) {
-    P out;
-    for (int k = 0; k < 3; ++k) out[k] = c[k] + t * (w[k] - c[k]);
-    return out;
-  };
-  while (evaluations < max_evaluations) {
-    std::array<int, 4> order = {0, 1, 2, 3};
-    std::sort(order.begin(), order.end(), [&](int i, int j) { return fx[i] < fx[j]; });
-    std::array<P, 4> xs;
-    std::array<double, 4> fs;
-    for (int i = 0; i < 4; ++i) {
-      xs[i] = x[order[i]];
-      fs[i] = fx[order[i]];
-    }
-    x = xs;
-    fx = fs;
-    if (std::fabs(fx[3] - fx[0]) < 1e-12 * (1.0 + std::fabs(fx[0]))) break;
-    P c = {0, 0, 0};
-    for (int i = 0; i < 3; ++i) {
-      for (int k = 0; k < 3; ++k) c[k] += x[i][k] / 3.0;
-    }
-    const P r = along(c, x[3], -1.0);
-    const double fr = f(r);
-    ++evaluations;
-    if (fr < fx[0]) {
-      const P e = along(c, x[3], -2.0);
-      const double fe = f(e);
-      ++evaluations;
-      if (fe < fr) {
-        x[3] = e;
-        fx[3] = fe;
-      } else {
-        x[3] = r;
-        fx[3] = fr;
-      }
-    } else if (fr < fx[2]) {
-      x[3] = r;
-      fx[3] = fr;
-    } else {
-      const P k = fr < fx[3] ? along(c, r, 0.5) : along(c, x[3], 0.5);
-      const double fk = f(k);
-      ++evaluations;
-      if (fk < std::min(fr, fx[3])) {
-        x[3] = k;
-        fx[3] = fk;
-      } else {
-        for (int i = 1; i < 4; ++i) {
-          x[i] = along(x[0], x[i], 0.5);
-          fx[i] = f(x[i]);
-          ++evaluations;
-        }
-      }
-    }
-  }
-  int best = 0;
-  for (int i = 1; i < 4; ++i) {
-    if (fx[i] < fx[best]) best = i;
-  }
-  return x[best];
-}
-
-// log L_i(y) of one point, up to a constant: a split normal (two half-Gaussians of widths
-// s_lo below the mode m and s_hi above it; relations.h, "Method"). For a Gaussian point
-// s_lo = s_hi = its sd. For draws, (m, s_lo, s_hi) maximise the likelihood of the
-// posterior draws under the model L(y) p_prior(y) / Z, Z = integral of L p_prior: with no
-// prior draws p_prior is flat and Z = sqrt(pi/2) (s_lo + s_hi); else p_prior is the
-// histogram of the prior draws (200 bins over their range) and Z sums erf integrals of L
-// over the bins. No density of the posterior is estimated, so the fit has the precision of
-// the draws' moments: for Gaussian draws (m, s) are their mean and sd to O(1/sqrt(n)).
-class PointLikelihood {
- public:
-  static PointLikelihood Gaussian(double mean, double sd) {
-    PointLikelihood l;
-    l.m_ = mean;
-    l.s_lo_ = l.s_hi_ = sd;
-    return l;
-  }
-
-  static PointLikelihood FromDraws(const std::vector<double>& y, const std::vector<double>& prior) {
-    const double n = static_cast<double>(y.size());
-    const double sd = SampleSd(y);
-    double mean = 0.0;
-    for (double v : y) mean += v / n;
-    std::vector<double> bin_density, edges;
-    if (!prior.empty()) {
-      const auto [lo, hi] = std::minmax_element(prior.begin(), prior.end());
-      if (*hi > *lo) {
-        constexpr int kBins = 200;
-        edges.resize(kBins + 1);
-        for (int b = 0; b <= kBins; ++b) edges[b] = *lo + (*hi - *lo) * b / kBins;
-        bin_density.assign(kBins, 0.0);
-        const double width = (*hi - *lo) / kBins;
-        for (double v : prior) {
-          const int b = std::min(kBins - 1, static_cast<int>((v - *lo) / width));
-          bin_density[b] += 1.0 / (static_cast<double>(prior.size()) * width);
-        }
-      }
-    }
-    const bool divide = !bin_density.empty();
-    // Widths may not exceed 100 x the scale of everything seen (flat is flat by then).
-    const double scale = divide ? std::max(sd, edges.back() - edges.front()) : sd;
-    const double log_s_min = std::log(1e-3 * sd), log_s_max = std::log(100.0 * scale);
-    auto objective = [&](const std::array<double, 3>& t) {
-      if (!(t[1] >= log_s_min && t[1] <= log_s_max && t[2] >= log_s_min && t[2] <= log_s_max)) {
-        return static_cast<double>(INFINITY);
-      }
-      PointLikelihood l;
-      l.m_ = t[0];
-      l.s_lo_ = std::exp(t[1]);
-      l.s_hi_ = std::exp(t[2]);
-      double sum = 0.0;
-      for (double v : y) sum += l(v);
-      double z = 0.0;
-      if (divide) {
-        for (size_t b = 0; b + 1 < edges.size(); ++b) {
-          if (bin_density[b] > 0.0) z += bin_density[b] * l.Integral(edges[b], edges[b + 1]);
-        }
-      } else {
-        z = std::sqrt(M_PI / 2.0) * (l.s_lo_ + l.s_hi_);
-      }
-      if (!(z > 0.0)) return static_cast<double>(INFINITY);
-      return -sum / n + std::log(z);
-    };
-    const std::array<double, 3> t = NelderMead3(
-        objective, {mean, std::log(sd), std::log(sd)}, {0.3 * sd, 0.3, 0.3}, 2000);
-    PointLikelihood l;
-    l.m_ = t[0];
-    l.s_lo_ = std::exp(t[1]);
-    l.s_hi_ = std::exp(t[2]);
-    l.prior_divided_ = divide;
-    return l;
-  }
-
-  double operator()(double y) const {
-    const double z = (y - m_) / (y < m_ ? s_lo_ : s_hi_);
-    return -0.5 * z * z;
-  }
-
-  // Integral of exp(log L) over [a, b].
-  double Integral(double a, double b) const {
-    const double root2 = std::sqrt(2.0), c = std::sqrt(M_PI / 2.0);
-    double sum = 0.0;
-    if (a < m_) {
-      const double top = std::min(b, m_);
-      sum += c * s_lo_ * (std::erf((top - m_) / (root2 * s_lo_)) - std::erf((a - m_) / (root2 * s_lo_)));
-    }
-    if (b > m_) {
-      const double bottom = std::max(a, m_);
-      sum += c * s_hi_ * (std::erf((b - m_) / (root2 * s_hi_)) - std::erf((bottom - m_) / (root2 * s_hi_)));
-    }
-    return sum;
-  }
-
-  bool prior_divided() const { return prior_divided_; }
-
- private:
-  bool prior_divided_ = false;
-  double m_ = NAN, s_lo_ = NAN, s_hi_ = NAN;
-};
-
-// A 2x2 symmetric matrix [a b; b c] and its lower Cholesky factor [l00 0; l10 l11].
-struct Sym2 {
-  double a = 0, b = 0, c = 0;
-};
-struct Chol2 {
-  double l00 = 0, l10 = 0, l11 = 0;
-};
-bool Cholesky(const Sym2& m, Chol2* out) {
-  if (!(m.a > 0.0)) return false;
-  out->l00 = std::sqrt(m.a);
-  out->l10 = m.b / out->l00;
-  const double d = m.c - out->l10 * out->l10;
-  if (!(d > 0.0) || !std::isfinite(d)) return false;
-  out->l11 = std::sqrt(d);
-  return true;
-}
-
-// The (c0, c1) posterior on nodes c = centre + L z, z on a square grid of g x g nodes over
-// [-z_max, z_max]^2; weights normalised to sum 1.
-struct GridPosterior {
-  double centre[2] = {0, 0};
-  Chol2 l;
-  int g = 0;
-  double z_max = 0, dz = 0;
-  std::vector<double> c0, c1, w;
-  double border_weight = 0;  // weight on the outermost ring of nodes
-};
-
-GridPosterior EvaluateGrid(const std::vector<UsablePoint>& pts,
-                           const std::vector<PointLikelihood>& like, const double centre[2],
-                           const Chol2& l, int g, double z_max) {
-  GridPosterior out;
-  out.centre[0] = centre[0];
-  out.centre[1] = centre[1];
-  out.l = l;
-  out.g = g;
-  out.z_max = z_max;
-  out.dz = 2.0 * z_max / (g - 1);
-  const size_t nodes = static_cast<size_t>(g) * g;
-  out.c0.resize(nodes);
-  out.c1.resize(nodes);
-  out.w.resize(nodes);
-  double best = -INFINITY;
-  for (int a = 0; a < g; ++a) {
-    for (int b = 0; b < g; ++b) {
-      const double z0 = -z_max + a * out.dz, z1 = -z_max + b * out.dz;
-      const double c0 = centre[0] + l.l00 * z0;
-      const double c1 = centre[1] + l.l10 * z0 + l.l11 * z1;
-      double log_p = 0.0;
-      for (size_t i = 0; i < pts.size(); ++i) log_p += like[i](c0 + c1 * pts[i].u);
-      const size_t k = static_cast<size_t>(a) * g + b;
-      out.c0[k] = c0;
-      out.c1[k] = c1;
-      out.w[k] = log_p;
-      best = std::max(best, log_p);
-    }
-  }
-  double total = 0.0;
-  for (double& w : out.w) {
-    w = std::exp(w - best);
-    total += w;
-  }
-  for (int a = 0; a < g; ++a) {
-    for (int b = 0; b < g; ++b) {
-      const size_t k = static_cast<size_t>(a) * g + b;
-      out.w[k] /= total;
-      if (a == 0 || b == 0 || a == g - 1 || b == g - 1) out.border_weight += out.w[k];
-    }
-  }
-  return out;
-}
-
-// Weighted mean and covariance of the nodes (plus a cell's own spread, so that a posterior
-// narrower than one cell still gives a positive definite matrix).
-void GridMoments(const GridPosterior& grid, double mean[2], Sym2* cov) {
-  mean[0] = mean[1] = 0.0;
-  for (size_t k = 0; k < grid.w.size(); ++k) {
-    mean[0] += grid.w[k] * grid.c0[k];
-    mean[1] += grid.w[k] * grid.c1[k];
-  }
-  Sym2 m;
-  for (size_t k = 0; k < grid.w.size(); ++k) {
-    const double d0 = grid.c0[k] - mean[0], d1 = grid.c1[k] - mean[1];
-    m.a += grid.w[k] * d0 * d0;
-    m.b += grid.w[k] * d0 * d1;
-    m.c += grid.w[k] * d1 * d1;
-  }
-  // A uniform cell of side dz in z has variance dz^2 / 12 per axis: L (dz^2/12) L^T.
-  const double v = grid.dz * grid.dz / 12.0;
-  const Chol2& l = grid.l;
-  m.a += v * l.l00 * l.l00;
-  m.b += v * l.l00 * l.l10;
-  m.c += v * (l.l10 * l.l10 + l.l11 * l.l11);
-  *cov = m;
-}
-
-// The posterior grid, iterated from the weighted least-squares start until its moments
-// settle (relations.h, "Method"). False if no usable grid could be made.
-bool SolveGrid(const std::vector<UsablePoint>& pts, const std::vector<PointLikelihood>& like,
-               const double wls_centre[2], const Sym2& wls_cov, GridPosterior* out) {
-  double centre[2] = {wls_centre[0], wls_centre[1]};
-  // Wide first look: the least-squares sds can be far off when points are not Gaussian.
-  Sym2 cov{9.0 * wls_cov.a, 9.0 * wls_cov.b, 9.0 * wls_cov.c};
-  for (int pass = 0; pass < 8; ++pass) {
-    Chol2 l;
-    if (!Cholesky(cov, &l)) return false;
-    GridPosterior grid = EvaluateGrid(pts, like, centre, l, 101, 6.0);
-    double mean[2];
-    Sym2 next;
-    GridMoments(grid, mean, &next);
-    // Settled: the centre moved < 0.05 sd and the sds changed < 5 %, nothing at the border.
-    const double move = std::hypot((mean[0] - centre[0]) / std::sqrt(next.a),
-                                   (mean[1] - centre[1]) / std::sqrt(next.c));
-    const bool settled = pass > 0 && grid.border_weight < 1e-6 && move < 0.05 &&
-                         std::fabs(std::sqrt(next.a / cov.a) - 1.0) < 0.05 &&
-                         std::fabs(std::sqrt(next.c / cov.c) - 1.0) < 0.05;
-    centre[0] = mean[0];
-    centre[1] = mean[1];
-    // Weight at the border: the posterior reaches beyond the grid; look wider next time.
-    cov = grid.border_weight > 1e-6 ? Sym2{4.0 * next.a, 4.0 * next.b, 4.0 * next.c} : next;
-    if (settled) break;
-  }
-  Chol2 l;
-  if (!Cholesky(cov, &l)) return false;
-  *out = EvaluateGrid(pts, like, centre, l, 161, 7.0);
-  return true;
-}
-
-// Median, central 68.27 % interval and sd of weighted values (the weights sum to 1): the
-// percentiles interpolate the weighted CDF taken at each value's mid-weight.
-Estimate WeightedSummary(const std::vector<double>& values, const std::vector<double>& weights) {
-  std::vector<size_t> order(values.size());
-  for (size_t k = 0; k < order.size(); ++k) order[k] = k;
-  std::sort(order.begin(), order.end(), [&](size_t i, size_t j) { return values[i] < values[j]; });
-  Estimate e;
-  double mean = 0.0;
-  for (size_t k = 0; k < values.size(); ++k) mean += weights[k] * values[k];
-  double var = 0.0;
-  for (size_t k = 0; k < values.size(); ++k) var += weights[k] * std::pow(values[k] - mean, 2);
-  e.sd = std::sqrt(var);
-  const double qs[3] = {kLo68, 0.5, kHi68};
-  double* outs[3] = {&e.lo68, &e.median, &e.hi68};
-  int next = 0;
-  double cum = 0.0, prev_cdf = 0.0, prev_value = values.empty() ? NAN : values[order[0]];
-  for (size_t k = 0; k < order.size() && next < 3; ++k) {
-    const double w = weights[order[k]];
-    const double cdf = cum + 0.5 * w;
-    const double value = values[order[k]];
-    while (next < 3 && qs[next] <= cdf) {
-      const double f = cdf > prev_cdf ? (qs[next] - prev_cdf) / (cdf - prev_cdf) : 1.0;
-      *outs[next] = k == 0 ? value : prev_value + std::clamp(f, 0.0, 1.0) * (value - prev_value);
-      ++next;
-    }
-    cum += w;
-    prev_cdf = cdf;
-    prev_value = value;
-  }
-  while (next < 3) *outs[next++] = prev_value;
-  return e;
 }
 
 const std::vector<std::string>& CoefficientNames(RelationKind kind) {
@@ -578,13 +235,11 @@ std::string RelationName(const std::string& metric, RelationKind kind) {
 }
 
 RelationPoint RelationPoint::FromDraws(std::string label, double abscissa,
-                                       std::vector<double> draws,
-                                       std::vector<double> prior_draws) {
+                                       std::vector<double> draws) {
   RelationPoint p;
   p.label = std::move(label);
   p.abscissa = abscissa;
   p.draws = std::move(draws);
-  p.prior_draws = std::move(prior_draws);
   return p;
 }
 
@@ -690,38 +345,16 @@ std::optional<RelationFit> FitRelation(RelationKind kind, const std::vector<Rela
     fit.coefficients.push_back(c);
   }
 
-  // Usable points, their likelihoods, and gaps.
+  // Usable points and gaps.
   std::vector<UsablePoint> usable;
-  std::vector<PointLikelihood> like;
   for (const RelationPoint& p : points) {
     UsablePoint up;
-    std::string why = PreparePoint(kind, p, pivot, &up);
-    if (why.empty()) {
-      PointLikelihood l = up.gaussian ? PointLikelihood::Gaussian(up.y_mean, up.y_sd)
-                                      : PointLikelihood::FromDraws(up.y_draws, up.prior_y);
-      // A setting whose data do not bound the metric from below: its likelihood at the
-      // smallest value its prior allows is within 2 sigma (e^-2) of its best. In pixel_centre
-      // sampling that is a CCD width below ~0.25 px, which leaves no trace in the data. Its
-      // likelihood for X is then the prior's geometry more than the data (for the FWHM, the
-      // level sets of sqrt(sigma_x sigma_y) that reach the identified edge in both axes are
-      // rare), and it pulled the Table-1 800 nm line down at low intensity, so it is not fitted.
-      if (l.prior_divided()) {
-        const double y_min = *std::min_element(up.prior_y.begin(), up.prior_y.end());
-        if (l(y_min) > -2.0) {
-          const Estimate& v = up.value;
-          why = "bound only: the data do not bound it from below (its likelihood at the "
-                "prior's smallest value, " + Num(kind == RelationKind::kPowerLaw ? std::exp(y_min) : y_min) +
-                ", is within 2 sigma of its best); posterior median " + Num(v.median) +
-                ", 84th percentile " + Num(v.hi68) + "; not fitted";
-        }
-      }
-      if (why.empty()) {
-        usable.push_back(std::move(up));
-        like.push_back(l);
-        continue;
-      }
+    const std::string why = PreparePoint(kind, p, pivot, &up);
+    if (!why.empty()) {
+      fit.gaps.push_back({p.label, p.abscissa, why});
+      continue;
     }
-    fit.gaps.push_back({p.label, p.abscissa, why});
+    usable.push_back(std::move(up));
   }
   const int n = static_cast<int>(usable.size());
   for (const UsablePoint& up : usable) {
@@ -769,37 +402,50 @@ std::optional<RelationFit> FitRelation(RelationKind kind, const std::vector<Rela
     return fit;
   }
 
-  // Weighted least squares on the point medians, weights 1 / s_i^2: the grid's first centre
-  // and scale. M = A^T W A; the solution M^-1 A^T W y, covariance M^-1.
-  double m00 = 0.0, m01 = 0.0, m11 = 0.0, r0 = 0.0, r1 = 0.0;
+  // Weighted least squares: M = A^T W A, H = M^-1 A^T W, row 0 -> c0, row 1 -> c1.
+  double m00 = 0.0, m01 = 0.0, m11 = 0.0;
+  std::vector<double> w(n);
   for (int i = 0; i < n; ++i) {
-    const double w = 1.0 / (usable[i].s * usable[i].s);
-    m00 += w;
-    m01 += w * usable[i].u;
-    m11 += w * usable[i].u * usable[i].u;
-    r0 += w * usable[i].y_center;
-    r1 += w * usable[i].u * usable[i].y_center;
+    w[i] = 1.0 / (usable[i].s * usable[i].s);
+    m00 += w[i];
+    m01 += w[i] * usable[i].u;
+    m11 += w[i] * usable[i].u * usable[i].u;
   }
   const double det = m00 * m11 - m01 * m01;
   if (!(det > 0.0) || !std::isfinite(det)) {
     AddFlag(&fit, kFlagNotFitted, "the weighted normal equations are singular");
     return fit;
   }
-  const double wls[2] = {(m11 * r0 - m01 * r1) / det, (m00 * r1 - m01 * r0) / det};
-  const Sym2 wls_cov{m11 / det, -m01 / det, m00 / det};
-
-  // The (c0, c1) posterior on a grid.
-  for (int i = 0; i < n; ++i) fit.points[i].prior_divided = like[i].prior_divided();
-  GridPosterior grid;
-  if (!SolveGrid(usable, like, wls, wls_cov, &grid)) {
-    AddFlag(&fit, kFlagNotFitted, "the posterior of the relation's coefficients is degenerate");
-    return fit;
+  std::vector<double> h0(n), h1(n);
+  for (int i = 0; i < n; ++i) {
+    h0[i] = (m11 - m01 * usable[i].u) * w[i] / det;
+    h1[i] = (m00 * usable[i].u - m01) * w[i] / det;
   }
-  const size_t nodes = grid.w.size();
-  const double c0_med = WeightedSummary(grid.c0, grid.w).median;
-  const double c1_med = WeightedSummary(grid.c1, grid.w).median;
+
+  // Resampling: point k draws from its own engine, so gaps do not shift the other streams.
+  const int num_r = options.resamples;
+  std::vector<double> c0(num_r, 0.0), c1(num_r, 0.0);
+  for (int i = 0; i < n; ++i) {
+    const UsablePoint& up = usable[i];
+    std::mt19937_64 engine(DeriveSeed(options.seed, static_cast<uint64_t>(i)));
+    const size_t num_draws = up.y_draws.size();
+    for (int r = 0; r < num_r; ++r) {
+      double y;
+      if (up.gaussian) {
+        y = up.y_mean + up.y_sd * StandardNormal(engine);
+      } else {
+        size_t k = static_cast<size_t>(Uniform01(engine) * static_cast<double>(num_draws));
+        if (k >= num_draws) k = num_draws - 1;
+        y = up.y_draws[k];
+      }
+      c0[r] += h0[i] * y;
+      c1[r] += h1[i] * y;
+    }
+  }
 
   // Goodness of fit of the point medians about the median relation.
+  const double c0_med = Median(c0);
+  const double c1_med = Median(c1);
   double chi2 = 0.0;
   for (int i = 0; i < n; ++i) {
     const double z = (usable[i].y_center - c0_med - c1_med * usable[i].u) / usable[i].s;
@@ -813,48 +459,25 @@ std::optional<RelationFit> FitRelation(RelationKind kind, const std::vector<Rela
     fit.scale_factor = std::sqrt(chi2 / fit.dof);
   }
 
-  // Coefficient estimates from the nodes, primary and inflated.
+  // Coefficient draws, primary and inflated.
   const double inflate = fit.dof >= 1 ? std::max(1.0, fit.scale_factor) : NAN;
-  std::vector<std::vector<double>> values(3, std::vector<double>(nodes));
-  std::vector<std::vector<double>> inflated(3, std::vector<double>(nodes));
-  for (size_t k = 0; k < nodes; ++k) {
+  std::vector<std::vector<double>> inflated(3);
+  for (Coefficient& c : fit.coefficients) c.draws.resize(num_r);
+  for (int r = 0; r < num_r; ++r) {
     double v[3];
-    MapCoefficients(kind, pivot, grid.c0[k], grid.c1[k], v);
-    for (int j = 0; j < 3; ++j) values[j][k] = v[j];
+    MapCoefficients(kind, pivot, c0[r], c1[r], v);
+    for (int j = 0; j < 3; ++j) fit.coefficients[j].draws[r] = v[j];
     if (fit.dof >= 1 && inflate > 1.0) {
-      MapCoefficients(kind, pivot, c0_med + inflate * (grid.c0[k] - c0_med),
-                      c1_med + inflate * (grid.c1[k] - c1_med), v);
-      for (int j = 0; j < 3; ++j) inflated[j][k] = v[j];
+      MapCoefficients(kind, pivot, c0_med + inflate * (c0[r] - c0_med),
+                      c1_med + inflate * (c1[r] - c1_med), v);
+      for (int j = 0; j < 3; ++j) inflated[j].push_back(v[j]);
     }
   }
   for (int j = 0; j < 3; ++j) {
-    fit.coefficients[j].estimate = WeightedSummary(values[j], grid.w);
+    fit.coefficients[j].estimate = SummarizeDraws(fit.coefficients[j].draws);
     if (fit.dof >= 1) {
-      fit.coefficients[j].inflated = inflate > 1.0 ? WeightedSummary(inflated[j], grid.w)
+      fit.coefficients[j].inflated = inflate > 1.0 ? SummarizeDraws(std::move(inflated[j]))
                                                    : fit.coefficients[j].estimate;
-    }
-  }
-
-  // Propagation draws: a node by weight, jittered uniformly within its cell.
-  {
-    std::vector<double> cdf(nodes);
-    double cum = 0.0;
-    for (size_t k = 0; k < nodes; ++k) cdf[k] = (cum += grid.w[k]);
-    std::mt19937_64 engine(DeriveSeed(options.seed, 0));
-    const int num_r = options.resamples;
-    for (Coefficient& c : fit.coefficients) c.draws.resize(num_r);
-    for (int r = 0; r < num_r; ++r) {
-      const double target = Uniform01(engine) * cum;
-      const size_t k = std::min<size_t>(
-          static_cast<size_t>(std::lower_bound(cdf.begin(), cdf.end(), target) - cdf.begin()),
-          nodes - 1);
-      const double j0 = (Uniform01(engine) - 0.5) * grid.dz;
-      const double j1 = (Uniform01(engine) - 0.5) * grid.dz;
-      const double c0 = grid.c0[k] + grid.l.l00 * j0;
-      const double c1 = grid.c1[k] + grid.l.l10 * j0 + grid.l.l11 * j1;
-      double v[3];
-      MapCoefficients(kind, pivot, c0, c1, v);
-      for (int j = 0; j < 3; ++j) fit.coefficients[j].draws[r] = v[j];
     }
   }
   fit.fitted = true;
@@ -938,7 +561,6 @@ json ToJson(const RelationFit& fit) {
                    {"fit_sd", NullIfNan(p.fit_sd)},
                    {"source", p.gaussian ? "gaussian_median_sd" : "posterior_draws"},
                    {"n_draws", p.num_draws},
-                   {"prior_divided", p.prior_divided},
                    {"normalized_residual", NullIfNan(p.normalized_residual)}});
   }
   j["points"] = pts;

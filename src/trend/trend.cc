@@ -17,9 +17,43 @@ std::string Format(double v, int precision = 4) {
 
 // The group's measurement of `metric` as a relation point at `abscissa`: its posterior
 // draws, else the Laplace Gaussian, else a gap saying why.
+// The CCD width behind a CCD-only metric whose MAP sits at its prior's lower bound, or "".
+std::string WidthAtLowerBound(const GroupResult& g, const std::string& metric) {
+  std::vector<std::string> axes;
+  if (metric == "fwhm_x_um") {
+    axes = {"ccd_sigma_x_px"};
+  } else if (metric == "fwhm_y_um") {
+    axes = {"ccd_sigma_y_px"};
+  } else if (metric == "fwhm_um" || metric == "r2_px2" || metric == "ellipticity") {
+    axes = {"ccd_sigma_x_px", "ccd_sigma_y_px"};
+  }
+  for (const std::string& a : axes) {
+    if (std::find(g.unbounded_below.begin(), g.unbounded_below.end(), a) !=
+        g.unbounded_below.end()) {
+      return a;
+    }
+  }
+  return "";
+}
+
 RelationPoint PointOf(const GroupResult& g, const std::string& metric, double abscissa) {
   const std::string& label = g.group.name;
   if (!g.ok) return RelationPoint::Missing(label, abscissa, g.failure);
+  // "Bound only" (see trend.h): not a measurement to fit a line through.
+  const std::string width = WidthAtLowerBound(g, metric);
+  if (!width.empty()) {
+    auto s = g.summaries.find(metric);
+    std::string posterior;
+    if (s != g.summaries.end() && std::isfinite(s->second.median)) {
+      posterior = "; posterior median " + Format(s->second.median) + ", 84th percentile " +
+                  Format(s->second.hi68);
+    }
+    return RelationPoint::Missing(
+        label, abscissa,
+        "bound only: " + width + " reaches its prior's lower bound (MAP or posterior), so the "
+        "data do not bound this metric from below (in pixel_centre sampling a CCD width under "
+        "~0.25 px leaves no trace)" + posterior);
+  }
   auto draws = g.draws.find(metric);
   // A chain that did not converge has intervals not to be trusted (often far too narrow: a
   // walker ensemble stuck in one corner), and one such point can dominate a weighted fit.
@@ -29,10 +63,7 @@ RelationPoint PointOf(const GroupResult& g, const std::string& metric, double ab
                                   "trusted (see the group's fit report)");
   }
   if (draws != g.draws.end() && draws->second.size() >= 2) {
-    auto prior = g.prior_draws.find(metric);
-    return RelationPoint::FromDraws(
-        label, abscissa, draws->second,
-        prior != g.prior_draws.end() ? prior->second : std::vector<double>());
+    return RelationPoint::FromDraws(label, abscissa, draws->second);
   }
   auto s = g.summaries.find(metric);
   if (s != g.summaries.end() && std::isfinite(s->second.laplace_sd)) {
@@ -184,12 +215,6 @@ bool ComputeTrend(std::vector<GroupResult> groups, const TrendOptions& options,
         for (size_t j = 0; j < p.draws.size(); ++j) {
           const size_t r = j % at_i0.size();
           p.draws[j] *= at_i0[r] / at_i[r];
-        }
-        // The prior is carried through the same correction, so the likelihood is that of
-        // the corrected value.
-        for (size_t j = 0; j < p.prior_draws.size(); ++j) {
-          const size_t r = j % at_i0.size();
-          p.prior_draws[j] *= at_i0[r] / at_i[r];
         }
       }
       points.push_back(std::move(p));

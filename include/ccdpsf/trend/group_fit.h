@@ -27,10 +27,6 @@ struct GroupFitOptions {
   int parallel_groups = 2;
   // Posterior draws of each metric kept per group (evenly thinned from the chain).
   int draws = 2000;
-  // Draws of each metric under the fit's flat prior, per group: the relations divide a
-  // setting's posterior by this prior to get its likelihood (relations.h). 20000 keep the
-  // prior's kernel estimate ~3x less noisy than the posterior's (2000 draws).
-  int prior_draws = 20000;
   // Where each group's full fit report goes (out_dir/<group name>/); empty: none.
   std::string reports_dir;
 };
@@ -51,8 +47,10 @@ struct GroupResult {
   // excepted) and of the shared parameters.
   std::map<std::string, fit::Summary> summaries;
   std::map<std::string, std::vector<double>> draws;
-  // Draws of the derived metrics (not peak_e) under the fit's flat prior.
-  std::map<std::string, std::vector<double>> prior_draws;
+  // Shared parameters the data do not bound from below (trend.h, "bound only"): the MAP sits
+  // at the prior's lower bound (within 1e-6 of the range), or, in pixel_centre sampling, the
+  // posterior's 0.135th percentile is within 10 % of (median - bound) of the bound.
+  std::vector<std::string> unbounded_below;
 };
 
 // Called after each group finishes (from the worker thread, serialised by a lock): its

@@ -8,12 +8,12 @@
 //
 // Input. A relation is fitted to points; each point is one setting (one joint fit of a
 // group of exposures) with an abscissa x_i and the posterior draws of the metric X from that
-// fit (any number per point), optionally with draws of X under that fit's PRIOR; or, when
-// draws are absent, a Gaussian given by its median and sd (flagged "gaussian_approximation";
-// in a power law's log space it enters as N(log median, (sd / median)^2), to first order).
-// The abscissae (wavelength, intensity) are treated as EXACT: their errors (monochromator
-// bandwidth, the spread of peak values within a setting) are not propagated. A point whose
-// fit failed is passed with a reason: it is excluded and listed among the gaps.
+// fit (any number per point), or, when draws are absent, a Gaussian given by its median and
+// sd (flagged "gaussian_approximation"; in a power law's log space it enters as
+// N(log median, (sd / median)^2), to first order). The abscissae (wavelength, intensity) are treated as
+// EXACT: their errors (monochromator bandwidth, the spread of peak values within a setting)
+// are not propagated. A point whose fit failed is passed with a reason: it is excluded and
+// listed among the gaps.
 //
 // Method. Both relations are fitted as a straight line in a transformed space, about a
 // pivot x0 (800 nm, 157800 e- by default) inside the data, which largely decorrelates the
@@ -24,36 +24,22 @@
 //   linear:     y = X,      u = (x - x0) / x0:    y = c0 + c1 u,  slope = c1 / x0,
 //               intercept = c0 - c1 (the value at I = 0, as the paper quotes it), X(x0) = c0
 //
-// Each point enters through its LIKELIHOOD of y, not a Gaussian summary of its posterior:
+// Each point's weight is w_i = 1 / s_i^2 with s_i the sd of its draws in the fitted space
+// (the sd of log X for the power law). The weights and the design matrix A = [1, u_i] are
+// fixed, so the weighted least-squares solution is a fixed linear map of the data,
 //
-//   L_i(y) = p(data_i | y) ∝ p(y | data_i) / p_prior,i(y)
+//   c = H y,   H = (A^T W A)^-1 A^T W.
 //
-// (Bayes: the posterior of the setting's own fit divided by the prior that fit induced on
-// y). Both densities are kernel estimates from the draws in y with one Gaussian kernel width
-// h (0.75 x Silverman's rule on the posterior draws: h = 0.675 min(sd, IQR / 1.349) n^-1/5,
-// which widens a Gaussian posterior's sd by sqrt(1 + (h/sd)^2) - 1 = 1.4 % at n = 1000,
-// 0.9 % at n = 2000), so the smoothing cancels where posterior and prior have the same
-// shape. Why this matters: in pixel_centre sampling a CCD width below ~0.25 px leaves no
-// trace in the data (the sampled kernel is a delta), so a low-signal setting's posterior is
-// a peak plus a prior-shaped plateau down to the prior's edge. Its median and sd describe
-// the prior more than the data; as a Gaussian point it pulled the 800 nm line down at low
-// intensity (slope biased by +1 to +1.7 sd on the Table-1 campaign). Its likelihood is flat
-// over the plateau, "X is at most about this", which is all the data say. The prior density
-// is floored at 2 % of its largest value over the posterior's range, so the ratio stays
-// stable where few prior draws fall (the very edge of the prior); without prior draws the
-// prior is taken as flat in y (L_i = the posterior). A Gaussian point has L_i = N(m, s^2).
-//
-// The posterior of (c0, c1) under a flat prior, prod_i L_i(c0 + c1 u_i), is evaluated on a
-// grid: centred and scaled by the weighted least-squares solution first (weights 1/s_i^2,
-// s_i the sd of the point's draws in y), then re-centred and re-scaled on the grid's own
-// mean and covariance until they settle, finally 161 x 161 nodes over +-7 sd (cells of
-// 0.0875 sd). Each coefficient (and a, intercept, X(x0), computed at each node) is
-// summarised from the node weights by the median and the central 68.27 % interval (the
-// 15.87th and 84.13th percentiles, 1 sigma of a Gaussian, as fit.json's intervals), with no
-// Monte-Carlo error beyond that of the kernel estimates. For Gaussian posteriors and a flat
-// prior this is ordinary weighted least squares with covariance (A^T W A)^-1 (tested). The R
-// draws that propagate the relation (ValueDraws, the combined model, the requirements) are
-// taken from the node weights with a uniform jitter within the cell.
+// Propagation. The fit is repeated for R resamplings; resampling r takes one posterior draw
+// per point (chosen uniformly, independently across points: the settings are separate fits)
+// and gives c_r = H y_r. The coefficients (and a, intercept, X(x0) computed from each c_r) are
+// summarised by the median and the central 68.27 % interval (the 15.87th and 84.13th
+// percentiles, 1 sigma of a Gaussian, as fit.json's intervals) of that ensemble. No point
+// estimate enters: skewed or non-Gaussian posteriors are carried through as they are. Since
+// H is linear, Cov(c_r) = H Cov(y) H^T, which for W = Cov(y)^-1 is the textbook (A^T W A)^-1:
+// for Gaussian posteriors the ensemble reproduces ordinary weighted least squares (tested).
+// The log transform makes the power-law fit linear; for a posterior Gaussian in X of
+// relative width s/X, log X is Gaussian to O((s/X)^2), and the draws are used as they are.
 //
 // It is very easy to read these intervals incorrectly: they are the uncertainty given the
 // point errors, i.e. they assume the relation's form is right and the points scatter only
@@ -61,18 +47,16 @@
 //
 //   chi^2 = sum_i ((y~_i - c0~ - c1~ u_i) / s_i)^2,  dof = n - 2,  p = Q(dof/2, chi^2/2)
 //
-// with y~_i the point medians and s_i their sds (in the fitted space) and c~ the posterior
-// medians of c0 and c1 (the "median relation"; each reported coefficient's median is its own
-// median, so median(a) need not equal exp(c0~) x0^-c1~ exactly when the posterior is
-// skewed). A plateau point's median and sd describe its prior, so chi^2 is a rough check. When
+// with y~_i the point medians (in the fitted space) and c~ the medians of the c0 and c1
+// draws (the "median relation"; each reported coefficient's median is the median of its own
+// draws, so median(a) need not equal exp(c0~) x0^-c1~ exactly when the draws are skewed). When
 // p < 0.01 and chi^2/dof > 1 the fit is flagged "scatter_exceeds_errors" (the relation's form
 // or the per-point errors are incomplete), and a second set of intervals, inflated by
 // S = sqrt(chi^2/dof) (the Birge ratio / PDG scale factor: the draws c_r - c~ are scaled by S
 // about the medians and a, intercept ... recomputed), is reported in `inflated`. The
 // uninflated intervals stay the primary ones: inflation assumes the excess scatter is
 // statistical and evenly shared among points, which nothing guarantees. `inflated` uses
-// max(1, S) (never shrinks) and exists whenever dof >= 1 (the posterior's nodes moved to
-// c~ + S (c - c~), with the same weights).
+// max(1, S) (never shrinks) and exists whenever dof >= 1.
 //
 // Flags (each with a human-readable reason):
 //   not_fitted            fewer than 2 usable points, or all at one abscissa
@@ -85,9 +69,9 @@
 //   scatter_exceeds_errors  see above
 //   gaussian_approximation  some points had no draws (median/sd Gaussian used)
 //
-// Randomness: only the R propagation draws are random (std::mt19937_64 seeded with
-// DeriveSeed(seed, 0)), so a result depends only on the usable points, the options and the
-// seed; a gap is exactly equivalent to leaving the point out.
+// Randomness: point k (k-th usable point, in input order) draws from its own
+// std::mt19937_64 seeded with DeriveSeed(seed, k), so a result depends only on the usable
+// points, the options and the seed; a gap is exactly equivalent to leaving the point out.
 #ifndef CCDPSF_TREND_RELATIONS_H_
 #define CCDPSF_TREND_RELATIONS_H_
 
@@ -147,22 +131,20 @@ struct RelationPoint {
   std::string label;          // names the setting in gaps, flags and reports (e.g. its folder)
   double abscissa = NAN;      // wavelength [nm] or peak-pixel intensity [e-]; treated as exact
   std::vector<double> draws;  // posterior draws of the metric (its fit's MCMC), in X's unit
-  // Draws of the metric under that fit's prior (empty: the prior is flat in the fitted space).
-  std::vector<double> prior_draws;
   double median = NAN;        // used only when draws is empty: a Gaussian N(median, sd^2)
   double sd = NAN;
   std::string missing_reason;  // non-empty: this setting's fit failed; excluded, listed as gap
 
-  static RelationPoint FromDraws(std::string label, double abscissa, std::vector<double> draws,
-                                 std::vector<double> prior_draws = {});
+  static RelationPoint FromDraws(std::string label, double abscissa, std::vector<double> draws);
   static RelationPoint FromGaussian(std::string label, double abscissa, double median,
                                     double sd);
   static RelationPoint Missing(std::string label, double abscissa, std::string reason);
 };
 
 struct RelationOptions {
-  // Draws R of the coefficients kept for propagation (ValueDraws, the combined model, the
-  // requirements); >= 100. The reported estimates do not depend on R.
+  // Resamplings R of the weighted fit (each one draw per point); >= 100. Monte-Carlo error
+  // for a Gaussian coefficient of sd sigma: median 1.25 sigma / sqrt(R), a 68 % bound
+  // 1.51 sigma / sqrt(R) (2.8 % and 3.4 % of sigma at R = 2000).
   int resamples = 2000;
   uint64_t seed = 1;
   // Pivot x0 in the abscissa's unit; NaN picks kReferenceWavelengthNm for kPowerLaw and
@@ -191,7 +173,6 @@ struct PointSummary {
   double fit_sd = NAN;        // s_i: sd in the fitted space (of log X for the power law)
   bool gaussian = false;      // true: no draws, N(median, sd^2) used
   int num_draws = 0;          // 0 for a Gaussian point
-  bool prior_divided = false;  // true: its likelihood is its posterior over its prior's draws
   double normalized_residual = NAN;  // (y~_i - median relation at x_i) / s_i
 };
 
@@ -203,10 +184,10 @@ struct RelationGap {
 
 struct Coefficient {
   std::string name;            // "a", "alpha", "intercept", "slope", "value_at_pivot"
-  Estimate estimate;           // primary: from the (c0, c1) posterior grid
+  Estimate estimate;           // primary: from the resampling ensemble
   Estimate inflated;           // intervals with the draws scaled by max(1, sqrt(chi^2/dof));
                                // NaN when dof < 1 (sd scaled likewise)
-  std::vector<double> draws;   // R propagation draws, aligned across the coefficients
+  std::vector<double> draws;   // R draws, aligned across the coefficients of one relation
 };
 
 struct RelationFit {

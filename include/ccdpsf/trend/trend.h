@@ -17,6 +17,19 @@
 //   through-focus groups    not in the relations (a different experiment); reported on
 //                           their own: there the CCD widths are identified.
 // Failed groups appear as gaps in every relation they would have fed.
+//
+// "Bound only": a group whose MAP puts a CCD width at its prior's lower bound, or, in
+// pixel_centre sampling, whose posterior reaches it (group_fit.h unbounded_below), is a gap, with
+// its posterior median and 84th percentile in the reason, in the relations of the CCD-only
+// metrics that width enters (fwhm_x_um: sigma_x; fwhm_y_um: sigma_y; fwhm_um, r2_px2,
+// ellipticity: either); its total_* metrics stay in. Why: in pixel_centre sampling a CCD
+// width below ~0.25 px leaves no trace (the sampled kernel is a delta; measured on a 23.4 ke-
+// Table-1 setting: log L changes by 0.005 from 0.05 to 0.2 px, then by 60 by 0.3 px), so a
+// low-signal setting's posterior is flat down to the prior's edge and its median describes
+// the prior. As points, such settings pulled the Table-1 800 nm line down at low intensity
+// (slope +1.0 to +1.65 sd in three runs). In integrated sampling the CCD widths trade against
+// the defocus along a ridge whose MAP end is at zero defocus, not at the widths' bound: those
+// stay in, with their prior-wide intervals (DESIGN.md pitfall 1).
 #ifndef CCDPSF_TREND_TREND_H_
 #define CCDPSF_TREND_TREND_H_
 
