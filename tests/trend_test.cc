@@ -180,6 +180,41 @@ TEST(Trend, SettingsWithACcdWidthAtItsBoundAreBoundOnly) {
             3 * half);
 }
 
+// Integrated sampling (DESIGN.md pitfall 1): every CCD-only posterior is prior-wide along the
+// defocus ridge (here uniform on [1.5, 14] um, the CCD share of a 14 um total width), and no
+// group has a width at its bound (the ridge's MAP end is at zero defocus; group_fit.cc). The
+// CCD-only relations are then fitted, with intervals as wide as the posteriors, and flagged
+// poorly_constrained; the total widths' relation is not. (A relation method that misread
+// such posteriors gave alpha = -30 on the bundled demo.)
+TEST(Trend, IntegratedCcdOnlyRelationsKeepPriorWideIntervals) {
+  std::mt19937_64 engine(29);
+  std::vector<GroupResult> groups;
+  int k = 0;
+  for (double wavelength : {600.0, 700.0, 800.0, 890.0}) {
+    GroupResult g = SyntheticGroup("w" + std::to_string(k++), wavelength, 157800,
+                                   14.0 * std::pow(wavelength / 800.0, -0.1), 0.002, engine);
+    for (const std::string& metric : {std::string("fwhm_um"), std::string("fwhm_x_um")}) {
+      for (double& d : g.draws[metric]) d = 1.5 + 12.5 * Uniform01(engine);
+    }
+    groups.push_back(g);
+  }
+  TrendResult r;
+  std::string error;
+  ASSERT_TRUE(ComputeTrend(groups, TrendOptions(), &r, &error)) << error;
+  const RelationFit& ccd = r.relations.at("fwhm_um_vs_wavelength");
+  ASSERT_TRUE(ccd.fitted);
+  EXPECT_TRUE(ccd.gaps.empty());
+  EXPECT_TRUE(ccd.HasFlag(kFlagPoorlyConstrained));
+  // Four points of sd ~3.6 um on ~7.8 um: alpha is uncertain by more than 1.
+  const Estimate& alpha = ccd.Find("alpha")->estimate;
+  EXPECT_GT(alpha.hi68 - alpha.lo68, 2.0);
+  EXPECT_LT(alpha.lo68, -0.1);
+  EXPECT_GT(alpha.hi68, -0.1);
+  const RelationFit& total = r.relations.at("total_fwhm_um_vs_wavelength");
+  EXPECT_FALSE(total.HasFlag(kFlagPoorlyConstrained));
+  EXPECT_NEAR(total.Find("alpha")->estimate.median, -0.1, 0.02);
+}
+
 // Truth: FWHM(I, lambda) = (c + s I) / (c + s I0) * a lambda^alpha, the combined model. The
 // wavelength points sit at intensities up to 20 % below I0 (the reddest lowest, as in Table
 // 1's 890 nm setting), so without the correction to I0 alpha is biased by ~0.02, several
