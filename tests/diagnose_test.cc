@@ -235,6 +235,71 @@ TEST(Diagnose, FindsHalo) {
               {{"halo.fraction", 0.03}, {"halo.sigma_px", 2.5}});
 }
 
+TEST(Diagnose, EffectModelReproducesTheSimulatorAcrossIntensities) {
+  // The fitted model of a set at several intensities (a flux per exposure) with every image
+  // effect, evaluated at the simulator's truth, must be the simulator's expected electrons:
+  // a difference in where the nonlinearity acts (before or after IPC, on pixel integrals or
+  // centre samples) would be a model mismatch the workflow reports as a missing effect.
+  // Both sides run the same double-precision code on the same 21 x 21 grid, so they agree to
+  // rounding: 1e-9 of the peak (~1e-4 e-, far below the ~400 e- shot noise there) leaves room
+  // for a reordered sum and catches any real difference (a 2.4e-7 / e- nonlinearity moves the
+  // peak by ~5000 e-; an IPC of 1e-3 by ~600 e-).
+  SimulationConfig c = Paper(3, 11);
+  const double flux[] = {4.0e5, 2.0e5, 1.0e5};
+  for (int k = 0; k < 3; ++k) c.exposures[k].flux_e = flux[k];
+  c.effects.halo = model::HaloParams{0.03, 2.5};
+  c.effects.nonlinearity = model::NonlinearityParams{2.4e-7};
+  c.effects.ipc = model::IpcParams{0.01};
+  c.effects.serial_cti = model::CtiParams{1e-3, 1.5};
+  c.effects.parallel_cti = model::CtiParams{2e-3, 0.8};
+  c.effects.background = model::BackgroundParams{20.0};
+  const std::vector<Stamp> stamps = testing_support::SimulateStamps(c, 31);
+  std::string error;
+  auto base = fit::FitModel::Create(stamps, fit::FitModelOptions(), &error);
+  ASSERT_TRUE(base) << error;
+  ModelSpec spec;
+  spec.flux = FluxMode::kPerExposure;
+  // Added in an order other than the one they act in: the spec's order must not matter.
+  spec.effects = {EffectKind::kBackground, EffectKind::kIpc, EffectKind::kNonlinearity,
+                  EffectKind::kParallelCti, EffectKind::kHalo, EffectKind::kSerialCti};
+  auto model = EffectModel::Create(*base, spec, &error);
+  ASSERT_TRUE(model) << error;
+  std::vector<double> p(model->dim(), NAN);
+  const auto set = [&](const std::string& name, double value) {
+    const auto it = std::find(model->names().begin(), model->names().end(), name);
+    ASSERT_NE(it, model->names().end()) << name;
+    p[it - model->names().begin()] = value;
+  };
+  set("airy_radius_px", c.airy_radius_px);
+  set("defocus_sigma_px", c.defocus_px);
+  set("ccd_sigma_x_px", c.ccd_sigma_x_px);
+  set("ccd_sigma_y_px", c.ccd_sigma_y_px);
+  for (int k = 0; k < 3; ++k) {
+    set("flux_e." + std::to_string(k), c.exposures[k].flux_e);
+    set("x_px." + std::to_string(k), c.exposures[k].x_px);
+    set("y_px." + std::to_string(k), c.exposures[k].y_px);
+  }
+  for (EffectKind kind : spec.effects) {
+    const model::EffectInfo& info = model::DescribeEffect(kind);
+    const std::vector<double> values = model::GetEffectParameters(c.effects, kind);
+    for (size_t j = 0; j < info.parameters.size(); ++j) {
+      set(info.name + "." + info.parameters[j].name, values[j]);
+    }
+  }
+  for (int i = 0; i < model->dim(); ++i) ASSERT_TRUE(std::isfinite(p[i])) << model->names()[i];
+  auto evaluator = model->NewEvaluator();
+  for (int k = 0; k < 3; ++k) {
+    const Image expected = ExpectedElectrons(c, c.exposures[k]);
+    std::vector<double> m;
+    ASSERT_TRUE(evaluator->Render(p.data(), k, &m, nullptr));
+    ASSERT_EQ(m.size(), expected.size());
+    const double peak = *std::max_element(expected.data.begin(), expected.data.end());
+    for (size_t q = 0; q < m.size(); ++q) {
+      ASSERT_NEAR(m[q], expected.data[q], 1e-9 * peak) << "exposure " << k << " pixel " << q;
+    }
+  }
+}
+
 TEST(Diagnose, FindsNonlinearityAcrossIntensities) {
   // At one intensity a quadratic response is largely a change of the widths (a flatter
   // peak); across intensities its growth with the signal gives it away.
