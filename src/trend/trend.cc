@@ -15,9 +15,8 @@ std::string Format(double v, int precision = 4) {
   return out.str();
 }
 
-// The group's measurement of `metric` as a relation point at `abscissa`: its posterior
-// draws, else the Laplace Gaussian, else a gap saying why.
-// The CCD width behind a CCD-only metric whose MAP sits at its prior's lower bound, or "".
+// The CCD width behind a CCD-only metric that the data do not bound from below (group_fit.h
+// unbounded_below), or "".
 std::string WidthAtLowerBound(const GroupResult& g, const std::string& metric) {
   std::vector<std::string> axes;
   if (metric == "fwhm_x_um") {
@@ -36,6 +35,8 @@ std::string WidthAtLowerBound(const GroupResult& g, const std::string& metric) {
   return "";
 }
 
+// The group's measurement of `metric` as a relation point at `abscissa`: its posterior
+// draws, else the Laplace Gaussian, else a gap saying why.
 RelationPoint PointOf(const GroupResult& g, const std::string& metric, double abscissa) {
   const std::string& label = g.group.name;
   if (!g.ok) return RelationPoint::Missing(label, abscissa, g.failure);
