@@ -908,7 +908,19 @@ bool ValidateXy(const XyPlotInput& in, std::string* error) {
       return fail(name + " has " + std::to_string(s.x.size()) + " x and " +
                   std::to_string(s.y.size()) + " y values");
     }
-    if (s.x.empty()) return fail(name + " has no points");
+    if (s.limit_x.size() != s.limit_y.size()) {
+      return fail(name + " has " + std::to_string(s.limit_x.size()) + " limit x and " +
+                  std::to_string(s.limit_y.size()) + " limit y values");
+    }
+    if (s.x.empty() && s.limit_x.empty()) return fail(name + " has no points and no limits");
+    for (size_t i = 0; i < s.limit_x.size(); ++i) {
+      const std::string limit = name + " limit " + std::to_string(i);
+      if (!std::isfinite(s.limit_x[i]) || !std::isfinite(s.limit_y[i])) {
+        return fail(limit + " is not finite");
+      }
+      if (in.log_x && !(s.limit_x[i] > 0)) return fail(limit + " has x <= 0 on a log x axis");
+      if (in.log_y && !(s.limit_y[i] > 0)) return fail(limit + " has y <= 0 on a log y axis");
+    }
     if (s.y_lo.empty() != s.y_hi.empty()) return fail(name + " has y_lo or y_hi but not both");
     if (!s.y_lo.empty() && (s.y_lo.size() != s.x.size() || s.y_hi.size() != s.x.size())) {
       return fail(name + " has " + std::to_string(s.y_lo.size()) + " y_lo and " +
@@ -1025,16 +1037,21 @@ bool WriteXyPlot(const std::string& dir, const std::string& stem, const XyPlotIn
   std::vector<std::pair<std::string, std::string>> files;
   const std::string x_name = input.x_label.empty() ? "x" : OneLine(input.x_label);
   const std::string y_name = input.y_label.empty() ? "y" : OneLine(input.y_label);
-  if (!input.series.empty()) {
+  std::vector<size_t> with_points;  // series with points, in order (the series file's indexes)
+  for (size_t k = 0; k < input.series.size(); ++k) {
+    if (!input.series[k].x.empty()) with_points.push_back(k);
+  }
+  if (!with_points.empty()) {
     std::string d;
     d += "# Point series of " + stem +
-         ".gp, one block per series (gnuplot index = series"
+         ".gp, one block per series that has points (gnuplot index = block"
          " number - 1).\n";
     d += "# Columns: x [" + x_name + "], y [" + y_name + "], y_lo, y_hi [" + y_name +
          "; absolute bounds, equal to y when the series has no error bars]\n";
-    for (size_t k = 0; k < input.series.size(); ++k) {
+    for (size_t b = 0; b < with_points.size(); ++b) {
+      const size_t k = with_points[b];
       const Series& series = input.series[k];
-      d += (k ? "\n\n" : "") + std::string("# series ") + std::to_string(k + 1) + ": " +
+      d += (b ? "\n\n" : "") + std::string("# series ") + std::to_string(k + 1) + ": " +
            OneLine(series.label) + "\n";
       for (size_t i = 0; i < series.x.size(); ++i) {
         const double y_lo = series.y_lo.empty() ? series.y[i] : series.y_lo[i];
@@ -1045,6 +1062,15 @@ bool WriteXyPlot(const std::string& dir, const std::string& stem, const XyPlotIn
       }
     }
     files.push_back({stem + "_series.dat", d});
+  }
+  // Upper limits: their arrows' length depends on the y range, so the file is written below.
+  std::vector<size_t> with_limits;  // series with limits, in order (the limits file's indexes)
+  for (size_t k = 0; k < input.series.size(); ++k) {
+    const Series& series = input.series[k];
+    if (series.limit_x.empty()) continue;
+    with_limits.push_back(k);
+    xs.insert(xs.end(), series.limit_x.begin(), series.limit_x.end());
+    ys.insert(ys.end(), series.limit_y.begin(), series.limit_y.end());
   }
   if (!input.curves.empty()) {
     std::string d;
@@ -1065,6 +1091,28 @@ bool WriteXyPlot(const std::string& dir, const std::string& stem, const XyPlotIn
   for (const HorizontalLine& line : input.requirements) ys.push_back(line.y);
   const auto [x_lo, x_hi] = AxisRange(xs, input.log_x);
   const auto [y_lo, y_hi] = AxisRange(ys, input.log_y);
+  if (!with_limits.empty()) {
+    // 4 % of the height: less than the 5 % margin below the lowest value (4.5 % of the height),
+    // so no arrow leaves the plot.
+    constexpr double kArrowFraction = 0.04;
+    std::string d;
+    d += "# Upper limits of " + stem + ".gp: one block per series that has them (gnuplot index "
+         "= block number - 1), each point drawn as a downward arrow.\n";
+    d += "# Columns: x [" + x_name + "], limit y [" + y_name + "], arrow dy [" + y_name +
+         "; negative]\n";
+    for (size_t b = 0; b < with_limits.size(); ++b) {
+      const Series& series = input.series[with_limits[b]];
+      d += (b ? "\n\n" : "") + std::string("# series ") + std::to_string(with_limits[b] + 1) +
+           ": " + OneLine(series.limit_label) + "\n";
+      for (size_t i = 0; i < series.limit_x.size(); ++i) {
+        const double y = series.limit_y[i];
+        const double end = input.log_y ? y * std::pow(y_lo / y_hi, kArrowFraction)
+                                       : y - kArrowFraction * (y_hi - y_lo);
+        d += Num(series.limit_x[i]) + " " + Num(y) + " " + Num(end - y) + "\n";
+      }
+    }
+    files.push_back({stem + "_limits.dat", d});
+  }
 
   std::string s =
       ScriptPreamble(stem, input.title.empty() ? "x-y plot" : input.title, 1000, 620, 11, files);
@@ -1101,17 +1149,28 @@ bool WriteXyPlot(const std::string& dir, const std::string& stem, const XyPlotIn
   const std::string curves_file = GpString(stem + "_curves.dat");
   // On a log y axis a lower bound <= 0 cannot be drawn: its bar runs to the bottom instead.
   const std::string low_column = input.log_y ? "($3 > 0 ? $3 : " + Num(y_lo) + ")" : "3";
-  for (size_t k = 0; k < input.series.size(); ++k) {
+  for (size_t b = 0; b < with_points.size(); ++b) {
+    const size_t k = with_points[b];
     const Series& series = input.series[k];
     const std::string title =
         series.label.empty() ? std::string("notitle") : "title " + GpString(series.label);
     if (series.y_lo.empty()) {
-      plots.push_back(series_file + " index " + std::to_string(k) + " using 1:2 with points ls " +
+      plots.push_back(series_file + " index " + std::to_string(b) + " using 1:2 with points ls " +
                       std::to_string(k + 1) + " " + title);
     } else {
-      plots.push_back(series_file + " index " + std::to_string(k) + " using 1:2:" + low_column +
+      plots.push_back(series_file + " index " + std::to_string(b) + " using 1:2:" + low_column +
                       ":4 with yerrorbars ls " + std::to_string(k + 1) + " " + title);
     }
+  }
+  const std::string limits_file = GpString(stem + "_limits.dat");
+  for (size_t b = 0; b < with_limits.size(); ++b) {
+    const Series& series = input.series[with_limits[b]];
+    const std::string title = series.limit_label.empty()
+                                  ? std::string("notitle")
+                                  : "title " + GpString(series.limit_label);
+    plots.push_back(limits_file + " index " + std::to_string(b) +
+                    " using 1:2:(0):3 with vectors head filled size screen 0.008,30 ls " +
+                    std::to_string(with_limits[b] + 1) + " " + title);
   }
   for (size_t k = 0; k < input.curves.size(); ++k) {
     const Curve& curve = input.curves[k];

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdlib>
+#include <cstring>
 #include <fstream>
 #include <limits>
 #include <random>
@@ -464,12 +465,18 @@ XyPlotInput MakeXyInput() {
   in.title = "FWHM vs wavelength (it's @x {a}_b)";
   in.x_label = "wavelength [nm]";
   in.y_label = "FWHM [um]";
-  in.series.push_back({"FWHM_x",
-                       {600, 700, 800, 890},
-                       {8.1, 7.7, 7.3, 7.0},
-                       {7.9, 7.5, 7.1, 6.7},
-                       {8.3, 7.9, 7.5, 7.2}});
-  in.series.push_back({"FWHM_y", {600, 700, 800, 890}, {8.6, 8.2, 7.9, 7.6}, {}, {}});
+  Series x;
+  x.label = "FWHM_x";
+  x.x = {600, 700, 800, 890};
+  x.y = {8.1, 7.7, 7.3, 7.0};
+  x.y_lo = {7.9, 7.5, 7.1, 6.7};
+  x.y_hi = {8.3, 7.9, 7.5, 7.2};
+  in.series.push_back(x);
+  Series y;
+  y.label = "FWHM_y";
+  y.x = {600, 700, 800, 890};
+  y.y = {8.6, 8.2, 7.9, 7.6};
+  in.series.push_back(y);
   Curve curve{"a lambda^alpha", {}, {}};
   for (double l = 580; l <= 910; l += 10) {
     curve.x.push_back(l);
@@ -525,6 +532,65 @@ TEST(Plot, XyPlotOnLogAxesAllowsLowerBoundsBelowZero) {
   EXPECT_TRUE(result.message.empty() || !result.png_written) << result.message;
 }
 
+// The y range the script sets: "set yrange [lo:hi]".
+std::pair<double, double> ScriptYRange(const std::string& script) {
+  const size_t at = script.find("set yrange [");
+  if (at == std::string::npos) return {kNaN, kNaN};
+  const char* p = script.c_str() + at + std::strlen("set yrange [");
+  char* end = nullptr;
+  const double lo = std::strtod(p, &end);
+  const double hi = std::strtod(end + 1, nullptr);
+  return {lo, hi};
+}
+
+// Upper limits: a block per series that has them (a series may have only limits), each arrow
+// pointing down by 4 % of the plotted y range (of its logarithm on a log axis), inside the plot.
+TEST(Plot, XyPlotDrawsUpperLimitsAsDownwardArrows) {
+  for (const bool log_y : {false, true}) {
+    ScopedTempDir dir;
+    XyPlotInput in = MakeXyInput();
+    in.log_y = log_y;
+    in.series[0].limit_x = {650.0};
+    in.series[0].limit_y = {6.2};  // the lowest value drawn: its arrow must stay inside
+    in.series[0].limit_label = "FWHM_x: upper limit";
+    Series only_limits;
+    only_limits.label = "FWHM (bound only)";
+    only_limits.limit_x = {750.0, 850.0};
+    only_limits.limit_y = {8.0, 9.5};
+    in.series.push_back(only_limits);
+    PlotResult result;
+    std::string error;
+    ASSERT_TRUE(WriteXyPlot(dir.path(), "lim", in, &result, &error)) << error;
+    // The points file has blocks only for the two series with points.
+    EXPECT_EQ(ReadBlocks(dir.File("lim_series.dat")).size(), 2u);
+    const std::vector<Block> limits = ReadBlocks(dir.File("lim_limits.dat"));
+    ASSERT_EQ(limits.size(), 2u);
+    const std::string script = ReadText(result.script_path);
+    const auto [lo, hi] = ScriptYRange(script);
+    ASSERT_TRUE(lo < 6.2 && hi > 9.5) << lo << " " << hi;
+    const std::vector<const Series*> owners = {&in.series[0], &in.series[2]};
+    for (size_t b = 0; b < 2; ++b) {
+      ASSERT_EQ(limits[b].size(), owners[b]->limit_x.size());
+      for (size_t i = 0; i < limits[b].size(); ++i) {
+        const double y = owners[b]->limit_y[i];
+        EXPECT_EQ(limits[b][i][0], owners[b]->limit_x[i]);
+        EXPECT_EQ(limits[b][i][1], y);
+        // Closed forms; 1e-6 relative covers the 10 significant digits of the script's range.
+        const double expected = log_y ? y * (std::pow(lo / hi, 0.04) - 1.0) : -0.04 * (hi - lo);
+        EXPECT_NEAR(limits[b][i][2], expected, 1e-6 * std::fabs(expected));
+        EXPECT_GE(y + limits[b][i][2], lo);
+      }
+    }
+    // Drawn in the owning series' line style (3 for the third series), with its key entry.
+    EXPECT_NE(script.find("'lim_limits.dat' index 1 using 1:2:(0):3 with vectors"),
+              std::string::npos);
+    EXPECT_NE(script.find("ls 3 notitle"), std::string::npos);
+    EXPECT_NE(script.find("'FWHM_x: upper limit'"), std::string::npos);
+    ExpectPng(result, 600, 1400, 400, 900);
+    EXPECT_TRUE(result.message.empty() || !result.png_written) << result.message;
+  }
+}
+
 TEST(Plot, XyPlotRejectsBadInput) {
   ScopedTempDir dir;
   const XyPlotInput good = MakeXyInput();
@@ -558,6 +624,19 @@ TEST(Plot, XyPlotRejectsBadInput) {
   in = good;
   in.log_x = true;
   in.curves[0].x[0] = -5.0;
+  EXPECT_TRUE(rejects(in));
+  in = good;
+  in.series[0].limit_x = {650.0, 700.0};
+  in.series[0].limit_y = {6.0};
+  EXPECT_TRUE(rejects(in));
+  in = good;
+  in.series[0].limit_x = {650.0};
+  in.series[0].limit_y = {kNaN};
+  EXPECT_TRUE(rejects(in));
+  in = good;
+  in.log_y = true;
+  in.series[0].limit_x = {650.0};
+  in.series[0].limit_y = {-1.0};
   EXPECT_TRUE(rejects(in));
   in = XyPlotInput();
   in.requirements.push_back({"only a line", 1.0});

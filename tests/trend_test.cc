@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <fstream>
 #include <random>
+#include <sstream>
 #include <string>
 
 #include "ccdpsf/random.h"
@@ -153,6 +154,10 @@ TEST(Trend, SettingsWithACcdWidthAtItsBoundAreBoundOnly) {
   low.summaries["fwhm_um"].median = 4.7;
   low.summaries["fwhm_um"].hi68 = 6.1;
   low.unbounded_below = {"ccd_sigma_y_px"};
+  // A plateau posterior for the FWHM: uniform on [1.5, 7] um, whose 95th percentile is
+  // 1.5 + 0.95 x 5.5 = 6.725 um (the gap's upper limit).
+  const std::vector<double> narrow = low.draws["fwhm_um"];
+  for (double& d : low.draws["fwhm_um"]) d = 1.5 + 5.5 * Uniform01(engine);
   groups.push_back(low);
   TrendResult r;
   std::string error;
@@ -168,12 +173,27 @@ TEST(Trend, SettingsWithACcdWidthAtItsBoundAreBoundOnly) {
   }
   EXPECT_NE(r.relations.at("fwhm_um_vs_intensity").gaps[0].reason.find("posterior median 4.7"),
             std::string::npos);
+  // 2000 draws: the 95th percentile's sd is sqrt(0.95 x 0.05 / 2000) x 5.5 = 0.027 um; 0.11 um
+  // is 4 sd.
+  EXPECT_NEAR(r.relations.at("fwhm_um_vs_intensity").gaps[0].upper_limit_95, 6.725, 0.11);
+  // A failed group's gap has no limit.
+  GroupResult failed = SyntheticGroup("failed", 800, 0.3 * i0, c, 0.001, engine);
+  failed.ok = false;
+  failed.failure = "the fit did not converge";
+  std::vector<GroupResult> with_failed = groups;
+  with_failed.push_back(failed);
+  TrendResult r_failed;
+  ASSERT_TRUE(ComputeTrend(with_failed, TrendOptions(), &r_failed, &error)) << error;
+  for (const RelationGap& gap : r_failed.relations.at("fwhm_um_vs_intensity").gaps) {
+    EXPECT_EQ(std::isfinite(gap.upper_limit_95), gap.label == "low") << gap.label;
+  }
   EXPECT_TRUE(r.relations.at("fwhm_x_um_vs_intensity").gaps.empty());
   EXPECT_TRUE(r.relations.at("total_fwhm_um_vs_intensity").gaps.empty());
   const Estimate& slope = r.relations.at("fwhm_um_vs_intensity").Find("slope")->estimate;
   const double half = 0.5 * (slope.hi68 - slope.lo68);
   EXPECT_NEAR(slope.median, s, 3 * half);
   groups.back().unbounded_below.clear();
+  groups.back().draws["fwhm_um"] = narrow;
   TrendResult pulled;
   ASSERT_TRUE(ComputeTrend(groups, TrendOptions(), &pulled, &error)) << error;
   EXPECT_GT(std::fabs(pulled.relations.at("fwhm_um_vs_intensity").Find("slope")->estimate.median - s),
@@ -325,6 +345,35 @@ TEST(TrendCli, RecoversThePaperRelationsOnASimulatedCampaign) {
     EXPECT_EQ(q["pass"], json(true)) << q.dump();
   }
   EXPECT_EQ(trend["failed_groups"].get<int>(), 0);
+  // This campaign's two lowest 800 nm settings are bound only (3 exposures at 23-50 ke-; a
+  // deterministic seed): each gap keeps its 95 % upper limit, the same number in trend.json,
+  // the relation's CSV (10 significant digits) and the plot's arrows (shortest round trip).
+  int limits = 0;
+  for (const json& gap : trend["relations"]["fwhm_um_vs_intensity"]["gaps"]) {
+    if (gap["reason"].get<std::string>().rfind("bound only", 0) != 0) continue;
+    ASSERT_TRUE(gap["upper_limit_95"].is_number()) << gap.dump();
+    const double limit = gap["upper_limit_95"].get<double>();
+    const std::string label = gap["label"].get<std::string>();
+    std::ifstream csv(dir + "/trend/fwhm_um_vs_intensity.csv");
+    std::string line, csv_row;
+    while (std::getline(csv, line)) {
+      if (line.rfind(label + ",", 0) == 0) csv_row = line;
+    }
+    ASSERT_FALSE(csv_row.empty()) << label;
+    EXPECT_NE(csv_row.find(",0,"), std::string::npos) << csv_row;  // used = 0
+    EXPECT_NEAR(std::stod(csv_row.substr(csv_row.rfind(',') + 1)), limit, 1e-9 * limit);
+    std::ifstream arrows(dir + "/trend/fwhm_vs_intensity_limits.dat");
+    bool drawn = false;
+    double x, y, dy;
+    while (std::getline(arrows, line)) {
+      if (line.empty() || line[0] == '#') continue;
+      std::istringstream(line) >> x >> y >> dy;
+      drawn = drawn || (x == gap["abscissa"].get<double>() && y == limit && dy < 0);
+    }
+    EXPECT_TRUE(drawn) << label;
+    ++limits;
+  }
+  EXPECT_GT(limits, 0);
 }
 
 TEST(TrendCli, BrokenGroupsAreReportedAndTheRunGoesOn) {

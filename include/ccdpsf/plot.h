@@ -118,19 +118,23 @@ bool WriteResidualMaps(const std::string& dir, const std::string& stem,
                        std::string* error, const PlotOptions& options = PlotOptions());
 
 // ---------------------------------------------------------------------------------------------
-// A generic x-y plot: point series with optional error bars, model curves, and horizontal
-// requirement lines (dashed red, labelled at their right end). Series k and curve k share
-// colour k (red is kept for requirements), so a series and the model fitted to it match. The
-// axis ranges are chosen to show every point, error bar, curve and requirement with a 5%
-// margin (in log space on log axes). All values must be finite; on a log axis the points,
-// curves and requirement values must be positive, but a lower error bound <= 0 is allowed
-// (its bar runs to the bottom of the plot).
+// A generic x-y plot: point series with optional error bars and upper limits, model curves,
+// and horizontal requirement lines (dashed red, labelled at their right end). Series k and
+// curve k share colour k (red is kept for requirements), so a series and the model fitted to
+// it match. The axis ranges are chosen to show every point, error bar, limit, curve and
+// requirement with a 5% margin (in log space on log axes). All values must be finite; on a
+// log axis the points, limits, curves and requirement values must be positive, but a lower
+// error bound <= 0 is allowed (its bar runs to the bottom of the plot).
 struct Series {
   std::string label;  // key entry; empty: none
   std::vector<double> x, y;
   // Empty, or one absolute bound per point with y_lo <= y <= y_hi (not error sizes: for
   // y +- e pass y - e and y + e).
   std::vector<double> y_lo, y_hi;
+  // Settings known only to lie below a value: each a downward arrow from (limit_x, limit_y),
+  // 4 % of the plot's height long, in the series' colour. A series needs points or limits.
+  std::vector<double> limit_x, limit_y;
+  std::string limit_label;  // key entry of the arrows; empty: none
 };
 struct Curve {
   std::string label;  // key entry; empty: none
@@ -148,8 +152,8 @@ struct XyPlotInput {
   std::vector<HorizontalLine> requirements;
 };
 
-// Writes STEM_series.dat (when there are series), STEM_curves.dat (when there are curves),
-// STEM.gp and STEM.png into `dir`. At least one series or curve with points is required.
+// Writes STEM_series.dat (when there are series), STEM_limits.dat (when a series has upper
+// limits), STEM_curves.dat (when there are curves), STEM.gp and STEM.png into `dir`. At least one series or curve with points is required.
 // `result` may be null.
 bool WriteXyPlot(const std::string& dir, const std::string& stem, const XyPlotInput& input,
                  PlotResult* result, std::string* error,

@@ -261,6 +261,13 @@ RelationPoint RelationPoint::Missing(std::string label, double abscissa, std::st
   return p;
 }
 
+RelationPoint RelationPoint::BoundOnly(std::string label, double abscissa, std::string reason,
+                                       std::vector<double> draws) {
+  RelationPoint p = Missing(std::move(label), abscissa, std::move(reason));
+  p.draws = std::move(draws);
+  return p;
+}
+
 bool RelationOptions::IsValid(std::string* error) const {
   if (resamples < 100) {
     *error = "relation resamples must be >= 100 (got " + std::to_string(resamples) + ")";
@@ -351,7 +358,15 @@ std::optional<RelationFit> FitRelation(RelationKind kind, const std::vector<Rela
     UsablePoint up;
     const std::string why = PreparePoint(kind, p, pivot, &up);
     if (!why.empty()) {
-      fit.gaps.push_back({p.label, p.abscissa, why});
+      RelationGap gap{p.label, p.abscissa, why};
+      if (!p.missing_reason.empty()) {
+        std::vector<double> finite;
+        for (double d : p.draws) {
+          if (std::isfinite(d)) finite.push_back(d);
+        }
+        if (finite.size() >= 2) SelectPercentiles(finite, {0.95}, &gap.upper_limit_95);
+      }
+      fit.gaps.push_back(std::move(gap));
       continue;
     }
     usable.push_back(std::move(up));
@@ -566,7 +581,10 @@ json ToJson(const RelationFit& fit) {
   j["points"] = pts;
   json gaps = json::array();
   for (const RelationGap& g : fit.gaps) {
-    gaps.push_back({{"label", g.label}, {"abscissa", NullIfNan(g.abscissa)}, {"reason", g.reason}});
+    gaps.push_back({{"label", g.label},
+                    {"abscissa", NullIfNan(g.abscissa)},
+                    {"reason", g.reason},
+                    {"upper_limit_95", NullIfNan(g.upper_limit_95)}});
   }
   j["gaps"] = gaps;
   json flags = json::array();

@@ -49,11 +49,16 @@ RelationPoint PointOf(const GroupResult& g, const std::string& metric, double ab
       posterior = "; posterior median " + Format(s->second.median) + ", 84th percentile " +
                   Format(s->second.hi68);
     }
-    return RelationPoint::Missing(
-        label, abscissa,
+    const std::string reason =
         "bound only: " + width + " reaches its prior's lower bound (MAP or posterior), so the "
         "data do not bound this metric from below (in pixel_centre sampling a CCD width under "
-        "~0.25 px leaves no trace)" + posterior);
+        "~0.25 px leaves no trace)" + posterior;
+    // The draws give the gap its upper limit, unless the chain is not to be trusted.
+    auto draws = g.draws.find(metric);
+    if (draws == g.draws.end() || !g.converged) {
+      return RelationPoint::Missing(label, abscissa, reason);
+    }
+    return RelationPoint::BoundOnly(label, abscissa, reason, draws->second);
   }
   auto draws = g.draws.find(metric);
   // A chain that did not converge has intervals not to be trusted (often far too narrow: a
@@ -210,7 +215,8 @@ bool ComputeTrend(std::vector<GroupResult> groups, const TrendOptions& options,
       RelationPoint p = PointOf(*g, metric, wavelength);
       const double peak = NominalOrMeasuredPeak(*g);
       if (options.correct_to_reference_intensity && intensity != nullptr &&
-          p.missing_reason.empty() && !p.draws.empty() && std::isfinite(peak)) {
+          !p.draws.empty() && std::isfinite(peak)) {
+        // (A bound-only point's draws are corrected too: they give its upper limit.)
         const std::vector<double> at_i0 = intensity->ValueDraws(i0);
         const std::vector<double> at_i = intensity->ValueDraws(peak);
         for (size_t j = 0; j < p.draws.size(); ++j) {

@@ -72,17 +72,20 @@ std::string Interval(const fit::Summary& s, int precision = 4) {
   return "n/a";
 }
 
-// A relation's points as CSV: label, abscissa, median, lo68, hi68, sd, normalised residual.
+// A relation's points as CSV: label, abscissa, median, lo68, hi68, sd, normalised residual,
+// used (1: a fitted point; 0: a gap), and a bound-only gap's 95 % upper limit.
 std::string RelationCsv(const RelationFit& fit) {
   std::ostringstream csv;
   csv.precision(10);
-  csv << "group,abscissa,median,lo68,hi68,sd,normalized_residual,used\n";
+  csv << "group,abscissa,median,lo68,hi68,sd,normalized_residual,used,upper_limit_95\n";
   for (const PointSummary& p : fit.points) {
     csv << p.label << "," << p.abscissa << "," << p.value.median << "," << p.value.lo68 << ","
-        << p.value.hi68 << "," << p.value.sd << "," << p.normalized_residual << ",1\n";
+        << p.value.hi68 << "," << p.value.sd << "," << p.normalized_residual << ",1,\n";
   }
   for (const RelationGap& g : fit.gaps) {
-    csv << g.label << "," << g.abscissa << ",,,,,,0\n";
+    csv << g.label << "," << g.abscissa << ",,,,,,0,";
+    if (std::isfinite(g.upper_limit_95)) csv << g.upper_limit_95;
+    csv << "\n";
   }
   return csv.str();
 }
@@ -112,6 +115,13 @@ void PlotFits(const std::string& dir, const std::string& stem, const std::string
       s.y_lo.push_back(std::min(p.value.lo68, p.value.median));
       s.y_hi.push_back(std::max(p.value.hi68, p.value.median));
     }
+    // Bound-only settings as upper limits (the axes are linear).
+    for (const RelationGap& g : line.fit->gaps) {
+      if (!std::isfinite(g.upper_limit_95) || !std::isfinite(g.abscissa)) continue;
+      s.limit_x.push_back(g.abscissa);
+      s.limit_y.push_back(g.upper_limit_95);
+    }
+    if (!s.limit_x.empty()) s.limit_label = line.label + ": 95 % upper limit (bound only)";
     Curve c;
     c.label = line.fit->fitted ? line.label + " fit" : "";
     if (line.fit->fitted) {
@@ -135,17 +145,17 @@ void PlotFits(const std::string& dir, const std::string& stem, const std::string
     }
     // Series k and curve k share a colour, so they stay paired: a relation that was not
     // fitted gets a one-point curve (which draws nothing) and no key entry.
-    if (s.x.empty()) continue;
+    if (s.x.empty() && s.limit_x.empty()) continue;
     if (c.x.empty()) {
       c.label.clear();
-      c.x = {s.x[0]};
-      c.y = {s.y[0]};
+      c.x = {s.x.empty() ? s.limit_x[0] : s.x[0]};
+      c.y = {s.x.empty() ? s.limit_y[0] : s.y[0]};
     }
     in.series.push_back(std::move(s));
     in.curves.push_back(std::move(c));
   }
   bool any = false;
-  for (const Series& s : in.series) any = any || !s.x.empty();
+  for (const Series& s : in.series) any = any || !s.x.empty() || !s.limit_x.empty();
   if (!any) return;
   in.requirements = limits;
   PlotResult plot;
@@ -307,7 +317,9 @@ bool WriteTrendReport(const std::string& out_dir, const TrendResult& r,
   for (const auto& [name, fit] : r.relations) {
     for (const RelationFlag& f : fit.flags) md << "- " << name << ": " << f.reason << "\n";
     for (const RelationGap& g : fit.gaps) {
-      md << "- " << name << ": gap at " << g.label << " (" << g.reason << ")\n";
+      md << "- " << name << ": gap at " << g.label << " (" << g.reason;
+      if (std::isfinite(g.upper_limit_95)) md << "; 95 % upper limit " << Fmt(g.upper_limit_95, 4);
+      md << ")\n";
     }
   }
   if (!r.intensity_by_wavelength.empty()) {

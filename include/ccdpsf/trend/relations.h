@@ -133,12 +133,17 @@ struct RelationPoint {
   std::vector<double> draws;  // posterior draws of the metric (its fit's MCMC), in X's unit
   double median = NAN;        // used only when draws is empty: a Gaussian N(median, sd^2)
   double sd = NAN;
-  std::string missing_reason;  // non-empty: this setting's fit failed; excluded, listed as gap
+  // Non-empty: this setting is excluded from the fit and listed as a gap. Draws given with a
+  // reason make a "bound only" gap (a measurement the data bound from above only): the gap
+  // carries the 95th percentile of its finite draws as an upper limit.
+  std::string missing_reason;
 
   static RelationPoint FromDraws(std::string label, double abscissa, std::vector<double> draws);
   static RelationPoint FromGaussian(std::string label, double abscissa, double median,
                                     double sd);
   static RelationPoint Missing(std::string label, double abscissa, std::string reason);
+  static RelationPoint BoundOnly(std::string label, double abscissa, std::string reason,
+                                 std::vector<double> draws);
 };
 
 struct RelationOptions {
@@ -180,6 +185,9 @@ struct RelationGap {
   std::string label;
   double abscissa = NAN;
   std::string reason;
+  // A bound-only point's 95th percentile of its draws, in X's unit (plotted as an upper
+  // limit); NaN for a gap with no measurement.
+  double upper_limit_95 = NAN;
 };
 
 struct Coefficient {
