@@ -300,12 +300,14 @@ bool FitBaseline(const fit::FitModel& base, const EffectModel& model, const Diag
   return FitEffectModel(model, starts, options.fit, fit, error);
 }
 
-// The share of `num` simulations of (model at p) in which `kind` is named on top of `null`.
+// The share of `num` simulations of (model at p) in which `kind` is named on top of `null`,
+// among those whose fits succeeded (NaN if none did); *failed counts the others.
 double DetectionRate(const fit::FitModel& base, const EffectModel& null_model,
                      const EffectModel& truth_model, const std::vector<double>& p_truth,
                      EffectKind kind, double p_threshold, const DiagnoseOptions& options,
-                     int num, uint64_t seed) {
+                     int num, uint64_t seed, int* failed) {
   int named = 0;
+  *failed = 0;
   for (int s = 0; s < num; ++s) {
     std::mt19937_64 engine(DeriveSeed(seed, static_cast<uint64_t>(s)));
     const std::vector<Image> data = SimulateData(truth_model, p_truth, engine);
@@ -313,15 +315,21 @@ double DetectionRate(const fit::FitModel& base, const EffectModel& null_model,
     std::string error;
     if (!FitEffectModel(null_model, {null_model.FromOther(truth_model, p_truth)}, options.fit,
                         &null_fit, &error, &data)) {
+      ++*failed;
       continue;
     }
     const Tested t = TestCandidate(base, null_model, null_fit, kind, options, &data);
+    if (t.candidate.status == CandidateResult::Status::kFitFailed) {
+      ++*failed;
+      continue;
+    }
     if (t.candidate.status == CandidateResult::Status::kTested && t.candidate.p_value < p_threshold &&
         t.candidate.delta_bic < 0) {
       ++named;
     }
   }
-  return num > 0 ? static_cast<double>(named) / num : NAN;
+  const int fitted = num - *failed;
+  return fitted > 0 ? static_cast<double>(named) / fitted : NAN;
 }
 
 }  // namespace
@@ -388,7 +396,7 @@ const std::vector<ReferenceThreshold>& ReferenceThresholds() {
       {EffectKind::kBrighterFatter, in, false, "brighter_fatter.slope_x_px_per_e", 5e-8, false,
        focus},
       {EffectKind::kBrighterFatter, in, true, "brighter_fatter.slope_x_px_per_e", 5e-8, false, multi},
-      {EffectKind::kDefocus, px, false, "defocus.sigma_px", 0.41 / 64, true,
+      {EffectKind::kDefocus, px, false, "defocus.sigma_px", 0.02, true,
        pc + ", in focus, baseline without defocus (any defocus step is detected: the 2015 "
             "unit-peak F kernel changes the image discontinuously from no step at all)"},
       {EffectKind::kDefocusOffset, px, true, "defocus_offset.dx_px", 0.025, false,
@@ -529,9 +537,12 @@ bool RunDiagnosis(const fit::FitModel& base, const DiagnoseOptions& options,
 
   if (options.compute_thresholds) {
     result->thresholds_computed = true;
-    const RoundResult& last = result->rounds.back();
-    const double p_threshold =
-        std::isfinite(last.p_threshold) ? last.p_threshold : options.alpha / candidates.size();
+    // The decision rule of the last round that tested candidates (its Bonferroni share).
+    double p_threshold = NAN;
+    for (const RoundResult& r : result->rounds) {
+      if (std::isfinite(r.p_threshold)) p_threshold = r.p_threshold;
+    }
+    if (!std::isfinite(p_threshold)) p_threshold = options.alpha / candidates.size();
     for (EffectKind kind : candidates) {
       if (current->spec().Has(kind)) continue;
       if (!NotIdentifiable(base, current->spec(), kind, result->multi_intensity).empty()) continue;
@@ -580,21 +591,31 @@ bool ComputeDetectionThreshold(const fit::FitModel& base, const ModelSpec& spec,
     for (const auto& pi : info.parameters) d.push_back(pi.default_value);
     return d;
   }();
+  // Its own stream, apart from the predictive checks' DeriveSeed(seed, round) when the two
+  // seeds are equal (as `ccdpsf diagnose` sets them).
+  const uint64_t stream = DeriveSeed(options.thresholds.seed, 0x7468726573686f6cULL);
   int step = 0;
   for (double multiple : options.thresholds.multiples) {
-    const double s = std::min(multiple * strength.default_value, strength.prior_upper);
-    if (!out->strengths.empty() && s <= out->strengths.back()) continue;  // capped: done
     std::vector<double> values = defaults;
-    values[0] = s;
-    if (kind == EffectKind::kBrighterFatter) values[1] = s;
-    if (kind == EffectKind::kJitter) values = {s * s};
+    const double wanted = std::min(multiple * strength.default_value, strength.prior_upper);
+    values[0] = wanted;
+    if (kind == EffectKind::kBrighterFatter) values[1] = wanted;
+    if (kind == EffectKind::kJitter) values = {wanted * wanted};
     std::vector<double> pt = truth_model->FromOther(*null_model, p);
     SetEffect(*truth_model, kind, values, &pt);
+    // The strength as injected: SetEffect clamps to the model's bounds (e.g. a pixel_centre
+    // defocus starts at 0.02 px), and a strength that repeats the last one is not rerun.
+    const double injected = pt[truth_model->EffectIndices(kind)[0]];
+    const double s = kind == EffectKind::kJitter ? std::sqrt(std::max(injected, 0.0)) : injected;
+    if (!out->strengths.empty() && s <= out->strengths.back()) continue;
+    int failed = 0;
     const double rate = DetectionRate(base, *null_model, *truth_model, pt, kind, p_threshold,
                                       options, options.thresholds.num_simulations,
-                                      DeriveSeed(options.thresholds.seed, 1000 * static_cast<uint64_t>(kind) + step++));
+                                      DeriveSeed(stream, 1000 * static_cast<uint64_t>(kind) + step++),
+                                      &failed);
     out->strengths.push_back(s);
     out->rates.push_back(rate);
+    out->failed_fits.push_back(failed);
     if (!std::isfinite(out->threshold) && rate >= options.thresholds.detection_rate) {
       out->threshold = s;
       break;  // stronger ones are detected too

@@ -56,8 +56,9 @@ json EffectParameters(const DiagnoseResult& result) {
     json e = json::object();
     for (size_t i = 0; i < last.names.size(); ++i) {
       const std::string& n = last.names[i];
+      // (defocus's parameter has no "defocus." prefix; defocus_offset's must not match it.)
       const bool mine = kind == model::EffectKind::kDefocus
-                            ? n.rfind("defocus_", 0) == 0
+                            ? n == "defocus_sigma_px" || n == "defocus_radius_px"
                             : n.rfind(name + ".", 0) == 0;
       if (!mine) continue;
       const double sd = fit.laplace.sd.empty() ? NAN : fit.laplace.sd[i];
@@ -300,6 +301,7 @@ json DiagnoseJson(const fit::FitModel& base, const DiagnoseResult& result,
                                {"parameter", t.parameter},
                                {"strengths", t.strengths},
                                {"rates", t.rates},
+                               {"failed_fits", t.failed_fits},
                                {"threshold", Num(t.threshold)},
                                {"simulations_per_strength", t.num_simulations}});
     }

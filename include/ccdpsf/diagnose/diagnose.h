@@ -144,8 +144,11 @@ struct RoundResult {
 struct DetectionThreshold {
   model::EffectKind kind;
   std::string parameter;  // the strength parameter varied
-  std::vector<double> strengths;
-  std::vector<double> rates;  // share of simulations in which it was named
+  std::vector<double> strengths;  // as injected (clamped to the model's bounds)
+  // Share of the simulations in which it was named, of those whose fits succeeded; the
+  // failures per strength are counted in failed_fits (a rate is NaN if all failed).
+  std::vector<double> rates;
+  std::vector<int> failed_fits;
   double threshold = NAN;     // weakest strength with rate >= detection_rate (NaN: none)
   int num_simulations = 0;
 };

@@ -6,7 +6,8 @@
 //                         null, a one-line verdict), final_fit (every parameter's MAP and
 //                         Laplace sd; the named effects' parameters with 68 % and 99.7 %
 //                         Laplace intervals), detection_thresholds (computed: the simulated
-//                         studies of --thresholds; not_named: for every effect not named, its
+//                         studies of --thresholds, per strength as injected the detection rate
+//                         and the simulations whose fits failed, left out of it; not_named: for every effect not named, its
 //                         realistic strength, its status and reason in the last round tested,
 //                         and the weakest strength that would have been detected, simulated
 //                         for these data or else the reference value for paper-like data,
