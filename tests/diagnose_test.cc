@@ -492,6 +492,24 @@ TEST(Diagnose, ReportHasTheDocumentedFields) {
   EXPECT_TRUE(fs::exists(dir + "/stacked_residuals.gp"));
   EXPECT_TRUE(fs::exists(dir + "/flag_background.gp"));
   fs::remove_all(dir);
+  // final_fit.effects takes each named effect's own parameters: defocus (named by its bare
+  // parameter name) must not take defocus_offset's, as once when both were named.
+  RoundResult& last = result.rounds.back();
+  for (const auto& [name, value] : std::vector<std::pair<std::string, double>>{
+           {"defocus_sigma_px", 0.41}, {"defocus_offset.dx_px", 0.1},
+           {"defocus_offset.dy_px", 0.0}}) {
+    last.names.push_back(name);
+    last.fit.p.push_back(value);
+    if (!last.fit.laplace.sd.empty()) last.fit.laplace.sd.push_back(0.01);
+  }
+  result.named.push_back(model::EffectKind::kDefocus);
+  result.named.push_back(model::EffectKind::kDefocusOffset);
+  const nlohmann::json effects = DiagnoseJson(*base, result, options)["final_fit"]["effects"];
+  ASSERT_TRUE(effects.contains("defocus")) << effects.dump();
+  EXPECT_EQ(effects["defocus"].size(), 1u) << effects["defocus"].dump();
+  EXPECT_TRUE(effects["defocus"].contains("defocus_sigma_px"));
+  EXPECT_EQ(effects["defocus_offset"].size(), 2u) << effects["defocus_offset"].dump();
+  EXPECT_TRUE(effects["defocus_offset"].contains("dx_px"));
 }
 
 TEST(Diagnose, BadInputIsRefused) {
