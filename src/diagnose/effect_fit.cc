@@ -550,7 +550,8 @@ std::vector<double> InformationMatrix(const EffectModel& model, const std::vecto
       jac_ptrs.push_back(jac[b].data());
     }
     std::vector<double> residuals(nr);
-    if (!cost.Evaluate(params.data(), residuals.data(), jac_ptrs.data())) continue;
+    // An exposure left out would make the Laplace sds silently too wide.
+    if (!cost.Evaluate(params.data(), residuals.data(), jac_ptrs.data())) return {};
     // Global column index of each local column.
     std::vector<int> column;
     std::vector<std::pair<int, int>> local;  // (block, j)
@@ -644,6 +645,12 @@ bool FitEffectModel(const EffectModel& model, const std::vector<std::vector<doub
   result->num_pixels = model.NumValidPixels();
   result->dof = result->num_pixels - model.dim();
   const std::vector<double> info = InformationMatrix(model, best, data_e);
+  if (info.empty()) {
+    result->usable = false;
+    *error = "the model's derivatives cannot be evaluated at its best fit (no Laplace "
+             "approximation)";
+    return false;
+  }
   const bool gaussian_defocus = model.spec().defocus &&
                                 model.base().options().model.defocus == model::DefocusKind::kGaussian;
   result->laplace =

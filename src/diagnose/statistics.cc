@@ -251,13 +251,16 @@ void PredictiveCheck(const EffectModel& model, const std::vector<double>& p,
     std::mt19937_64 engine(DeriveSeed(options.seed, static_cast<uint64_t>(s)));
     const std::vector<Image> data = SimulateData(model, p, engine);
     std::vector<double> at = p;
+    rows[s].resize(ns, NAN);
     if (options.refit) {
       EffectFitResult refit;
       std::string error;
-      if (FitEffectModel(model, {p}, fit_options, &refit, &error, &data)) at = refit.p;
+      // A failed refit leaves its row NaN (skipped below): statistics of an unfitted draw
+      // would mix two reference distributions.
+      if (!FitEffectModel(model, {p}, fit_options, &refit, &error, &data)) return;
+      at = refit.p;
     }
     const ResidualStatistics sim = ComputeStatistics(ComputeResiduals(model, at, &data), model.dim());
-    rows[s].resize(ns, NAN);
     for (int i = 0; i < ns && i < static_cast<int>(sim.values.size()); ++i) {
       rows[s][i] = sim.values[i].value;
     }

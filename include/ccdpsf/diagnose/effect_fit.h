@@ -204,7 +204,8 @@ bool FitEffectModel(const EffectModel& model, const std::vector<std::vector<doub
                     const std::vector<Image>* data_e = nullptr);
 
 // The Gauss-Newton information matrix (dim x dim, row-major) at p: J^T J of the whitened
-// residuals (r1 and r2), by numeric differences.
+// residuals (r1 and r2), by numeric differences. Empty when an exposure's residuals cannot be
+// evaluated at p.
 std::vector<double> InformationMatrix(const EffectModel& model, const std::vector<double>& p,
                                       const std::vector<Image>* data_e = nullptr);
 
