@@ -14,9 +14,10 @@
 // relation's own weights (1 / s_i^2 in log X). With an intensity series in the config the
 // points are corrected to I0 and the truth is the config's alpha.
 //
-// Prints per seed: alpha, its 68 % interval, the truth, z; then the mean z with its standard
-// error (unbiased: |mean| within ~2 se), the rms z (calibrated sd: ~1) and the share of
-// 68 % intervals that hold the truth.
+// Prints per seed: alpha, its 68 % interval, the truth, z; when the points were corrected to
+// I0, also alpha of the same fits uncorrected (against the truth as measured) and the 800 nm
+// slope used; then the mean z with its standard error (unbiased: |mean| within ~2 se), the
+// rms z (calibrated sd: ~1) and the share of 68 % intervals that hold the truth.
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -90,7 +91,7 @@ int main(int argc, char** argv) {
               static_cast<unsigned long long>(first),
               static_cast<unsigned long long>(first + num - 1));
   const std::string dir = (fs::temp_directory_path() / "ccdpsf_alpha_calibration").string();
-  std::vector<double> zs;
+  std::vector<double> zs, zs_raw;
   int covered = 0;
   const auto t0 = std::chrono::steady_clock::now();
   for (int k = 0; k < num; ++k) {
@@ -112,9 +113,12 @@ int main(int argc, char** argv) {
     options.config.fit.mcmc.target_ess = 400;  // as `ccdpsf trend` by default
     options.parallel_groups = 2;
     options.seed = 1;
-    trend::TrendResult tr;
-    if (!trend::ComputeTrend(trend::FitGroups(groups, options, nullptr), trend::TrendOptions(), &tr,
-                             &error)) {
+    const std::vector<trend::GroupResult> fitted = trend::FitGroups(groups, options, nullptr);
+    trend::TrendResult tr, as_measured;
+    trend::TrendOptions uncorrected;
+    uncorrected.correct_to_reference_intensity = false;
+    if (!trend::ComputeTrend(fitted, trend::TrendOptions(), &tr, &error) ||
+        !trend::ComputeTrend(fitted, uncorrected, &as_measured, &error)) {
       std::fprintf(stderr, "%s\n", error.c_str());
       return 1;
     }
@@ -133,6 +137,18 @@ int main(int argc, char** argv) {
     std::printf("seed %llu: alpha %.4f [%.4f, %.4f], truth %.4f (%s): %+.2f sd\n",
                 static_cast<unsigned long long>(config->seed), alpha.median, alpha.lo68,
                 alpha.hi68, truth, intensity ? "corrected to I0" : "as measured", z);
+    if (intensity != nullptr) {
+      // The same fits without the correction: does it move alpha away from its truth?
+      const trend::RelationFit& raw = as_measured.relations.at("fwhm_um_vs_wavelength");
+      const trend::Estimate& a = raw.Find("alpha")->estimate;
+      const double t = TruthAlpha(config->truth, raw, peak_by_group, false);
+      const double z_raw = (a.median - t) / (0.5 * (a.hi68 - a.lo68));
+      zs_raw.push_back(z_raw);
+      const trend::Estimate& slope = intensity->Find("slope")->estimate;
+      std::printf("  uncorrected: alpha %.4f [%.4f, %.4f], truth %.4f: %+.2f sd; 800 nm slope "
+                  "%.3g [%.3g, %.3g] um/e-\n",
+                  a.median, a.lo68, a.hi68, t, z_raw, slope.median, slope.lo68, slope.hi68);
+    }
     std::fflush(stdout);
   }
   fs::remove_all(dir);
@@ -149,5 +165,11 @@ int main(int argc, char** argv) {
               "truth %d/%zu; %.0f s\n",
               mean, 1.0 / std::sqrt(static_cast<double>(zs.size())), std::sqrt(ms), covered,
               zs.size(), seconds);
+  if (!zs_raw.empty()) {
+    double m = 0;
+    for (double z : zs_raw) m += z;
+    std::printf("the same fits uncorrected: mean z %+.2f over %zu campaigns\n",
+                m / zs_raw.size(), zs_raw.size());
+  }
   return 0;
 }

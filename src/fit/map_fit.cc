@@ -242,14 +242,28 @@ std::vector<std::vector<double>> ScreenStarts(const FitModel& model, const MapOp
       }
     }
   }
-  std::sort(scored.begin(), scored.end(),
-            [](const auto& a, const auto& b) { return a.first > b.first; });
+  std::stable_sort(scored.begin(), scored.end(),
+                   [](const auto& a, const auto& b) { return a.first > b.first; });
+  // Kept: the best screen_keep points, and the best point of every Airy radius. The basins
+  // differ mainly in the Airy radius, and the top of the ranking can lie in one wrong basin
+  // (measured: a 700 nm Table-1 group, truth r = 0.411 px, whose ten best grid points all
+  // led to r = 0.362 at chi^2/dof 1.63 against 1.01 at the truth).
+  std::vector<bool> keep(scored.size(), false);
+  std::vector<double> radii_seen;
+  for (size_t i = 0; i < scored.size(); ++i) {
+    const double r = scored[i].second[kAiryRadiusPx];
+    const bool first_of_radius =
+        std::find(radii_seen.begin(), radii_seen.end(), r) == radii_seen.end();
+    if (first_of_radius) radii_seen.push_back(r);
+    keep[i] = static_cast<int>(i) < options.screen_keep || first_of_radius;
+  }
   std::vector<std::vector<double>> starts;
   // The positions were refined for one mid-range shape only; the likelihood is so sharp in
   // position that each kept shape gets its own refinement before the local solve (measured:
   // without it a 600 nm spot (r = 0.35 px) ended at chi^2/dof 1.3-1.8 against 1.05 near the
   // truth).
-  for (size_t i = 0; i < scored.size() && static_cast<int>(i) < options.screen_keep; ++i) {
+  for (size_t i = 0; i < scored.size(); ++i) {
+    if (!keep[i]) continue;
     RefinePositions(model, ev.get(), &scored[i].second);
     starts.push_back(scored[i].second);
   }

@@ -44,7 +44,8 @@ struct MapOptions {
   int num_threads = 2;
   // Grid screening before the local solves: the log-likelihood is evaluated on a coarse grid
   // of (Airy radius, defocus, sigma_x, sigma_y) with the flux set by least squares, and the
-  // best `screen_keep` grid points become extra starts. The pixel_centre likelihood is
+  // best `screen_keep` grid points, with the best point of every Airy radius, become extra
+  // starts. The pixel_centre likelihood is
   // strongly multimodal (its unit-peak kernels sampled at integer offsets make it rugged:
   // measured, 20 moment starts on the paper's simulation reach chi^2/dof from 1.05 to 300),
   // so kAuto screens there and not for integrated sampling, whose starts all agree.
