@@ -66,6 +66,9 @@ int RunTrend(const std::vector<std::string>& inputs) {
           std::fprintf(stderr, "[%d/%d] %s: %d exposures, chi2/dof %.3f, %s, %.1f s\n", done,
                        total, r.group.name.c_str(), r.exposures, r.chi2_per_dof,
                        r.converged ? "MCMC converged" : "MCMC NOT converged", r.seconds);
+          for (const std::string& w : r.warnings) {
+            std::fprintf(stderr, "    warning: %s\n", w.c_str());
+          }
         } else {
           std::fprintf(stderr, "[%d/%d] %s: FAILED: %s\n", done, total, r.group.name.c_str(),
                        r.failure.c_str());
