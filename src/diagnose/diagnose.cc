@@ -56,7 +56,12 @@ int BoundaryParameters(EffectKind kind, int num_parameters) {
     case EffectKind::kSerialCti:
     case EffectKind::kParallelCti:
     case EffectKind::kHalo: return 1;  // the fraction; the length / width is a nuisance
-    default: return num_parameters;  // every parameter is a strength >= 0
+    // Every parameter is a strength >= 0. Not so for defocus in pixel_centre sampling: the
+    // null (no defocus step) is not the alternative at its lower edge (sigma >= 0.02 px; the
+    // 2015 kernel, sampled at pixel centres around a sub-pixel spot position, changes the
+    // image discontinuously), so the models are not nested and its p-value is not
+    // calibrated; delta BIC < 0 is then the working criterion.
+    default: return num_parameters;
   }
 }
 
