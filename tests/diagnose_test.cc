@@ -496,21 +496,37 @@ TEST(Diagnose, ReportHasTheDocumentedFields) {
   // final_fit.effects takes each named effect's own parameters: defocus (named by its bare
   // parameter name) must not take defocus_offset's, as once when both were named.
   RoundResult& last = result.rounds.back();
-  for (const auto& [name, value] : std::vector<std::pair<std::string, double>>{
-           {"defocus_sigma_px", 0.41}, {"defocus_offset.dx_px", 0.1},
-           {"defocus_offset.dy_px", 0.0}}) {
-    last.names.push_back(name);
-    last.fit.p.push_back(value);
-    if (!last.fit.laplace.sd.empty()) last.fit.laplace.sd.push_back(0.01);
+  // An ipc fraction 2 sd above its bound at zero: its intervals stay inside [0, 0.05].
+  struct Added { std::string name; double value, sd, lower, upper; };
+  for (const Added& a : std::vector<Added>{{"defocus_sigma_px", 0.41, 0.01, 0.0, 1.5},
+                                           {"defocus_offset.dx_px", 0.1, 0.01, -1.0, 1.0},
+                                           {"defocus_offset.dy_px", 0.0, 0.01, -1.0, 1.0},
+                                           {"ipc.alpha", 0.002, 0.001, 0.0, 0.05}}) {
+    last.names.push_back(a.name);
+    last.fit.p.push_back(a.value);
+    last.lower.push_back(a.lower);
+    last.upper.push_back(a.upper);
+    ASSERT_FALSE(last.fit.laplace.sd.empty());
+    last.fit.laplace.sd.push_back(a.sd);
   }
   result.named.push_back(model::EffectKind::kDefocus);
   result.named.push_back(model::EffectKind::kDefocusOffset);
+  result.named.push_back(model::EffectKind::kIpc);
   const nlohmann::json effects = DiagnoseJson(*base, result, options)["final_fit"]["effects"];
   ASSERT_TRUE(effects.contains("defocus")) << effects.dump();
   EXPECT_EQ(effects["defocus"].size(), 1u) << effects["defocus"].dump();
   EXPECT_TRUE(effects["defocus"].contains("defocus_sigma_px"));
   EXPECT_EQ(effects["defocus_offset"].size(), 2u) << effects["defocus_offset"].dump();
   EXPECT_TRUE(effects["defocus_offset"].contains("dx_px"));
+  // Unbounded in practice (bounds 10 sd away): map -+ sd and -+ 3 sd.
+  EXPECT_NEAR(effects["defocus_offset"]["dx_px"]["lo68"].get<double>(), 0.09, 1e-12);
+  EXPECT_NEAR(effects["defocus_offset"]["dx_px"]["hi997"].get<double>(), 0.13, 1e-12);
+  // Near the bound: truncated, not map - 3 sd = -0.001.
+  const nlohmann::json& ipc = effects["ipc"]["alpha"];
+  EXPECT_GE(ipc["lo997"].get<double>(), 0.0);
+  EXPECT_GT(ipc["lo68"].get<double>(), ipc["lo997"].get<double>());
+  EXPECT_LT(ipc["lo68"].get<double>(), 0.002);
+  EXPECT_GT(ipc["hi68"].get<double>(), 0.002);
 }
 
 TEST(Diagnose, BadInputIsRefused) {

@@ -460,6 +460,8 @@ bool RunDiagnosis(const fit::FitModel& base, const DiagnoseOptions& options,
     RoundResult r;
     r.spec = current->spec();
     r.names = current->names();
+    r.lower = current->lower();
+    r.upper = current->upper();
     r.fit = current_fit;
     r.statistics = ComputeStatistics(ComputeResiduals(*current, current_fit.p), current->dim());
     if (options.predictive.num_simulations > 0) {

@@ -8,6 +8,7 @@
 #include "ccdpsf/atomic_file.h"
 #include "ccdpsf/plot.h"
 #include "ccdpsf/staged_output.h"
+#include "ccdpsf/truncated_normal.h"
 
 namespace ccdpsf::diagnose {
 
@@ -35,13 +36,32 @@ json Parameters(const std::vector<std::string>& names, const EffectFitResult& fi
   return out;
 }
 
-json Estimate(double map, double sd, bool at_bound) {
+// Laplace estimate with intervals: the normal N(map, sd^2) truncated to the parameter's prior
+// range [lower, upper], so that no interval leaves the range (a small ipc's "map - 3 sd" would
+// be negative). lo68/hi68 are its 15.87 / 84.13 % quantiles (map -+ sd without bounds),
+// lo997/hi997 its 0.135 / 99.865 % quantiles.
+json Estimate(double map, double sd, bool at_bound, double lower, double upper) {
   json e = {{"map", Num(map)}, {"laplace_sd", Num(sd)}, {"at_bound", at_bound}};
-  if (std::isfinite(sd)) {
-    e["lo68"] = map - sd;
-    e["hi68"] = map + sd;
-    e["lo997"] = map - 3 * sd;
-    e["hi997"] = map + 3 * sd;
+  if (std::isfinite(sd) && sd > 0 && std::isfinite(map)) {
+    e["lo68"] = TruncatedNormalQuantile(map, sd, lower, upper, NormalCdf(-1.0));
+    e["hi68"] = TruncatedNormalQuantile(map, sd, lower, upper, NormalCdf(1.0));
+    e["lo997"] = TruncatedNormalQuantile(map, sd, lower, upper, NormalCdf(-3.0));
+    e["hi997"] = TruncatedNormalQuantile(map, sd, lower, upper, NormalCdf(3.0));
+  }
+  return e;
+}
+
+// A jitter variance's estimate as a sigma: the quantiles map through the square root exactly,
+// the sd by the delta method (none at sigma = 0).
+json SigmaFromVariance(const json& variance) {
+  auto root = [](const json& v) { return Num(std::sqrt(std::max(v.get<double>(), 0.0))); };
+  const double var = variance["map"].is_null() ? NAN : variance["map"].get<double>();
+  const double var_sd = variance["laplace_sd"].is_null() ? NAN : variance["laplace_sd"].get<double>();
+  const double s = std::sqrt(std::max(var, 0.0));
+  json e = {{"map", Num(s)}, {"laplace_sd", Num(s > 0 ? var_sd / (2 * s) : NAN)},
+            {"at_bound", variance["at_bound"]}};
+  for (const char* key : {"lo68", "hi68", "lo997", "hi997"}) {
+    if (variance.contains(key)) e[key] = root(variance[key]);
   }
   return e;
 }
@@ -65,14 +85,12 @@ json EffectParameters(const DiagnoseResult& result) {
       const bool at_bound = std::find(fit.laplace.at_bound.begin(), fit.laplace.at_bound.end(),
                                       static_cast<int>(i)) != fit.laplace.at_bound.end();
       const std::string key = kind == model::EffectKind::kDefocus ? n : n.substr(name.size() + 1);
-      e[key] = Estimate(fit.p[i], sd, at_bound);
+      e[key] = Estimate(fit.p[i], sd, at_bound, last.lower[i], last.upper[i]);
       if (kind == model::EffectKind::kJitter) {
-        // var -> sigma (delta method; no sd at sigma = 0).
-        const double s = std::sqrt(std::max(fit.p[i], 0.0));
         std::string sname = key;
         sname.replace(0, std::string("var_x_px2").size(),
                       key.rfind("var_x", 0) == 0 ? "sigma_x_px" : "sigma_y_px");
-        e[sname] = Estimate(s, s > 0 ? sd / (2 * s) : NAN, at_bound);
+        e[sname] = SigmaFromVariance(e[key]);
       }
     }
     if (kind == model::EffectKind::kBrighterFatter && last.spec.defocus) {
@@ -92,7 +110,8 @@ json EffectParameters(const DiagnoseResult& result) {
         const double ratio = fit.p[s] / std::hypot(fit.p[s], fit.p[f]);
         const double sd = fit.laplace.sd.empty() ? NAN : fit.laplace.sd[b];
         e[std::string("total_slope_") + axis + "_px_per_e"] =
-            Estimate(fit.p[b] * ratio, sd * ratio, false);
+            Estimate(fit.p[b] * ratio, sd * ratio, false, last.lower[b] * ratio,
+                     last.upper[b] * ratio);
       }
     }
     out[name] = e;
@@ -368,8 +387,12 @@ std::string Markdown(const DiagnoseResult& result, const json& doc,
       md << "- " << it.key() << "." << p.key() << " = "
          << Fmt(p.value()["map"].is_null() ? NAN : p.value()["map"].get<double>()) << " +- "
          << Fmt(p.value()["laplace_sd"].is_null() ? NAN : p.value()["laplace_sd"].get<double>(),
-                "%.2g")
-         << "\n";
+                "%.2g");
+      if (p.value().contains("lo68")) {
+        md << " (68 %: " << Fmt(p.value()["lo68"].get<double>()) << " .. "
+           << Fmt(p.value()["hi68"].get<double>()) << ")";
+      }
+      md << "\n";
     }
   }
   md << "\n## Detection thresholds\n\n";

@@ -130,6 +130,7 @@ std::string ToString(CandidateResult::Status status);
 struct RoundResult {
   ModelSpec spec;
   std::vector<std::string> names;  // parameter names of the model
+  std::vector<double> lower, upper;  // its prior range (the Ceres bounds)
   EffectFitResult fit;
   ResidualStatistics statistics;
   std::vector<std::vector<double>> predictive_draws;  // [statistic][simulation]
