@@ -96,9 +96,10 @@ int main(int argc, char** argv) {
     std::printf("  800 nm slope = %.4g [%.4g, %.4g] um/e-, truth %.4g: %+.2f sd\n", slope.median,
                 slope.lo68, slope.hi68, slope_true, (slope.median - slope_true) / slope_sd);
     for (const trend::RequirementResult& q : tr.requirements) {
-      std::printf("  requirement %-20s value %.4g  pass %s  P(pass) %.3f\n",
+      std::printf("  requirement %-20s value %.4g  pass %s  P(pass) %.3f  verdict %s\n",
                   q.requirement.name.c_str(), q.value.median,
-                  q.pass ? (*q.pass ? "yes" : "no") : "n/a", q.pass_probability);
+                  q.pass ? (*q.pass ? "yes" : "no") : "n/a", q.pass_probability,
+                  trend::Verdict(q).c_str());
     }
   }
   std::sort(seconds.begin(), seconds.end());

@@ -113,6 +113,7 @@ TEST(Requirements, PassFailAndMarginsByHand) {
   EXPECT_NEAR(fwhm.value.median, 8.8, 1e-12);
   EXPECT_NEAR(fwhm.margin, 2.0, 1e-12);
   EXPECT_EQ(fwhm.pass_probability, 1.0);
+  EXPECT_EQ(Verdict(fwhm), "pass");
   // 15.87th percentile of the ladder: position 0.158655 * 99 = 15.707 -> 8.8 + 0.01 * (15.707
   // - 49.5).
   EXPECT_NEAR(fwhm.value.lo68, 8.8 + 0.01 * (0.158655 * 99 - 49.5), 1e-12);
@@ -122,6 +123,7 @@ TEST(Requirements, PassFailAndMarginsByHand) {
   EXPECT_FALSE(*e.pass);
   EXPECT_NEAR(e.margin, 0.156 - 0.175, 1e-12);
   EXPECT_NEAR(e.pass_probability, 0.12, 1e-12);
+  EXPECT_EQ(Verdict(e), "undetermined");  // fails by the median, but 12 % of draws pass
 
   const RequirementResult& alpha = ByName(results, "alpha_fwhm");
   ASSERT_TRUE(alpha.pass.has_value()) << alpha.reason;
@@ -129,6 +131,7 @@ TEST(Requirements, PassFailAndMarginsByHand) {
   EXPECT_NEAR(alpha.value.median, -0.21, 1e-12);
   EXPECT_NEAR(alpha.margin, 0.01, 1e-12);
   EXPECT_NEAR(alpha.pass_probability, 0.60, 1e-12);
+  EXPECT_EQ(Verdict(alpha), "undetermined");  // passes by the median only
 
   // A lower limit: margin value - limit, positive when passing.
   Requirement min_alpha = DefaultRequirements()[2];
@@ -141,12 +144,24 @@ TEST(Requirements, PassFailAndMarginsByHand) {
   EXPECT_NEAR(lower.margin, 0.04, 1e-12);
   // -0.21 + 0.001 (k - 49.5) >= -0.25  <=>  k >= 9.5: 90 draws.
   EXPECT_NEAR(lower.pass_probability, 0.90, 1e-12);
+  EXPECT_EQ(Verdict(lower), "undetermined");
+  // Settled either way at P(pass) 0.05 and 0.95: draw k is -0.21 + 0.001 (k - 49.5), so
+  // alpha >= -0.165 holds for k >= 95 (5 draws) and alpha >= -0.255 for k >= 5 (95 draws).
+  min_alpha.limit = -0.165;
+  const RequirementResult failing = EvaluateRequirements({min_alpha}, relations)[0];
+  EXPECT_NEAR(failing.pass_probability, 0.05, 1e-12);
+  EXPECT_EQ(Verdict(failing), "fail");
+  min_alpha.limit = -0.255;
+  const RequirementResult passing = EvaluateRequirements({min_alpha}, relations)[0];
+  EXPECT_NEAR(passing.pass_probability, 0.95, 1e-12);
+  EXPECT_EQ(Verdict(passing), "pass");
 
   const nlohmann::json j = ToJson(fwhm);
   EXPECT_EQ(j["name"], "fwhm_800nm");
   EXPECT_NEAR(j["value"].get<double>(), 8.8, 1e-12);
   EXPECT_EQ(j["limit"].get<double>(), 10.8);
   EXPECT_TRUE(j["pass"].get<bool>());
+  EXPECT_EQ(j["verdict"], "pass");
   EXPECT_EQ(j["comparison"], "<=");
   EXPECT_TRUE(j["reason"].is_null());
 }
@@ -182,6 +197,7 @@ TEST(Requirements, MissingInputsGiveNullWithAReason) {
     EXPECT_FALSE(r.reason.empty());
     const nlohmann::json j = ToJson(r);
     EXPECT_TRUE(j["pass"].is_null());
+    EXPECT_EQ(j["verdict"], "n/a");
     EXPECT_TRUE(j["value"].is_null());
     EXPECT_TRUE(j["margin"].is_null());
     EXPECT_EQ(j["reason"], r.reason);

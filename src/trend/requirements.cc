@@ -337,16 +337,24 @@ json ToJson(const RequirementResult& result) {
   j["margin"] = NullIfNan(result.margin);
   j["pass"] = result.pass ? json(*result.pass) : json(nullptr);
   j["pass_probability"] = NullIfNan(result.pass_probability);
+  j["verdict"] = Verdict(result);
   j["reason"] = result.reason.empty() ? json(nullptr) : json(result.reason);
   j["notes"] = result.notes;
   return j;
 }
 
+std::string Verdict(const RequirementResult& result) {
+  if (!result.pass || !std::isfinite(result.pass_probability)) return "n/a";
+  if (result.pass_probability >= kSettledProbability) return "pass";
+  if (result.pass_probability <= 1.0 - kSettledProbability) return "fail";
+  return "undetermined";
+}
+
 std::string FormatRequirementTable(const std::vector<RequirementResult>& results) {
   std::string out;
   char line[512];
-  std::snprintf(line, sizeof(line), "%-22s %-30s %-14s %-11s %-5s %s\n", "requirement",
-                "value [68 %]", "limit", "margin", "pass", "P(pass)");
+  std::snprintf(line, sizeof(line), "%-22s %-30s %-14s %-11s %-5s %-8s %s\n", "requirement",
+                "value [68 %]", "limit", "margin", "pass", "P(pass)", "verdict");
   out += line;
   for (const RequirementResult& r : results) {
     const std::string limit =
@@ -359,9 +367,10 @@ std::string FormatRequirementTable(const std::vector<RequirementResult>& results
     } else {
       const std::string value = Num(r.value.median) + " [" + Num(r.value.lo68) + ", " +
                                 Num(r.value.hi68) + "]";
-      std::snprintf(line, sizeof(line), "%-22s %-30s %-14s %-11s %-5s %.3f\n",
+      std::snprintf(line, sizeof(line), "%-22s %-30s %-14s %-11s %-5s %-8.3f %s\n",
                     r.requirement.name.c_str(), value.c_str(), limit.c_str(),
-                    Num(r.margin).c_str(), *r.pass ? "yes" : "NO", r.pass_probability);
+                    Num(r.margin).c_str(), *r.pass ? "yes" : "NO", r.pass_probability,
+                    Verdict(r).c_str());
     }
     out += line;
   }

@@ -293,7 +293,12 @@ bool WriteTrendReport(const std::string& out_dir, const TrendResult& r,
   md << r.groups.size() << " groups, " << ok << " fitted, " << r.groups.size() - ok
      << " failed. Intervals are central 68 % posterior intervals (propagated from each group's "
         "MCMC draws).\n\n";
-  md << "## Requirements\n\n```\n" << FormatRequirementTable(r.requirements) << "```\n\n";
+  md << "## Requirements\n\n```\n" << FormatRequirementTable(r.requirements) << "```\n\n"
+     << "pass: by the median. P(pass): the share of the propagated draws that pass. verdict: "
+        "pass or fail when P(pass) >= "
+     << kSettledProbability << " or <= " << 1.0 - kSettledProbability
+     << ", else undetermined (the data do not settle it; a CCD-only width that rests on the "
+        "priors is undetermined).\n\n";
   md << "## Relations\n\n";
   md << "| relation | coefficients (median [68 %]) | value at pivot | chi2/dof | points | flags |\n";
   md << "|---|---|---|---|---|---|\n";

@@ -17,7 +17,10 @@
 //
 // `pass` is decided by the median; `pass_probability` is the fraction of draws that pass. A
 // requirement whose inputs are missing (relation absent or not fitted, coefficient unknown)
-// reports pass = null with a reason, never a made-up value.
+// reports pass = null with a reason, never a made-up value. The verdict (Verdict()) says
+// whether the data settle it: "pass" when P(pass) >= 0.95, "fail" when P(pass) <= 0.05,
+// "undetermined" between (a prior-dominated CCD-only width passes by its median at P ~ 0.5,
+// which is not a measurement), "n/a" when the inputs are missing.
 //
 // JSON configuration (a list; strict: unknown keys, wrong types, both or neither of max/min
 // are errors):
@@ -94,6 +97,13 @@ struct RequirementResult {
   std::vector<std::string> notes;  // caveats: flags of the relations used, extrapolation
 };
 
+// The probability of passing beyond which the data are said to settle a requirement (and
+// 1 minus it for failing): a one-sided 95 % credible statement.
+constexpr double kSettledProbability = 0.95;
+
+// "pass", "fail", "undetermined" or "n/a", as above.
+std::string Verdict(const RequirementResult& result);
+
 // Relations by name (RelationName(metric, kind), as in trend.json). I0 is the intensity
 // zero point of the combined model.
 std::vector<RequirementResult> EvaluateRequirements(
@@ -102,12 +112,12 @@ std::vector<RequirementResult> EvaluateRequirements(
     double reference_intensity_e = kReferenceIntensityE);
 
 // trend.json's requirement entry: {"name", "target", "comparison", "limit", "value", "lo68",
-// "hi68", "margin", "pass", "pass_probability", "reason", "notes"} (+ "metric", "at" or
+// "hi68", "margin", "pass", "pass_probability", "verdict", "reason", "notes"} (+ "metric", "at" or
 // "relation", "coefficient"); NaN and a missing pass are null.
 nlohmann::json ToJson(const RequirementResult& result);
 
 // A fixed-width text table: name | value [lo68, hi68] | requirement | margin | pass |
-// P(pass), one line per requirement, "n/a (reason)" for missing inputs. For report.md.
+// P(pass) | verdict, one line per requirement, "n/a (reason)" for missing inputs. For report.md.
 std::string FormatRequirementTable(const std::vector<RequirementResult>& results);
 
 }  // namespace ccdpsf::trend
