@@ -389,7 +389,7 @@ TEST(TrendCli, BrokenGroupsAreReportedAndTheRunGoesOn) {
   SimulateSet(dir + "/mixed_a", 650, 3.0);
   SimulateSet(dir + "/mixed_b", 650, 3.0, {}, {}, 11);
   std::string out;
-  ASSERT_EQ(RunCcdpsf("trend --nomcmc --out=" + dir + "/trend --nogroup_reports " + dir +
+  ASSERT_EQ(RunCcdpsf("trend --nomcmc --out=" + dir + "/trend " + dir +
                           "/ok600 " + dir + "/ok800 " + dir + "/ok890 " + dir + "/nowave " + dir +
                           "/bad " + dir + "/mixed_a " + dir + "/mixed_b",
                       &out),
@@ -404,6 +404,17 @@ TEST(TrendCli, BrokenGroupsAreReportedAndTheRunGoesOn) {
       EXPECT_FALSE(g["failure"].get<std::string>().empty());
     }
   }
+  // Each fitted group's report is linked from report.md relative to report.md's folder.
+  std::ifstream md_file(dir + "/trend/report.md");
+  const std::string md((std::istreambuf_iterator<char>(md_file)), std::istreambuf_iterator<char>());
+  int links = 0;
+  for (size_t at = md.find("([fit]("); at != std::string::npos; at = md.find("([fit](", at + 1)) {
+    const size_t begin = at + 7, end = md.find(')', begin);
+    const std::string link = md.substr(begin, end - begin);
+    EXPECT_TRUE(fs::exists(dir + "/trend/" + link)) << link;
+    ++links;
+  }
+  EXPECT_EQ(links, trend["groups"].size() - trend["failed_groups"].get<size_t>());
   // The intensity relation has a single setting per wavelength: not fitted, never invented.
   EXPECT_EQ(trend["relations"]["fwhm_um_vs_intensity"]["slope"]["median"], json(nullptr));
   // Every group failing is an error with a reason, and no trend.json.

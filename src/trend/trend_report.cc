@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <filesystem>
 #include <fstream>
 #include <sstream>
 
@@ -349,7 +350,14 @@ bool WriteTrendReport(const std::string& out_dir, const TrendResult& r,
       return s == g.summaries.end() ? std::string("n/a") : Interval(s->second);
     };
     std::string status = g.ok ? (g.converged ? "ok" : "ok, MCMC not converged") : "FAILED: " + g.failure;
-    if (g.ok && !g.report_dir.empty()) status += " ([fit](" + g.report_dir + "/report.md))";
+    if (g.ok && !g.report_dir.empty()) {
+      // Linked relative to report.md's folder, so that the link works wherever the folder is
+      // opened or moved (report_dir is as given on the command line, e.g. "out/campaign/...").
+      const std::string link =
+          (std::filesystem::path(g.report_dir).lexically_relative(out_dir) / "report.md")
+              .generic_string();
+      status += " ([fit](" + link + "))";
+    }
     md << "| " << g.group.name << (g.group.focus_series ? " (through focus)" : "") << " | "
        << Fmt(g.group.wavelength_nm) << " | " << (g.ok ? Interval(g.peak_e, 6) : "n/a") << " | "
        << g.exposures << " | " << (g.ok ? metric("fwhm_um") : "n/a") << " | "
