@@ -450,8 +450,24 @@ TEST(Diagnose, ReportHasTheDocumentedFields) {
   ASSERT_TRUE(base) << error;
   DiagnoseOptions options = TestOptions();
   options.predictive.num_simulations = 3;
+  std::vector<std::string> progress;
+  options.progress = [&](const std::string& line) { progress.push_back(line); };
   DiagnoseResult result;
   ASSERT_TRUE(RunDiagnosis(*base, options, &result, &error)) << error;
+  // Progress: the baseline, then per round its predictive check, every tested candidate and
+  // the verdict, in order.
+  ASSERT_FALSE(progress.empty());
+  EXPECT_EQ(progress.front().rfind("baseline fitted, chi2/dof", 0), 0u) << progress.front();
+  auto line_index = [&](const std::string& text) {
+    for (size_t i = 0; i < progress.size(); ++i) {
+      if (progress[i].find(text) != std::string::npos) return static_cast<int>(i);
+    }
+    return -1;
+  };
+  EXPECT_GT(line_index("round 0: missing effect: background"), line_index("round 0: 3 predictive"));
+  EXPECT_GT(line_index("round 0: 3 predictive"), 0);
+  EXPECT_GT(line_index("round 1: no missing effect"), line_index("round 1: ipc tested"));
+  EXPECT_GT(line_index("round 1: ipc tested"), line_index("round 0: missing effect"));
   const std::string dir = ::testing::TempDir() + "/ccdpsf_diagnose_" +
                           std::to_string(static_cast<long>(::getpid()));
   fs::remove_all(dir);

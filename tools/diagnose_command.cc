@@ -67,6 +67,9 @@ int RunDiagnose(const std::vector<std::string>& files) {
   options.compute_thresholds = FLAGS_thresholds;
   options.thresholds.num_simulations = FLAGS_threshold_sims;
   options.thresholds.seed = FLAGS_seed;
+  options.progress = [](const std::string& line) {
+    std::fprintf(stderr, "ccdpsf diagnose: %s\n", line.c_str());
+  };
   if (FLAGS_flux == "auto") {
     options.flux = diagnose::FluxChoice::kAuto;
   } else if (FLAGS_flux == "shared") {

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <sstream>
 
 #include "ccdpsf/random.h"
@@ -14,6 +15,13 @@ namespace ccdpsf::diagnose {
 using model::EffectKind;
 
 namespace {
+
+// Four significant digits, for progress lines.
+std::string FormatNumber(double v) {
+  char buf[32];
+  std::snprintf(buf, sizeof(buf), "%.4g", v);
+  return buf;
+}
 
 double Seconds(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
@@ -451,8 +459,15 @@ bool RunDiagnosis(const fit::FitModel& base, const DiagnoseOptions& options,
   spec.jitter_reference = result->jitter_reference;
   auto current = EffectModel::Create(base, spec, error);
   if (!current) return false;
+  const auto progress = [&](const std::string& line) {
+    if (!options.progress) return;
+    char elapsed[32];
+    std::snprintf(elapsed, sizeof(elapsed), " (%.1f s)", Seconds(t0));
+    options.progress(line + elapsed);
+  };
   EffectFitResult current_fit;
   if (!FitBaseline(base, *current, options, &current_fit, error)) return false;
+  progress(spec.Describe() + " fitted, chi2/dof " + FormatNumber(current_fit.chi2 / std::max(1, current_fit.dof)));
 
   std::vector<EffectKind> candidates = options.candidates;
   if (candidates.empty()) candidates = model::AllEffectKinds();
@@ -470,6 +485,9 @@ bool RunDiagnosis(const fit::FitModel& base, const DiagnoseOptions& options,
       po.threads = std::max(po.threads, options.fit.num_threads);
       po.seed = DeriveSeed(options.predictive.seed, static_cast<uint64_t>(round));
       PredictiveCheck(*current, current_fit.p, po, &r.statistics, &r.predictive_draws);
+      progress("round " + std::to_string(round) + ": " +
+               std::to_string(options.predictive.num_simulations) +
+               " predictive simulations refitted");
     }
     if (round >= options.max_rounds) {
       r.tested = false;
@@ -499,6 +517,11 @@ bool RunDiagnosis(const fit::FitModel& base, const DiagnoseOptions& options,
       }
       tested.push_back(TestCandidate(base, *current, current_fit, kind, options, nullptr));
       r.candidates.push_back(tested.back().candidate);
+      const CandidateResult& done = tested.back().candidate;
+      progress("round " + std::to_string(round) + ": " + model::ToString(kind) +
+               (done.status == CandidateResult::Status::kTested
+                    ? " tested, delta logL " + FormatNumber(done.delta_log_likelihood)
+                    : " fit failed: " + done.reason));
     }
     r.num_tested = 0;
     for (const CandidateResult& c : r.candidates) {
@@ -527,6 +550,7 @@ bool RunDiagnosis(const fit::FitModel& base, const DiagnoseOptions& options,
                       : "no missing effect: nothing passes p < " + std::to_string(r.p_threshold) +
                             " (alpha " + std::to_string(options.alpha) + " / " +
                             std::to_string(r.num_tested) + " tested) with delta BIC < 0";
+      progress("round " + std::to_string(round) + ": " + r.verdict);
       result->rounds.push_back(std::move(r));
       break;
     }
@@ -536,6 +560,7 @@ bool RunDiagnosis(const fit::FitModel& base, const DiagnoseOptions& options,
     v << "missing effect: " << model::ToString(named) << " (p = " << tested[winner].candidate.p_value
       << ", delta BIC = " << tested[winner].candidate.delta_bic << ")";
     r.verdict = v.str();
+    progress("round " + std::to_string(round) + ": " + r.verdict);
     result->named.push_back(named);
     result->rounds.push_back(std::move(r));
     current = std::move(tested[winner].model);
@@ -557,6 +582,9 @@ bool RunDiagnosis(const fit::FitModel& base, const DiagnoseOptions& options,
       std::string terr;
       if (ComputeDetectionThreshold(base, current->spec(), current_fit.p, kind, p_threshold,
                                     options, &dt, &terr)) {
+        progress("detection threshold of " + model::ToString(kind) + ": " +
+                 (std::isfinite(dt.threshold) ? dt.parameter + " " + FormatNumber(dt.threshold)
+                                              : "none up to the strongest tested"));
         result->thresholds.push_back(dt);
       } else {
         result->notes.push_back("detection threshold of " + model::ToString(kind) + ": " + terr);

@@ -58,6 +58,7 @@
 #ifndef CCDPSF_DIAGNOSE_DIAGNOSE_H_
 #define CCDPSF_DIAGNOSE_DIAGNOSE_H_
 
+#include <functional>
 #include <optional>
 #include <string>
 #include <vector>
@@ -96,6 +97,10 @@ struct DiagnoseOptions {
   fit::MapOptions map;  // for the baseline's starting point (fit::FindMap)
   bool compute_thresholds = false;
   ThresholdOptions thresholds;
+  // Called on the calling thread as the work advances, one line each (no newline): the
+  // baseline fit, each round's predictive check and candidate tests with its verdict, each
+  // detection-threshold study. Empty: silent.
+  std::function<void(const std::string&)> progress;
 
   bool IsValid(std::string* error) const;
 };
