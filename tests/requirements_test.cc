@@ -166,6 +166,25 @@ TEST(Requirements, PassFailAndMarginsByHand) {
   EXPECT_TRUE(j["reason"].is_null());
 }
 
+TEST(Requirements, OneGroupsDrawsAreJudgedWithoutARelation) {
+  // FWHM draws 10.005 .. 10.995 (median 10.5): <= 10.8 for k - 49.5 <= 30, i.e. 80 draws.
+  const RequirementResult r = EvaluateRequirementOnDraws(DefaultRequirements()[0], Ladder(10.5, 0.01));
+  ASSERT_TRUE(r.pass.has_value()) << r.reason;
+  EXPECT_TRUE(*r.pass);
+  EXPECT_NEAR(r.value.median, 10.5, 1e-12);
+  EXPECT_NEAR(r.margin, 0.3, 1e-12);
+  EXPECT_NEAR(r.pass_probability, 0.80, 1e-12);
+  EXPECT_EQ(Verdict(r), "undetermined");
+  // A coefficient needs a relation; no draws is no value.
+  const RequirementResult coefficient =
+      EvaluateRequirementOnDraws(DefaultRequirements()[2], Ladder(-0.27, 0.001));
+  EXPECT_FALSE(coefficient.pass.has_value());
+  EXPECT_NE(coefficient.reason.find("coefficient"), std::string::npos) << coefficient.reason;
+  const RequirementResult none = EvaluateRequirementOnDraws(DefaultRequirements()[0], {});
+  EXPECT_FALSE(none.pass.has_value());
+  EXPECT_EQ(none.reason, "no draws of 'fwhm_um'");
+}
+
 TEST(Requirements, CombinedModelAwayFromI0UsesTheIntensityRelation) {
   std::map<std::string, RelationFit> relations;
   relations["fwhm_um_vs_wavelength"] =

@@ -301,6 +301,54 @@ TEST(Trend, RecoversCombinedModelTruthWithGapsAndNotes) {
   EXPECT_GT(std::fabs(biased.median - alpha), 3 * 0.5 * (biased.hi68 - biased.lo68));
 }
 
+// A through-focus series identifies the CCD widths, so the metric requirements at its
+// wavelength are also judged on its own draws, at its own intensity; not for a series at
+// another wavelength, and not on a chain that did not converge.
+TEST(Trend, ThroughFocusSeriesJudgesTheRequirementsOnItsOwnDraws) {
+  std::mt19937_64 engine(23);
+  std::vector<GroupResult> groups;
+  for (double wl : {600.0, 700.0, 800.0, 890.0}) {
+    groups.push_back(SyntheticGroup("w" + std::to_string(static_cast<int>(wl)), wl, 157800,
+                                    8.0 * std::pow(wl / 800.0, -0.272), 0.01, engine));
+  }
+  GroupResult series = SyntheticGroup("f800", 800, 63000, 7.9, 0.004, engine);
+  series.group.focus_series = true;
+  groups.push_back(series);
+  GroupResult other = SyntheticGroup("f700", 700, 63000, 8.2, 0.004, engine);
+  other.group.focus_series = true;
+  groups.push_back(other);
+  GroupResult stuck = SyntheticGroup("f800_stuck", 800, 63000, 7.9, 0.004, engine);
+  stuck.group.focus_series = true;
+  stuck.converged = false;
+  groups.push_back(stuck);
+  TrendResult r;
+  std::string error;
+  ASSERT_TRUE(ComputeTrend(groups, TrendOptions(), &r, &error)) << error;
+  // fwhm_800nm and ellipticity_800nm for each 800 nm series; alpha is a coefficient.
+  ASSERT_EQ(r.focus_requirements.size(), 4u);
+  for (const TrendResult::FocusRequirement& q : r.focus_requirements) {
+    EXPECT_NE(q.group, "f700");
+    EXPECT_NE(q.result.notes.back().find(q.group + "'s own posterior"), std::string::npos);
+    if (q.group == "f800_stuck") {
+      EXPECT_FALSE(q.result.pass.has_value());
+      EXPECT_NE(q.result.reason.find("did not converge"), std::string::npos) << q.result.reason;
+      continue;
+    }
+    ASSERT_TRUE(q.result.pass.has_value()) << q.result.reason;
+    // The series' own median (every metric has the same draws law here, different draws).
+    std::vector<double> d = series.draws.at(q.result.requirement.metric);
+    std::nth_element(d.begin(), d.begin() + d.size() / 2, d.end());
+    const double upper = d[d.size() / 2];
+    std::nth_element(d.begin(), d.begin() + d.size() / 2 - 1, d.end());
+    EXPECT_NEAR(q.result.value.median, 0.5 * (upper + d[d.size() / 2 - 1]), 1e-12);
+    if (q.result.requirement.metric == "fwhm_um") {
+      EXPECT_EQ(Verdict(q.result), "pass");  // 7.9 +- 0.03 um against 10.8
+    } else {
+      EXPECT_EQ(Verdict(q.result), "fail");  // the synthetic "ellipticity" is 7.9 > 0.156
+    }
+  }
+}
+
 // The end-to-end check, reduced: a simulated campaign in pixel_centre sampling whose
 // truth is the paper's relations (testdata/campaign_paper_small.json: 600-890 nm near I0,
 // four intensities at 800 nm, 3 exposures each). The recovered alpha of FWHM(lambda) and the

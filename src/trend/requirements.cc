@@ -239,6 +239,32 @@ json RequirementsToJson(const std::vector<Requirement>& requirements) {
   return list;
 }
 
+namespace {
+
+// The value, margin, pass and P(pass) of res's requirement from the value's draws (a reason
+// instead when none is finite).
+void Judge(const std::vector<double>& draws, RequirementResult* res) {
+  const Requirement& req = res->requirement;
+  res->value = SummarizeDraws(draws);
+  if (!std::isfinite(res->value.median)) {
+    res->reason = "no finite draws of the value";
+    res->value = Estimate();
+    return;
+  }
+  const bool at_most = req.comparison == Comparison::kAtMost;
+  res->margin = at_most ? req.limit - res->value.median : res->value.median - req.limit;
+  res->pass = at_most ? res->value.median <= req.limit : res->value.median >= req.limit;
+  size_t finite = 0, passing = 0;
+  for (double d : draws) {
+    if (!std::isfinite(d)) continue;
+    ++finite;
+    if (at_most ? d <= req.limit : d >= req.limit) ++passing;
+  }
+  res->pass_probability = static_cast<double>(passing) / static_cast<double>(finite);
+}
+
+}  // namespace
+
 std::vector<RequirementResult> EvaluateRequirements(
     const std::vector<Requirement>& requirements,
     const std::map<std::string, RelationFit>& relations, double reference_intensity_e) {
@@ -291,28 +317,27 @@ std::vector<RequirementResult> EvaluateRequirements(
         }
       }
     }
-    if (res.reason.empty()) {
-      res.value = SummarizeDraws(draws);
-      if (!std::isfinite(res.value.median)) {
-        res.reason = "no finite draws of the value";
-        res.value = Estimate();
-      }
-    }
-    if (res.reason.empty()) {
-      const bool at_most = req.comparison == Comparison::kAtMost;
-      res.margin = at_most ? req.limit - res.value.median : res.value.median - req.limit;
-      res.pass = at_most ? res.value.median <= req.limit : res.value.median >= req.limit;
-      size_t finite = 0, passing = 0;
-      for (double d : draws) {
-        if (!std::isfinite(d)) continue;
-        ++finite;
-        if (at_most ? d <= req.limit : d >= req.limit) ++passing;
-      }
-      res.pass_probability = static_cast<double>(passing) / static_cast<double>(finite);
-    }
+    if (res.reason.empty()) Judge(draws, &res);
     results.push_back(std::move(res));
   }
   return results;
+}
+
+RequirementResult EvaluateRequirementOnDraws(const Requirement& requirement,
+                                             const std::vector<double>& draws) {
+  RequirementResult res;
+  res.requirement = requirement;
+  if (!requirement.IsValid(&res.reason)) return res;
+  if (requirement.target != Requirement::Target::kMetricAt) {
+    res.reason = "a coefficient requirement needs a relation, not one group's draws";
+    return res;
+  }
+  if (draws.empty()) {
+    res.reason = "no draws of '" + requirement.metric + "'";
+    return res;
+  }
+  Judge(draws, &res);
+  return res;
 }
 
 json ToJson(const RequirementResult& result) {

@@ -256,6 +256,29 @@ bool ComputeTrend(std::vector<GroupResult> groups, const TrendOptions& options,
     }
   }
   result->requirements = EvaluateRequirements(options.requirements, result->relations, i0);
+  for (const GroupResult& g : result->groups) {
+    if (!g.group.focus_series || !g.ok) continue;
+    for (const Requirement& req : options.requirements) {
+      if (req.target != Requirement::Target::kMetricAt ||
+          !(std::fabs(req.wavelength_nm - g.group.wavelength_nm) <= 0.5)) {
+        continue;
+      }
+      const auto draws = g.draws.find(req.metric);
+      RequirementResult res = EvaluateRequirementOnDraws(
+          req, draws == g.draws.end() ? std::vector<double>() : draws->second);
+      if (draws != g.draws.end() && !g.converged) {
+        res = RequirementResult();
+        res.requirement = req;
+        res.reason = "its MCMC did not converge (see the group's fit report)";
+      } else if (draws == g.draws.end()) {
+        res.reason += " (MCMC off)";
+      }
+      res.notes.push_back("on " + g.group.name + "'s own posterior, at its peak " +
+                          Format(g.peak_e.median) + " e-, not corrected to I0 = " +
+                          Format(i0) + " e-");
+      result->focus_requirements.push_back({g.group.name, std::move(res)});
+    }
+  }
   return true;
 }
 

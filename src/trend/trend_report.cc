@@ -200,6 +200,12 @@ json TrendJson(const TrendResult& r) {
   j["wavelength_relation_groups"] = r.wavelength_groups;
   j["requirements"] = json::array();
   for (const RequirementResult& q : r.requirements) j["requirements"].push_back(ToJson(q));
+  j["focus_series_requirements"] = json::array();
+  for (const TrendResult::FocusRequirement& q : r.focus_requirements) {
+    json e = ToJson(q.result);
+    e["group"] = q.group;
+    j["focus_series_requirements"].push_back(e);
+  }
   j["groups"] = json::array();
   int failed = 0;
   for (const GroupResult& g : r.groups) {
@@ -300,6 +306,16 @@ bool WriteTrendReport(const std::string& out_dir, const TrendResult& r,
      << kSettledProbability << " or <= " << 1.0 - kSettledProbability
      << ", else undetermined (the data do not settle it; a CCD-only width that rests on the "
         "priors is undetermined).\n\n";
+  std::map<std::string, std::vector<RequirementResult>> by_series;
+  for (const TrendResult::FocusRequirement& q : r.focus_requirements) {
+    by_series[q.group].push_back(q.result);
+  }
+  for (const auto& [group, results] : by_series) {
+    md << "On the through-focus series " << group
+       << " (its CCD widths are identified; on its own posterior, at its own intensity, not "
+          "corrected to I0):\n\n```\n"
+       << FormatRequirementTable(results) << "```\n\n";
+  }
   md << "## Relations\n\n";
   md << "| relation | coefficients (median [68 %]) | value at pivot | chi2/dof | points | flags |\n";
   md << "|---|---|---|---|---|---|\n";

@@ -111,6 +111,14 @@ std::vector<RequirementResult> EvaluateRequirements(
     const std::map<std::string, RelationFit>& relations,
     double reference_intensity_e = kReferenceIntensityE);
 
+// A metric requirement judged on one group's own posterior draws of that metric, with no
+// relation and no intensity correction: for a through-focus series, whose CCD widths are
+// identified (trend.h), at the series' wavelength and intensity. The caller adds a note that
+// says which. Coefficient requirements and missing or non-finite draws give pass = null with
+// a reason.
+RequirementResult EvaluateRequirementOnDraws(const Requirement& requirement,
+                                             const std::vector<double>& draws);
+
 // trend.json's requirement entry: {"name", "target", "comparison", "limit", "value", "lo68",
 // "hi68", "margin", "pass", "pass_probability", "verdict", "reason", "notes"} (+ "metric", "at" or
 // "relation", "coefficient"); NaN and a missing pass are null.

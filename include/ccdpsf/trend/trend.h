@@ -15,7 +15,11 @@
 //                           correction's own uncertainty is carried. Without an intensity
 //                           relation the points are used as measured (noted).
 //   through-focus groups    not in the relations (a different experiment); reported on
-//                           their own: there the CCD widths are identified.
+//                           their own: there the CCD widths are identified. The metric
+//                           requirements at a series' wavelength are also judged on its own
+//                           draws, at its own intensity (focus_requirements): where a
+//                           single-focus campaign leaves the CCD-only widths to the priors
+//                           (integrated sampling), this is the settled check.
 // Failed groups appear as gaps in every relation they would have fed.
 //
 // "Bound only": a group whose MAP puts a CCD width at its prior's lower bound, or, in
@@ -70,6 +74,13 @@ struct TrendResult {
   // The groups used for the wavelength relations, in wavelength order.
   std::vector<std::string> wavelength_groups;
   std::vector<RequirementResult> requirements;
+  // Metric requirements at each fitted through-focus series' wavelength (within 0.5 nm),
+  // judged on the series' own draws (EvaluateRequirementOnDraws; a note gives its intensity).
+  struct FocusRequirement {
+    std::string group;
+    RequirementResult result;
+  };
+  std::vector<FocusRequirement> focus_requirements;
   std::vector<std::string> notes;  // what the reader should know (corrections, exclusions)
 };
 
