@@ -261,6 +261,12 @@ json DiagnoseJson(const fit::FitModel& base, const DiagnoseResult& result,
                  {"parameters", Parameters(r.names, r.fit)}};
     jr["chi2_per_dof"] = r.statistics.chi2_per_dof;
     jr["statistics"] = Statistics(r.statistics);
+    jr["intensity_classes"] = json::array();
+    for (const IntensityStack& c : r.statistics.by_intensity) {
+      jr["intensity_classes"].push_back({{"peak_min_e", c.peak_min_e},
+                                         {"peak_max_e", c.peak_max_e},
+                                         {"exposures", c.exposures}});
+    }
     jr["radial_profile"] = {{"annulus_inner_px", json::array()},
                             {"mean_normalised_residual", json::array()},
                             {"count", json::array()}};
@@ -424,8 +430,13 @@ std::string Markdown(const DiagnoseResult& result, const json& doc,
     for (const std::string& n : result.notes) md << "- " << n << "\n";
     for (const std::string& n : plot_notes) md << "- " << n << "\n";
   }
-  md << "\nPlots: stacked_residuals.png (one row per round), radial_profile.png, "
-        "flag_<effect>.png.\n";
+  md << "\nPlots: stacked_residuals.png (one row per round)"
+     << (result.rounds.front().statistics.by_intensity.size() > 1
+             ? ", stacked_residuals_by_intensity.png (one row per round and intensity class: "
+               "a signal-dependent effect leaves residuals of opposite sign at low and high "
+               "intensity, which cancel in the stack of all exposures)"
+             : "")
+     << ", radial_profile.png, flag_<effect>.png.\n";
   return md.str();
 }
 
@@ -465,6 +476,28 @@ bool WriteDiagnoseReport(const std::string& out_dir, const fit::FitModel& base,
     }
     PlotResult pr;
     if (!WriteResidualMaps(dir, "stacked_residuals", rows, &pr, error)) return false;
+    note_plot(pr);
+  }
+  // Split by intensity (statistics.h), one row per round and intensity class.
+  if (result.rounds.front().statistics.by_intensity.size() > 1) {
+    std::vector<StampPanels> rows;
+    for (size_t i = 0; i < result.rounds.size(); ++i) {
+      for (const IntensityStack& c : result.rounds[i].statistics.by_intensity) {
+        StampPanels p;
+        char peaks[96];
+        std::snprintf(peaks, sizeof(peaks), "peak %.3g-%.3g e- (%d exposure%s)", c.peak_min_e,
+                      c.peak_max_e, c.exposures, c.exposures == 1 ? "" : "s");
+        p.title = "round " + std::to_string(i) + ": " + result.rounds[i].spec.Describe() + ", " +
+                  peaks;
+        p.data = c.stacked_data;
+        p.model = c.stacked_model;
+        p.residual = c.stacked_residual;
+        p.normalised = c.stacked_normalised;
+        rows.push_back(std::move(p));
+      }
+    }
+    PlotResult pr;
+    if (!WriteResidualMaps(dir, "stacked_residuals_by_intensity", rows, &pr, error)) return false;
     note_plot(pr);
   }
   // Radial profile per round.

@@ -84,6 +84,43 @@ std::vector<ExposureResidual> ComputeResiduals(const EffectModel& model,
   return out;
 }
 
+namespace {
+
+// The intensity class of every exposure (statistics.h), classes numbered from the lowest.
+std::vector<int> IntensityClasses(const std::vector<ExposureResidual>& residuals) {
+  constexpr double kClassRatio = 1.25;
+  std::vector<int> order(residuals.size());
+  for (size_t k = 0; k < order.size(); ++k) order[k] = static_cast<int>(k);
+  std::stable_sort(order.begin(), order.end(),
+                   [&](int a, int b) { return residuals[a].peak_e < residuals[b].peak_e; });
+  std::vector<int> cls(residuals.size(), 0);
+  int current = 0;
+  double lowest = residuals[order[0]].peak_e;
+  for (int k : order) {
+    if (residuals[k].peak_e > kClassRatio * lowest) {
+      ++current;
+      lowest = residuals[k].peak_e;
+    }
+    cls[k] = current;
+  }
+  return cls;
+}
+
+// Sum over n unit normals / sqrt(n) keeps a stacked normalised residual N(0, 1); pixels no
+// exposure reached are NaN.
+void FinishStack(Image* data, Image* model, Image* residual, Image* normalised,
+                 const Image& count) {
+  for (size_t si = 0; si < count.data.size(); ++si) {
+    if (count.data[si] == 0) {
+      data->data[si] = model->data[si] = residual->data[si] = normalised->data[si] = NAN;
+    } else {
+      normalised->data[si] /= std::sqrt(count.data[si]);
+    }
+  }
+}
+
+}  // namespace
+
 ResidualStatistics ComputeStatistics(const std::vector<ExposureResidual>& residuals,
                                      int num_parameters) {
   CHECK(!residuals.empty());
@@ -95,12 +132,28 @@ ResidualStatistics ComputeStatistics(const std::vector<ExposureResidual>& residu
   st.stacked_residual = Image(nx, ny, 0.0);
   st.stacked_normalised = Image(nx, ny, 0.0);
   st.stack_count = Image(nx, ny, 0.0);
+  const std::vector<int> intensity_class = IntensityClasses(residuals);
+  st.by_intensity.resize(*std::max_element(intensity_class.begin(), intensity_class.end()) + 1);
+  for (IntensityStack& c : st.by_intensity) {
+    c.peak_min_e = INFINITY;
+    c.peak_max_e = -INFINITY;
+    c.stacked_data = c.stacked_model = c.stacked_residual = c.stacked_normalised =
+        c.stack_count = Image(nx, ny, 0.0);
+  }
+  for (size_t k = 0; k < residuals.size(); ++k) {
+    IntensityStack& c = st.by_intensity[intensity_class[k]];
+    c.peak_min_e = std::min(c.peak_min_e, residuals[k].peak_e);
+    c.peak_max_e = std::max(c.peak_max_e, residuals[k].peak_e);
+    ++c.exposures;
+  }
   Accumulator core, ring, outer, odd_x, odd_y;
   std::vector<Accumulator> radial(kRadialBins);
   double neighbour_sum = 0.0, peak_sum = 0.0;
   std::vector<double> widths;
   int num_pixels = 0;
-  for (const ExposureResidual& e : residuals) {
+  for (size_t k = 0; k < residuals.size(); ++k) {
+    const ExposureResidual& e = residuals[k];
+    IntensityStack& by_class = st.by_intensity[intensity_class[k]];
     const int px = static_cast<int>(std::lround(e.centre_x));
     const int py = static_cast<int>(std::lround(e.centre_y));
     Accumulator core_k;
@@ -140,6 +193,11 @@ ResidualStatistics ComputeStatistics(const std::vector<ExposureResidual>& residu
         st.stacked_residual(si, sj) += e.data_e.data[q] - e.model_e.data[q];
         st.stacked_normalised(si, sj) += r;
         st.stack_count(si, sj) += 1.0;
+        by_class.stacked_data(si, sj) += e.data_e.data[q];
+        by_class.stacked_model(si, sj) += e.model_e.data[q];
+        by_class.stacked_residual(si, sj) += e.data_e.data[q] - e.model_e.data[q];
+        by_class.stacked_normalised(si, sj) += r;
+        by_class.stack_count(si, sj) += 1.0;
       }
     }
     // Neighbours of the peak pixel (the pixel nearest the centre).
@@ -183,14 +241,11 @@ ResidualStatistics ComputeStatistics(const std::vector<ExposureResidual>& residu
   st.dof = std::max(1, num_pixels - num_parameters);
   st.chi2_per_dof = st.chi2 / st.dof;
   st.chi2_per_dof_sd = std::sqrt(2.0 / st.dof);
-  for (int si = 0; si < nx * ny; ++si) {
-    if (st.stack_count.data[si] == 0) {
-      st.stacked_data.data[si] = st.stacked_model.data[si] = st.stacked_residual.data[si] = NAN;
-      st.stacked_normalised.data[si] = NAN;
-    } else {
-      // Sum of n unit normals / sqrt(n): the stacked normalised residual stays N(0, 1).
-      st.stacked_normalised.data[si] /= std::sqrt(st.stack_count.data[si]);
-    }
+  FinishStack(&st.stacked_data, &st.stacked_model, &st.stacked_residual, &st.stacked_normalised,
+              st.stack_count);
+  for (IntensityStack& c : st.by_intensity) {
+    FinishStack(&c.stacked_data, &c.stacked_model, &c.stacked_residual, &c.stacked_normalised,
+                c.stack_count);
   }
   double radial_chi2 = 0.0;
   for (const Accumulator& a : radial) {

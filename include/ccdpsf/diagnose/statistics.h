@@ -31,7 +31,12 @@
 //
 // The stacked images align every exposure on the pixel grid: the pixel nearest its fitted
 // centre lands on the stack's centre pixel ((n - 1) / 2), with no interpolation (so the
-// residual pattern is not smoothed); pixels shifted off the stamp are dropped.
+// residual pattern is not smoothed); pixels shifted off the stamp are dropped. They are also
+// stacked per intensity class (exposures sorted by peak signal; a class starts where a peak
+// exceeds 1.25 x the lowest peak of the current class, the ratio that makes a set
+// multi-intensity), because an effect that grows with the signal (brighter_fatter,
+// nonlinearity) leaves residuals of opposite sign at low and high intensity, which cancel in
+// the stack of all exposures.
 #ifndef CCDPSF_DIAGNOSE_STATISTICS_H_
 #define CCDPSF_DIAGNOSE_STATISTICS_H_
 
@@ -80,6 +85,14 @@ struct NamedStatistic {
 // each measures and which effects move it.
 const std::vector<std::pair<std::string, std::string>>& StatisticDescriptions();
 
+// One intensity class's stacks (as ResidualStatistics' stacked_*; peaks are the exposures'
+// model peaks [e-]).
+struct IntensityStack {
+  double peak_min_e = 0.0, peak_max_e = 0.0;
+  int exposures = 0;
+  Image stacked_data, stacked_model, stacked_residual, stacked_normalised, stack_count;
+};
+
 struct ResidualStatistics {
   double chi2 = 0.0;
   int dof = 0;
@@ -88,6 +101,8 @@ struct ResidualStatistics {
   std::vector<NamedStatistic> values;
   // Stacks (sums over exposures, aligned as above) and their valid-pixel counts.
   Image stacked_data, stacked_model, stacked_residual, stacked_normalised, stack_count;
+  // The same per intensity class, lowest first (one class for a single-intensity set).
+  std::vector<IntensityStack> by_intensity;
   // Mean normalised residual in 1-px annuli rho in [b, b + 1), b = 0..9, and the counts.
   std::vector<double> radial_mean, radial_count;
   std::vector<double> peak_e;  // per exposure
