@@ -175,8 +175,8 @@ int main(int argc, char** argv) {
   };
   if (sets) {
   std::printf("# 1. Five-exposure sets, one hidden effect (50 predictive simulations per round)\n");
-  std::printf("%-58s %-26s %8s %8s %7s  parameters (fit +- sd | truth)\n", "case", "named",
-              "chi2 bef", "chi2 aft", "sec");
+  std::printf("%-58s %-26s %8s %8s %7s  %s  parameters (fit +- sd | truth)\n", "case", "named",
+              "chi2 bef", "chi2 aft", "sec", "min p bef/aft (statistic)");
   int seed = 100;
   for (const Case& c : cases) {
     if (!cases_too) break;
@@ -200,9 +200,21 @@ int main(int argc, char** argv) {
       std::printf("%-58s failed: %s\n", c.name.c_str(), error.c_str());
       continue;
     }
-    std::printf("%-58s %-26s %8.4f %8.4f %7.1f ", c.name.c_str(), Named(r).c_str(),
+    // The smallest predictive p-value of a round's statistics, and which statistic.
+    auto min_p = [](const ResidualStatistics& st) {
+      const NamedStatistic* least = nullptr;
+      for (const NamedStatistic& v : st.values) {
+        if (std::isfinite(v.p_value) && (least == nullptr || v.p_value < least->p_value)) least = &v;
+      }
+      char buf[64];
+      std::snprintf(buf, sizeof(buf), "%.3f (%s)", least ? least->p_value : NAN,
+                    least ? least->name.c_str() : "-");
+      return std::string(buf);
+    };
+    std::printf("%-58s %-26s %8.4f %8.4f %7.1f  %s / %s ", c.name.c_str(), Named(r).c_str(),
                 r.rounds.front().statistics.chi2_per_dof, r.rounds.back().statistics.chi2_per_dof,
-                r.seconds);
+                r.seconds, min_p(r.rounds.front().statistics).c_str(),
+                min_p(r.rounds.back().statistics).c_str());
     const RoundResult& last = r.rounds.back();
     for (const auto& [name, value] : c.truth) {
       for (size_t i = 0; i < last.names.size(); ++i) {

@@ -467,7 +467,8 @@ bool RunDiagnosis(const fit::FitModel& base, const DiagnoseOptions& options,
   };
   EffectFitResult current_fit;
   if (!FitBaseline(base, *current, options, &current_fit, error)) return false;
-  progress(spec.Describe() + " fitted, chi2/dof " + FormatNumber(current_fit.chi2 / std::max(1, current_fit.dof)));
+  progress(spec.Describe() + " fitted, chi2/dof " +
+           FormatNumber(current_fit.chi2 / std::max(1, current_fit.dof)));
 
   std::vector<EffectKind> candidates = options.candidates;
   if (candidates.empty()) candidates = model::AllEffectKinds();

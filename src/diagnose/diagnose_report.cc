@@ -56,7 +56,8 @@ json Estimate(double map, double sd, bool at_bound, double lower, double upper) 
 json SigmaFromVariance(const json& variance) {
   auto root = [](const json& v) { return Num(std::sqrt(std::max(v.get<double>(), 0.0))); };
   const double var = variance["map"].is_null() ? NAN : variance["map"].get<double>();
-  const double var_sd = variance["laplace_sd"].is_null() ? NAN : variance["laplace_sd"].get<double>();
+  const double var_sd =
+      variance["laplace_sd"].is_null() ? NAN : variance["laplace_sd"].get<double>();
   const double s = std::sqrt(std::max(var, 0.0));
   json e = {{"map", Num(s)}, {"laplace_sd", Num(s > 0 ? var_sd / (2 * s) : NAN)},
             {"at_bound", variance["at_bound"]}};

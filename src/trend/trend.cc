@@ -264,14 +264,15 @@ bool ComputeTrend(std::vector<GroupResult> groups, const TrendOptions& options,
         continue;
       }
       const auto draws = g.draws.find(req.metric);
-      RequirementResult res = EvaluateRequirementOnDraws(
-          req, draws == g.draws.end() ? std::vector<double>() : draws->second);
-      if (draws != g.draws.end() && !g.converged) {
-        res = RequirementResult();
+      RequirementResult res;
+      if (draws == g.draws.end()) {
+        res = EvaluateRequirementOnDraws(req, {});
+        res.reason += " (MCMC off)";
+      } else if (!g.converged) {
         res.requirement = req;
         res.reason = "its MCMC did not converge (see the group's fit report)";
-      } else if (draws == g.draws.end()) {
-        res.reason += " (MCMC off)";
+      } else {
+        res = EvaluateRequirementOnDraws(req, draws->second);
       }
       res.notes.push_back("on " + g.group.name + "'s own posterior, at its peak " +
                           Format(g.peak_e.median) + " e-, not corrected to I0 = " +
