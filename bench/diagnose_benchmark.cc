@@ -204,7 +204,8 @@ int main(int argc, char** argv) {
     auto min_p = [](const ResidualStatistics& st) {
       const NamedStatistic* least = nullptr;
       for (const NamedStatistic& v : st.values) {
-        if (std::isfinite(v.p_value) && (least == nullptr || v.p_value < least->p_value)) least = &v;
+        if (std::isfinite(v.p_value) && (least == nullptr || v.p_value < least->p_value))
+          least = &v;
       }
       char buf[64];
       std::snprintf(buf, sizeof(buf), "%.3f (%s)", least ? least->p_value : NAN,

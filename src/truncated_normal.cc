@@ -21,7 +21,7 @@ double TruncatedNormalQuantile(double mean, double sd, double lower, double uppe
   const double tail = upper_side ? NormalCdf(-b) + (1.0 - q) * (cdf_b - cdf_a) : target;
   double lo = a, hi = b;
   for (int i = 0; i < 200 && hi - lo > 4 * std::numeric_limits<double>::epsilon() *
-                                             std::max(1.0, std::fabs(lo) + std::fabs(hi));
+                                           std::max(1.0, std::fabs(lo) + std::fabs(hi));
        ++i) {
     const double mid = 0.5 * (lo + hi);
     const bool below = upper_side ? NormalCdf(-mid) > tail : NormalCdf(mid) < tail;

@@ -534,7 +534,10 @@ TEST(Diagnose, ReportHasTheDocumentedFields) {
   // parameter name) must not take defocus_offset's, as once when both were named.
   RoundResult& last = result.rounds.back();
   // An ipc fraction 2 sd above its bound at zero: its intervals stay inside [0, 0.05].
-  struct Added { std::string name; double value, sd, lower, upper; };
+  struct Added {
+    std::string name;
+    double value, sd, lower, upper;
+  };
   for (const Added& a : std::vector<Added>{{"defocus_sigma_px", 0.41, 0.01, 0.0, 1.5},
                                            {"defocus_offset.dx_px", 0.1, 0.01, -1.0, 1.0},
                                            {"defocus_offset.dy_px", 0.0, 0.01, -1.0, 1.0},

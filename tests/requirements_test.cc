@@ -168,7 +168,8 @@ TEST(Requirements, PassFailAndMarginsByHand) {
 
 TEST(Requirements, OneGroupsDrawsAreJudgedWithoutARelation) {
   // FWHM draws 10.005 .. 10.995 (median 10.5): <= 10.8 for k - 49.5 <= 30, i.e. 80 draws.
-  const RequirementResult r = EvaluateRequirementOnDraws(DefaultRequirements()[0], Ladder(10.5, 0.01));
+  const RequirementResult r =
+      EvaluateRequirementOnDraws(DefaultRequirements()[0], Ladder(10.5, 0.01));
   ASSERT_TRUE(r.pass.has_value()) << r.reason;
   EXPECT_TRUE(*r.pass);
   EXPECT_NEAR(r.value.median, 10.5, 1e-12);

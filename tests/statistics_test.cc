@@ -44,13 +44,15 @@ TEST(Statistics, StacksAreSplitByIntensityClass) {
   EXPECT_EQ(st.by_intensity[2].peak_max_e, 4.0e5);
   for (size_t q = 0; q < 81; ++q) {
     // One-exposure classes are that exposure (centred: no shift).
-    EXPECT_NEAR(st.by_intensity[1].stacked_normalised.data[q], residuals[0].normalised.data[q], 1e-12);
+    EXPECT_NEAR(st.by_intensity[1].stacked_normalised.data[q], residuals[0].normalised.data[q],
+                1e-12);
     EXPECT_NEAR(st.by_intensity[2].stacked_residual.data[q],
                 residuals[2].data_e.data[q] - residuals[2].model_e.data[q], 1e-9);
     // Two: the sum / sqrt(2).
-    EXPECT_NEAR(st.by_intensity[0].stacked_normalised.data[q],
-                (residuals[1].normalised.data[q] + residuals[3].normalised.data[q]) / std::sqrt(2.0),
-                1e-12);
+    EXPECT_NEAR(
+        st.by_intensity[0].stacked_normalised.data[q],
+        (residuals[1].normalised.data[q] + residuals[3].normalised.data[q]) / std::sqrt(2.0),
+        1e-12);
     // The classes add up to the stack of all exposures.
     double residual = 0.0, normalised = 0.0;
     for (const IntensityStack& c : st.by_intensity) {

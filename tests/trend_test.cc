@@ -437,9 +437,9 @@ TEST(TrendCli, BrokenGroupsAreReportedAndTheRunGoesOn) {
   SimulateSet(dir + "/mixed_a", 650, 3.0);
   SimulateSet(dir + "/mixed_b", 650, 3.0, {}, {}, 11);
   std::string out;
-  ASSERT_EQ(RunCcdpsf("trend --nomcmc --out=" + dir + "/trend " + dir +
-                          "/ok600 " + dir + "/ok800 " + dir + "/ok890 " + dir + "/nowave " + dir +
-                          "/bad " + dir + "/mixed_a " + dir + "/mixed_b",
+  ASSERT_EQ(RunCcdpsf("trend --nomcmc --out=" + dir + "/trend " + dir + "/ok600 " + dir +
+                          "/ok800 " + dir + "/ok890 " + dir + "/nowave " + dir + "/bad " + dir +
+                          "/mixed_a " + dir + "/mixed_b",
                       &out),
             0)
       << out;

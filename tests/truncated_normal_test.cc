@@ -1,9 +1,9 @@
 #include "ccdpsf/truncated_normal.h"
 
+#include <gtest/gtest.h>
+
 #include <cmath>
 #include <limits>
-
-#include <gtest/gtest.h>
 
 namespace ccdpsf {
 namespace {
@@ -51,10 +51,12 @@ TEST(TruncatedNormal, HalfNormalOneSdQuantileIsClosedForm) {
 }
 
 TEST(TruncatedNormal, BoundedQuantilesInvertTheIntegratedDensity) {
-  struct Case { double mean, sd, lower, upper; };
+  struct Case {
+    double mean, sd, lower, upper;
+  };
   // A MAP at a bound, near one, between two close bounds, and a bound 6 sd out.
-  const Case cases[] = {{0.0, 1e-3, 0.0, 0.05}, {2e-4, 1e-3, 0.0, 0.05},
-                        {0.3, 0.2, 0.1, 0.5},   {1.0, 0.1, 0.4, 2.0}};
+  const Case cases[] = {
+      {0.0, 1e-3, 0.0, 0.05}, {2e-4, 1e-3, 0.0, 0.05}, {0.3, 0.2, 0.1, 0.5}, {1.0, 0.1, 0.4, 2.0}};
   for (const Case& c : cases) {
     for (double q : {NormalCdf(-3.0), NormalCdf(-1.0), 0.5, NormalCdf(1.0), NormalCdf(3.0)}) {
       const double x = TruncatedNormalQuantile(c.mean, c.sd, c.lower, c.upper, q);

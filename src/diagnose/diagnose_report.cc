@@ -59,7 +59,8 @@ json SigmaFromVariance(const json& variance) {
   const double var_sd =
       variance["laplace_sd"].is_null() ? NAN : variance["laplace_sd"].get<double>();
   const double s = std::sqrt(std::max(var, 0.0));
-  json e = {{"map", Num(s)}, {"laplace_sd", Num(s > 0 ? var_sd / (2 * s) : NAN)},
+  json e = {{"map", Num(s)},
+            {"laplace_sd", Num(s > 0 ? var_sd / (2 * s) : NAN)},
             {"at_bound", variance["at_bound"]}};
   for (const char* key : {"lo68", "hi68", "lo997", "hi997"}) {
     if (variance.contains(key)) e[key] = root(variance[key]);
@@ -110,9 +111,8 @@ json EffectParameters(const DiagnoseResult& result) {
         if (f < 0 || s < 0 || b < 0) continue;
         const double ratio = fit.p[s] / std::hypot(fit.p[s], fit.p[f]);
         const double sd = fit.laplace.sd.empty() ? NAN : fit.laplace.sd[b];
-        e[std::string("total_slope_") + axis + "_px_per_e"] =
-            Estimate(fit.p[b] * ratio, sd * ratio, false, last.lower[b] * ratio,
-                     last.upper[b] * ratio);
+        e[std::string("total_slope_") + axis + "_px_per_e"] = Estimate(
+            fit.p[b] * ratio, sd * ratio, false, last.lower[b] * ratio, last.upper[b] * ratio);
       }
     }
     out[name] = e;
@@ -264,9 +264,8 @@ json DiagnoseJson(const fit::FitModel& base, const DiagnoseResult& result,
     jr["statistics"] = Statistics(r.statistics);
     jr["intensity_classes"] = json::array();
     for (const IntensityStack& c : r.statistics.by_intensity) {
-      jr["intensity_classes"].push_back({{"peak_min_e", c.peak_min_e},
-                                         {"peak_max_e", c.peak_max_e},
-                                         {"exposures", c.exposures}});
+      jr["intensity_classes"].push_back(
+          {{"peak_min_e", c.peak_min_e}, {"peak_max_e", c.peak_max_e}, {"exposures", c.exposures}});
     }
     jr["radial_profile"] = {{"annulus_inner_px", json::array()},
                             {"mean_normalised_residual", json::array()},
@@ -488,8 +487,8 @@ bool WriteDiagnoseReport(const std::string& out_dir, const fit::FitModel& base,
         char peaks[96];
         std::snprintf(peaks, sizeof(peaks), "peak %.3g-%.3g e- (%d exposure%s)", c.peak_min_e,
                       c.peak_max_e, c.exposures, c.exposures == 1 ? "" : "s");
-        p.title = "round " + std::to_string(i) + ": " + result.rounds[i].spec.Describe() + ", " +
-                  peaks;
+        p.title =
+            "round " + std::to_string(i) + ": " + result.rounds[i].spec.Describe() + ", " + peaks;
         p.data = c.stacked_data;
         p.model = c.stacked_model;
         p.residual = c.stacked_residual;

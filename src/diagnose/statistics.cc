@@ -137,8 +137,8 @@ ResidualStatistics ComputeStatistics(const std::vector<ExposureResidual>& residu
   for (IntensityStack& c : st.by_intensity) {
     c.peak_min_e = INFINITY;
     c.peak_max_e = -INFINITY;
-    c.stacked_data = c.stacked_model = c.stacked_residual = c.stacked_normalised =
-        c.stack_count = Image(nx, ny, 0.0);
+    c.stacked_data = c.stacked_model = c.stacked_residual = c.stacked_normalised = c.stack_count =
+        Image(nx, ny, 0.0);
   }
   for (size_t k = 0; k < residuals.size(); ++k) {
     IntensityStack& c = st.by_intensity[intensity_class[k]];

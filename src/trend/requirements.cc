@@ -393,9 +393,8 @@ std::string FormatRequirementTable(const std::vector<RequirementResult>& results
       const std::string value = Num(r.value.median) + " [" + Num(r.value.lo68) + ", " +
                                 Num(r.value.hi68) + "]";
       std::snprintf(line, sizeof(line), "%-22s %-30s %-14s %-11s %-5s %-8.3f %s\n",
-                    r.requirement.name.c_str(), value.c_str(), limit.c_str(),
-                    Num(r.margin).c_str(), *r.pass ? "yes" : "NO", r.pass_probability,
-                    Verdict(r).c_str());
+                    r.requirement.name.c_str(), value.c_str(), limit.c_str(), Num(r.margin).c_str(),
+                    *r.pass ? "yes" : "NO", r.pass_probability, Verdict(r).c_str());
     }
     out += line;
   }

@@ -275,8 +275,8 @@ bool ComputeTrend(std::vector<GroupResult> groups, const TrendOptions& options,
         res = EvaluateRequirementOnDraws(req, draws->second);
       }
       res.notes.push_back("on " + g.group.name + "'s own posterior, at its peak " +
-                          Format(g.peak_e.median) + " e-, not corrected to I0 = " +
-                          Format(i0) + " e-");
+                          Format(g.peak_e.median) + " e-, not corrected to I0 = " + Format(i0) +
+                          " e-");
       result->focus_requirements.push_back({g.group.name, std::move(res)});
     }
   }

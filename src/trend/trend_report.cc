@@ -300,7 +300,8 @@ bool WriteTrendReport(const std::string& out_dir, const TrendResult& r,
   md << r.groups.size() << " groups, " << ok << " fitted, " << r.groups.size() - ok
      << " failed. Intervals are central 68 % posterior intervals (propagated from each group's "
         "MCMC draws).\n\n";
-  md << "## Requirements\n\n```\n" << FormatRequirementTable(r.requirements) << "```\n\n"
+  md << "## Requirements\n\n```\n"
+     << FormatRequirementTable(r.requirements) << "```\n\n"
      << "pass: by the median. P(pass): the share of the propagated draws that pass. verdict: "
         "pass or fail when P(pass) >= "
      << kSettledProbability << " or <= " << 1.0 - kSettledProbability
