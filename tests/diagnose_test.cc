@@ -342,8 +342,8 @@ TEST(Diagnose, FindsBrighterFatterAcrossIntensities) {
     ASSERT_EQ(classes.size(), 3u);
     std::vector<double> centre;
     for (const IntensityStack& c : classes) {
-      centre.push_back(c.stacked_normalised((c.stacked_normalised.nx - 1) / 2,
-                                            (c.stacked_normalised.ny - 1) / 2));
+      const Image& z = c.stack.normalised;
+      centre.push_back(z((z.nx - 1) / 2, (z.ny - 1) / 2));
     }
     std::printf("  round %zu: centre pixel z by intensity %.2f %.2f %.2f\n", round, centre[0],
                 centre[1], centre[2]);

@@ -44,29 +44,29 @@ TEST(Statistics, StacksAreSplitByIntensityClass) {
   EXPECT_EQ(st.by_intensity[2].peak_max_e, 4.0e5);
   for (size_t q = 0; q < 81; ++q) {
     // One-exposure classes are that exposure (centred: no shift).
-    EXPECT_NEAR(st.by_intensity[1].stacked_normalised.data[q], residuals[0].normalised.data[q],
+    EXPECT_NEAR(st.by_intensity[1].stack.normalised.data[q], residuals[0].normalised.data[q],
                 1e-12);
-    EXPECT_NEAR(st.by_intensity[2].stacked_residual.data[q],
+    EXPECT_NEAR(st.by_intensity[2].stack.residual.data[q],
                 residuals[2].data_e.data[q] - residuals[2].model_e.data[q], 1e-9);
     // Two: the sum / sqrt(2).
     EXPECT_NEAR(
-        st.by_intensity[0].stacked_normalised.data[q],
+        st.by_intensity[0].stack.normalised.data[q],
         (residuals[1].normalised.data[q] + residuals[3].normalised.data[q]) / std::sqrt(2.0),
         1e-12);
     // The classes add up to the stack of all exposures.
     double residual = 0.0, normalised = 0.0;
     for (const IntensityStack& c : st.by_intensity) {
-      residual += c.stacked_residual.data[q];
-      normalised += c.stacked_normalised.data[q] * std::sqrt(c.stack_count.data[q]);
+      residual += c.stack.residual.data[q];
+      normalised += c.stack.normalised.data[q] * std::sqrt(c.stack.count.data[q]);
     }
-    EXPECT_NEAR(residual, st.stacked_residual.data[q], 1e-9);
-    EXPECT_NEAR(normalised, st.stacked_normalised.data[q] * 2.0, 1e-12);
+    EXPECT_NEAR(residual, st.stack.residual.data[q], 1e-9);
+    EXPECT_NEAR(normalised, st.stack.normalised.data[q] * 2.0, 1e-12);
   }
   // One intensity (within 1.25): one class, the same as the whole stack.
   std::vector<ExposureResidual> one = {Synthetic(1.0e5, engine), Synthetic(1.2e5, engine)};
   const ResidualStatistics single = ComputeStatistics(one, 5);
   ASSERT_EQ(single.by_intensity.size(), 1u);
-  EXPECT_EQ(single.by_intensity[0].stacked_normalised.data, single.stacked_normalised.data);
+  EXPECT_EQ(single.by_intensity[0].stack.normalised.data, single.stack.normalised.data);
 }
 
 }  // namespace

@@ -120,6 +120,17 @@ json EffectParameters(const DiagnoseResult& result) {
   return out;
 }
 
+// A stack's four panels (data, model, residual, normalised residual) for WriteResidualMaps.
+StampPanels StackPanels(const std::string& title, const ResidualStack& stack) {
+  StampPanels p;
+  p.title = title;
+  p.data = stack.data;
+  p.model = stack.model;
+  p.residual = stack.residual;
+  p.normalised = stack.normalised;
+  return p;
+}
+
 json Statistics(const ResidualStatistics& st) {
   json list = json::array();
   const auto& desc = StatisticDescriptions();
@@ -464,15 +475,10 @@ bool WriteDiagnoseReport(const std::string& out_dir, const fit::FitModel& base,
   {
     std::vector<StampPanels> rows;
     for (size_t i = 0; i < result.rounds.size(); ++i) {
-      const ResidualStatistics& st = result.rounds[i].statistics;
-      StampPanels p;
-      p.title = "round " + std::to_string(i) + ": " + result.rounds[i].spec.Describe() +
-                " (stacked over " + std::to_string(result.peak_e.size()) + " exposures)";
-      p.data = st.stacked_data;
-      p.model = st.stacked_model;
-      p.residual = st.stacked_residual;
-      p.normalised = st.stacked_normalised;
-      rows.push_back(std::move(p));
+      rows.push_back(StackPanels("round " + std::to_string(i) + ": " +
+                                     result.rounds[i].spec.Describe() + " (stacked over " +
+                                     std::to_string(result.peak_e.size()) + " exposures)",
+                                 result.rounds[i].statistics.stack));
     }
     PlotResult pr;
     if (!WriteResidualMaps(dir, "stacked_residuals", rows, &pr, error)) return false;
@@ -483,17 +489,12 @@ bool WriteDiagnoseReport(const std::string& out_dir, const fit::FitModel& base,
     std::vector<StampPanels> rows;
     for (size_t i = 0; i < result.rounds.size(); ++i) {
       for (const IntensityStack& c : result.rounds[i].statistics.by_intensity) {
-        StampPanels p;
         char peaks[96];
         std::snprintf(peaks, sizeof(peaks), "peak %.3g-%.3g e- (%d exposure%s)", c.peak_min_e,
                       c.peak_max_e, c.exposures, c.exposures == 1 ? "" : "s");
-        p.title =
-            "round " + std::to_string(i) + ": " + result.rounds[i].spec.Describe() + ", " + peaks;
-        p.data = c.stacked_data;
-        p.model = c.stacked_model;
-        p.residual = c.stacked_residual;
-        p.normalised = c.stacked_normalised;
-        rows.push_back(std::move(p));
+        rows.push_back(StackPanels(
+            "round " + std::to_string(i) + ": " + result.rounds[i].spec.Describe() + ", " + peaks,
+            c.stack));
       }
     }
     PlotResult pr;

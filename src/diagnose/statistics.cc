@@ -106,15 +106,28 @@ std::vector<int> IntensityClasses(const std::vector<ExposureResidual>& residuals
   return cls;
 }
 
-// Sum over n unit normals / sqrt(n) keeps a stacked normalised residual N(0, 1); pixels no
-// exposure reached are NaN.
-void FinishStack(Image* data, Image* model, Image* residual, Image* normalised,
-                 const Image& count) {
-  for (size_t si = 0; si < count.data.size(); ++si) {
-    if (count.data[si] == 0) {
-      data->data[si] = model->data[si] = residual->data[si] = normalised->data[si] = NAN;
+ResidualStack EmptyStack(int nx, int ny) {
+  ResidualStack s;
+  s.data = s.model = s.residual = s.normalised = s.count = Image(nx, ny, 0.0);
+  return s;
+}
+
+// Adds pixel q of exposure e, normalised residual r, at stack pixel (si, sj).
+void AddToStack(const ExposureResidual& e, size_t q, double r, int si, int sj, ResidualStack* s) {
+  s->data(si, sj) += e.data_e.data[q];
+  s->model(si, sj) += e.model_e.data[q];
+  s->residual(si, sj) += e.data_e.data[q] - e.model_e.data[q];
+  s->normalised(si, sj) += r;
+  s->count(si, sj) += 1.0;
+}
+
+// A sum of n unit normals / sqrt(n) stays N(0, 1); pixels no exposure reached become NaN.
+void FinishStack(ResidualStack* s) {
+  for (size_t si = 0; si < s->count.data.size(); ++si) {
+    if (s->count.data[si] == 0) {
+      s->data.data[si] = s->model.data[si] = s->residual.data[si] = s->normalised.data[si] = NAN;
     } else {
-      normalised->data[si] /= std::sqrt(count.data[si]);
+      s->normalised.data[si] /= std::sqrt(s->count.data[si]);
     }
   }
 }
@@ -127,18 +140,13 @@ ResidualStatistics ComputeStatistics(const std::vector<ExposureResidual>& residu
   ResidualStatistics st;
   const int nx = residuals[0].normalised.nx, ny = residuals[0].normalised.ny;
   const int kx = (nx - 1) / 2, ky = (ny - 1) / 2;
-  st.stacked_data = Image(nx, ny, 0.0);
-  st.stacked_model = Image(nx, ny, 0.0);
-  st.stacked_residual = Image(nx, ny, 0.0);
-  st.stacked_normalised = Image(nx, ny, 0.0);
-  st.stack_count = Image(nx, ny, 0.0);
+  st.stack = EmptyStack(nx, ny);
   const std::vector<int> intensity_class = IntensityClasses(residuals);
   st.by_intensity.resize(*std::max_element(intensity_class.begin(), intensity_class.end()) + 1);
   for (IntensityStack& c : st.by_intensity) {
     c.peak_min_e = INFINITY;
     c.peak_max_e = -INFINITY;
-    c.stacked_data = c.stacked_model = c.stacked_residual = c.stacked_normalised = c.stack_count =
-        Image(nx, ny, 0.0);
+    c.stack = EmptyStack(nx, ny);
   }
   for (size_t k = 0; k < residuals.size(); ++k) {
     IntensityStack& c = st.by_intensity[intensity_class[k]];
@@ -188,16 +196,8 @@ ResidualStatistics ComputeStatistics(const std::vector<ExposureResidual>& residu
         // The stack.
         const int si = i - px + kx, sj = j - py + ky;
         if (si < 0 || sj < 0 || si >= nx || sj >= ny) continue;
-        st.stacked_data(si, sj) += e.data_e.data[q];
-        st.stacked_model(si, sj) += e.model_e.data[q];
-        st.stacked_residual(si, sj) += e.data_e.data[q] - e.model_e.data[q];
-        st.stacked_normalised(si, sj) += r;
-        st.stack_count(si, sj) += 1.0;
-        by_class.stacked_data(si, sj) += e.data_e.data[q];
-        by_class.stacked_model(si, sj) += e.model_e.data[q];
-        by_class.stacked_residual(si, sj) += e.data_e.data[q] - e.model_e.data[q];
-        by_class.stacked_normalised(si, sj) += r;
-        by_class.stack_count(si, sj) += 1.0;
+        AddToStack(e, q, r, si, sj, &st.stack);
+        AddToStack(e, q, r, si, sj, &by_class.stack);
       }
     }
     // Neighbours of the peak pixel (the pixel nearest the centre).
@@ -241,12 +241,8 @@ ResidualStatistics ComputeStatistics(const std::vector<ExposureResidual>& residu
   st.dof = std::max(1, num_pixels - num_parameters);
   st.chi2_per_dof = st.chi2 / st.dof;
   st.chi2_per_dof_sd = std::sqrt(2.0 / st.dof);
-  FinishStack(&st.stacked_data, &st.stacked_model, &st.stacked_residual, &st.stacked_normalised,
-              st.stack_count);
-  for (IntensityStack& c : st.by_intensity) {
-    FinishStack(&c.stacked_data, &c.stacked_model, &c.stacked_residual, &c.stacked_normalised,
-                c.stack_count);
-  }
+  FinishStack(&st.stack);
+  for (IntensityStack& c : st.by_intensity) FinishStack(&c.stack);
   double radial_chi2 = 0.0;
   for (const Accumulator& a : radial) {
     st.radial_mean.push_back(a.count > 0 ? a.sum / a.count : NAN);

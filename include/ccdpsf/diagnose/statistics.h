@@ -85,12 +85,18 @@ struct NamedStatistic {
 // each measures and which effects move it.
 const std::vector<std::pair<std::string, std::string>>& StatisticDescriptions();
 
-// One intensity class's stacks (as ResidualStatistics' stacked_*; peaks are the exposures'
-// model peaks [e-]).
+// Exposures summed on the common grid described above; pixels no exposure reached are NaN.
+struct ResidualStack {
+  Image data, model, residual;  // sums [e-]; residual = data - model
+  Image normalised;             // sum of normalised residuals / sqrt(count): N(0, 1) if right
+  Image count;                  // how many exposures reached each pixel
+};
+
+// One intensity class's stack (peaks are the exposures' model peaks [e-]).
 struct IntensityStack {
   double peak_min_e = 0.0, peak_max_e = 0.0;
   int exposures = 0;
-  Image stacked_data, stacked_model, stacked_residual, stacked_normalised, stack_count;
+  ResidualStack stack;
 };
 
 struct ResidualStatistics {
@@ -99,8 +105,8 @@ struct ResidualStatistics {
   double chi2_per_dof = 0.0;
   double chi2_per_dof_sd = 0.0;  // sqrt(2 / dof): the expected scatter of chi2_per_dof
   std::vector<NamedStatistic> values;
-  // Stacks (sums over exposures, aligned as above) and their valid-pixel counts.
-  Image stacked_data, stacked_model, stacked_residual, stacked_normalised, stack_count;
+  // Every exposure's residuals stacked, aligned as above.
+  ResidualStack stack;
   // The same per intensity class, lowest first (one class for a single-intensity set).
   std::vector<IntensityStack> by_intensity;
   // Mean normalised residual in 1-px annuli rho in [b, b + 1), b = 0..9, and the counts.
