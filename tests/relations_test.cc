@@ -20,6 +20,7 @@
 #include <string>
 #include <vector>
 
+#include "ccdpsf/chi_square.h"
 #include "ccdpsf/fit/fit.h"
 #include "ccdpsf/random.h"
 #include "gtest/gtest.h"
@@ -204,7 +205,7 @@ TEST(Relations, PowerLawMatchesClosedFormWeightedLeastSquaresInLogSpace) {
   EXPECT_GE(fit.chi2, chi2_min - 1e-9);
   EXPECT_LT(fit.chi2 - chi2_min, 0.05);
   EXPECT_EQ(fit.dof, 5);
-  EXPECT_DOUBLE_EQ(fit.p_value, ChiSquarePValue(fit.chi2, 5));
+  EXPECT_DOUBLE_EQ(fit.p_value, ChiSquareUpperTail(fit.chi2, 5));
 }
 
 TEST(Relations, GaussianPointsWithoutDrawsAreFlaggedAndFitted) {
@@ -500,9 +501,9 @@ TEST(Relations, JsonHasTheTrendFields) {
 TEST(Relations, ChiSquarePValueMatchesClosedForms) {
   for (double x : {1e-4, 0.3, 1.0, 3.841458820694124, 7.0, 20.0, 60.0, 200.0}) {
     const double q1 = std::erfc(std::sqrt(x / 2));
-    EXPECT_NEAR(ChiSquarePValue(x, 1), q1, 1e-10 * q1) << x;
+    EXPECT_NEAR(ChiSquareUpperTail(x, 1), q1, 1e-10 * q1) << x;
     const double q3 = q1 + std::sqrt(2 * x / M_PI) * std::exp(-x / 2);
-    EXPECT_NEAR(ChiSquarePValue(x, 3), q3, 1e-10 * q3) << x;
+    EXPECT_NEAR(ChiSquareUpperTail(x, 3), q3, 1e-10 * q3) << x;
     for (int k = 1; k <= 20; ++k) {
       double sum = 0.0, term = 1.0;
       for (int j = 0; j < k; ++j) {
@@ -510,12 +511,12 @@ TEST(Relations, ChiSquarePValueMatchesClosedForms) {
         term *= (x / 2) / (j + 1);
       }
       const double q = std::exp(-x / 2) * sum;
-      EXPECT_NEAR(ChiSquarePValue(x, 2 * k), q, 1e-10 * q) << x << " dof " << 2 * k;
+      EXPECT_NEAR(ChiSquareUpperTail(x, 2 * k), q, 1e-10 * q) << x << " dof " << 2 * k;
     }
   }
-  EXPECT_NEAR(ChiSquarePValue(3.841458820694124, 1), 0.05, 1e-12);
-  EXPECT_NEAR(ChiSquarePValue(23.209251158954356, 10), 0.01, 1e-10);
-  EXPECT_TRUE(std::isnan(ChiSquarePValue(1.0, 0)));
+  EXPECT_NEAR(ChiSquareUpperTail(3.841458820694124, 1), 0.05, 1e-12);
+  EXPECT_NEAR(ChiSquareUpperTail(23.209251158954356, 10), 0.01, 1e-10);
+  EXPECT_TRUE(std::isnan(ChiSquareUpperTail(1.0, 0)));
 }
 
 // The combined model on exact relations (errors 1e-7 relative) equals the formula by hand.

@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <sstream>
 
+#include "ccdpsf/chi_square.h"
 #include "ccdpsf/random.h"
 #include "ccdpsf/trend/relations.h"
 #include "glog/logging.h"
@@ -425,7 +426,7 @@ double ChiBarSquarePValue(double lr, int boundary, int free) {
   for (int i = 0; i <= boundary; ++i) {
     const int dof = i + free;
     // chi2_0 is a point mass at 0: P(chi2_0 >= lr > 0) = 0.
-    if (dof > 0) p += weight * trend::ChiSquarePValue(lr, dof);
+    if (dof > 0) p += weight * ChiSquareUpperTail(lr, dof);
     weight *= static_cast<double>(boundary - i) / (i + 1);
   }
   return std::clamp(p, 0.0, 1.0);

@@ -6,6 +6,7 @@
 #include <limits>
 #include <random>
 
+#include "ccdpsf/chi_square.h"
 #include "ccdpsf/random.h"
 
 namespace ccdpsf::trend {
@@ -62,38 +63,6 @@ std::string Num(double v) {
 }
 
 json NullIfNan(double v) { return std::isfinite(v) ? json(v) : json(nullptr); }
-
-// Regularized upper incomplete gamma Q(a, x) for a > 0, x >= 0: the series for P when
-// x < a + 1, else the continued fraction for Q (modified Lentz), both to ~1e-15.
-double RegularizedGammaQ(double a, double x) {
-  if (x <= 0.0) return 1.0;
-  const double log_prefactor = -x + a * std::log(x) - std::lgamma(a);
-  if (x < a + 1.0) {
-    double ap = a, term = 1.0 / a, sum = term;
-    for (int n = 0; n < 10000; ++n) {
-      ap += 1.0;
-      term *= x / ap;
-      sum += term;
-      if (std::fabs(term) < std::fabs(sum) * 1e-16) break;
-    }
-    return std::max(0.0, 1.0 - sum * std::exp(log_prefactor));
-  }
-  constexpr double kTiny = 1e-300;
-  double b = x + 1.0 - a, c = 1.0 / kTiny, d = 1.0 / b, h = d;
-  for (int i = 1; i < 10000; ++i) {
-    const double an = -i * (i - a);
-    b += 2.0;
-    d = an * d + b;
-    if (std::fabs(d) < kTiny) d = kTiny;
-    c = b + an / c;
-    if (std::fabs(c) < kTiny) c = kTiny;
-    d = 1.0 / d;
-    const double delta = d * c;
-    h *= delta;
-    if (std::fabs(delta - 1.0) < 1e-16) break;
-  }
-  return std::exp(log_prefactor) * h;
-}
 
 // A point ready for fitting, in the fitted space y (log X for the power law).
 struct UsablePoint {
@@ -219,11 +188,6 @@ Estimate SummarizeDraws(std::vector<double> draws) {
   e.median = q[1];
   e.hi68 = q[2];
   return e;
-}
-
-double ChiSquarePValue(double chi2, int dof) {
-  if (dof < 1 || !std::isfinite(chi2) || chi2 < 0.0) return NAN;
-  return RegularizedGammaQ(0.5 * dof, 0.5 * chi2);
 }
 
 const char* RelationKindName(RelationKind kind) {
@@ -470,7 +434,7 @@ std::optional<RelationFit> FitRelation(RelationKind kind, const std::vector<Rela
   fit.dof = n - 2;
   if (fit.dof >= 1) {
     fit.chi2 = chi2;
-    fit.p_value = ChiSquarePValue(chi2, fit.dof);
+    fit.p_value = ChiSquareUpperTail(chi2, fit.dof);
     fit.scale_factor = std::sqrt(chi2 / fit.dof);
   }
 

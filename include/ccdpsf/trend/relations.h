@@ -110,10 +110,6 @@ struct Estimate {
 // Non-finite draws are ignored.
 Estimate SummarizeDraws(std::vector<double> draws);
 
-// Upper tail probability of the chi-square distribution with dof degrees of freedom:
-// P(chi^2_dof >= chi2) = Q(dof / 2, chi2 / 2) (regularized upper incomplete gamma). NaN for
-// dof < 1 or chi2 < 0 or non-finite input.
-double ChiSquarePValue(double chi2, int dof);
 
 enum class RelationKind {
   kPowerLaw,  // X = a x^alpha; x = wavelength [nm]
@@ -211,7 +207,7 @@ struct RelationFit {
 
   double chi2 = NAN;         // of the point medians about the median relation (dof >= 1)
   int dof = 0;               // usable points - 2 (0 when not fitted)
-  double p_value = NAN;      // ChiSquarePValue(chi2, dof)
+  double p_value = NAN;      // ChiSquareUpperTail(chi2, dof) (chi_square.h)
   double scale_factor = NAN;  // sqrt(chi2 / dof)
 
   std::vector<PointSummary> points;  // usable points, input order
