@@ -487,16 +487,220 @@ std::optional<std::string> FindString(const FitsHeader& header, const std::strin
   return std::nullopt;
 }
 
-std::optional<FitsImage> ReadFitsImage(const std::string& path, std::string* error) {
-  bool gzip = false;
-  const std::optional<long long> file_size = CheckReadable(path, &gzip, error);
-  if (!file_size) return std::nullopt;
+namespace {
 
-  FitsFile file;
+// The physical range of the stored integers (BZERO + BSCALE x raw, raw over BITPIX's range):
+// an ADC cannot record values outside it, so a pixel at either end may be clipped there.
+// Floating-point data have no such range.
+void AdcRange(fitsfile* file, int bitpix, double* low, double* high) {
+  *low = -std::numeric_limits<double>::infinity();
+  *high = std::numeric_limits<double>::infinity();
+  double raw_low = 0, raw_high = 0;
+  switch (bitpix) {
+    case BYTE_IMG: raw_low = 0; raw_high = 255; break;
+    case SHORT_IMG: raw_low = -32768; raw_high = 32767; break;
+    case LONG_IMG: raw_low = -2147483648.0; raw_high = 2147483647.0; break;
+    default: return;  // 64-bit integers and floats: no useful range
+  }
   int status = 0;
-  if (fits_open_diskfile(file.out(), path.c_str(), READONLY, &status)) {
+  double zero = 0.0, scale = 1.0;
+  if (fits_read_key_dbl(file, "BZERO", &zero, nullptr, &status)) {
+    zero = 0.0;
+    status = 0;
+  }
+  if (fits_read_key_dbl(file, "BSCALE", &scale, nullptr, &status)) {
+    scale = 1.0;
+    status = 0;
+  }
+  fits_clear_errmsg();
+  if (!std::isfinite(zero) || !std::isfinite(scale) || scale == 0.0) return;
+  *low = std::min(zero + scale * raw_low, zero + scale * raw_high);
+  *high = std::max(zero + scale * raw_low, zero + scale * raw_high);
+}
+
+// EXTNAME of the current HDU ("" if none).
+std::string ExtName(fitsfile* file) {
+  int status = 0;
+  char value[FLEN_VALUE] = {0};
+  if (fits_read_key_str(file, "EXTNAME", value, nullptr, &status)) {
+    fits_clear_errmsg();
+    return "";
+  }
+  std::string name = value;
+  while (!name.empty() && name.back() == ' ') name.pop_back();
+  return name;
+}
+
+// Reads the 2-D image of the current HDU (number `hdu`, 1-based absolute).
+std::optional<FitsImage> ReadCurrentImage(fitsfile* file, const std::string& path, int hdu,
+                                          bool gzip, long long file_size, std::string* error) {
+  int status = 0;
+  int naxis = 0;
+  if (fits_get_img_dim(file, &naxis, &status)) {
     *error = Corrupt(path, status);
     return std::nullopt;
+  }
+  const std::string where = hdu == 1 ? Quoted(path) : Quoted(path) + " HDU " +
+                                                          std::to_string(hdu - 1);
+  if (naxis != 2) {
+    *error = where + ": image is " + std::to_string(naxis) + "-D, expected 2-D";
+    return std::nullopt;
+  }
+  LONGLONG naxes[2] = {0, 0};
+  int bitpix = 0;
+  int compressed = 0;
+  if (fits_get_img_sizell(file, 2, naxes, &status) ||
+      fits_get_img_type(file, &bitpix, &status)) {
+    *error = Corrupt(path, status);
+    return std::nullopt;
+  }
+  compressed = fits_is_compressed_image(file, &status);
+  if (naxes[0] <= 0 || naxes[1] <= 0) {
+    *error = where + ": image is empty (" + std::to_string(naxes[0]) + " x " +
+             std::to_string(naxes[1]) + ")";
+    return std::nullopt;
+  }
+  // A bound on what we are willing to allocate (2^31 pixels = 16 GiB of doubles): a corrupt
+  // header must not make us try to allocate terabytes.
+  constexpr LONGLONG kMaxPixels = LONGLONG{1} << 31;
+  if (naxes[0] > INT_MAX || naxes[1] > INT_MAX || naxes[0] > kMaxPixels / naxes[1]) {
+    *error = where + ": image is too large (" + std::to_string(naxes[0]) + " x " +
+             std::to_string(naxes[1]) + ")";
+    return std::nullopt;
+  }
+  const LONGLONG num_pixels = naxes[0] * naxes[1];
+  // For a plain (not compressed) file the data must fit in the file; checking before
+  // reading gives a clear message and avoids allocating for data that are not there.
+  if (!gzip && !compressed && file_size >= 0) {
+    LONGLONG header_start = 0, data_start = 0, data_end = 0;
+    if (fits_get_hduaddrll(file, &header_start, &data_start, &data_end, &status)) {
+      *error = Corrupt(path, status);
+      return std::nullopt;
+    }
+    const LONGLONG data_bytes = num_pixels * (std::abs(bitpix) / 8);
+    if (data_start + data_bytes > file_size) {
+      *error = Quoted(path) + " is truncated or corrupt (the image needs " +
+               std::to_string(data_start + data_bytes) + " bytes, the file has " +
+               std::to_string(file_size) + ")";
+      return std::nullopt;
+    }
+  }
+
+  FitsImage result;
+  result.bitpix = bitpix;
+  result.hdu = hdu;
+  result.extname = ExtName(file);
+  AdcRange(file, bitpix, &result.adc_min, &result.adc_max);
+  result.pixels = Image(static_cast<int>(naxes[0]), static_cast<int>(naxes[1]));
+  // Reading as TDOUBLE makes CFITSIO apply BSCALE/BZERO; a NaN null value turns BLANK
+  // pixels of integer images (and NaNs of float images) into NaN.
+  double null_value = std::numeric_limits<double>::quiet_NaN();
+  int any_null = 0;
+  if (fits_read_img(file, TDOUBLE, 1, num_pixels, &null_value, result.pixels.data.data(),
+                    &any_null, &status)) {
+    *error = Corrupt(path, status);
+    return std::nullopt;
+  }
+  if (!ReadHeader(file, compressed != 0, &result.header, &status)) {
+    *error = Corrupt(path, status);
+    return std::nullopt;
+  }
+  return result;
+}
+
+// Whether `text` is a non-negative decimal number (an HDU index), and its value.
+bool ParseHduIndex(const std::string& text, int* index) {
+  if (text.empty() || text.size() > 6) return false;
+  for (char c : text) {
+    if (!std::isdigit(static_cast<unsigned char>(c))) return false;
+  }
+  *index = std::atoi(text.c_str());
+  return true;
+}
+
+// Opens a file for reading after the plain checks of CheckReadable.
+bool OpenForReading(const std::string& path, FitsFile* file, bool* gzip, long long* file_size,
+                    std::string* error) {
+  const std::optional<long long> size = CheckReadable(path, gzip, error);
+  if (!size) return false;
+  *file_size = *size;
+  int status = 0;
+  if (fits_open_diskfile(file->out(), path.c_str(), READONLY, &status)) {
+    *error = Corrupt(path, status);
+    return false;
+  }
+  return true;
+}
+
+}  // namespace
+
+std::optional<FitsImage> ReadFitsImage(const std::string& path, std::string* error) {
+  return ReadFitsImage(path, "", error);
+}
+
+std::optional<FitsImage> ReadFitsImage(const std::string& path, const std::string& hdu_selector,
+                                       std::string* error) {
+  FitsFile file;
+  bool gzip = false;
+  long long file_size = -1;
+  if (!OpenForReading(path, &file, &gzip, &file_size, error)) return std::nullopt;
+  int status = 0;
+  int num_hdus = 0;
+  if (fits_get_num_hdus(file.get(), &num_hdus, &status)) {
+    *error = Corrupt(path, status);
+    return std::nullopt;
+  }
+
+  if (!hdu_selector.empty()) {
+    // An extension by number (0 = primary, as astropy and DS9 count) or by EXTNAME.
+    int index = -1;
+    int type = 0;
+    if (ParseHduIndex(hdu_selector, &index)) {
+      if (index + 1 > num_hdus) {
+        *error = Quoted(path) + " has no HDU " + hdu_selector + " (it has " +
+                 std::to_string(num_hdus) + ": 0 = primary .. " + std::to_string(num_hdus - 1) +
+                 ")";
+        return std::nullopt;
+      }
+      if (fits_movabs_hdu(file.get(), index + 1, &type, &status)) {
+        *error = Corrupt(path, status);
+        return std::nullopt;
+      }
+    } else {
+      std::string wanted = ToUpper(hdu_selector);
+      index = -1;
+      for (int h = 1; h <= num_hdus && index < 0; ++h) {
+        if (fits_movabs_hdu(file.get(), h, &type, &status)) {
+          *error = Corrupt(path, status);
+          return std::nullopt;
+        }
+        if (ToUpper(ExtName(file.get())) == wanted) index = h - 1;
+      }
+      if (index < 0) {
+        std::string names;
+        for (const FitsHduInfo& info : ListFitsImageHdus(path, error)) {
+          names += (names.empty() ? "" : ", ") + (info.extname.empty() ? std::to_string(info.index)
+                                                                       : info.extname);
+        }
+        *error = Quoted(path) + " has no extension named '" + hdu_selector + "'" +
+                 (names.empty() ? "" : " (images: " + names + ")");
+        return std::nullopt;
+      }
+    }
+    int naxis = 0;
+    if (fits_get_img_dim(file.get(), &naxis, &status)) {
+      *error = Corrupt(path, status);
+      return std::nullopt;
+    }
+    if (type != IMAGE_HDU && !fits_is_compressed_image(file.get(), &status)) {
+      *error = Quoted(path) + " HDU " + hdu_selector + " is a table, not an image";
+      return std::nullopt;
+    }
+    if (naxis == 0) {
+      *error = Quoted(path) + " HDU " + hdu_selector + " holds no image (NAXIS = 0)";
+      return std::nullopt;
+    }
+    return ReadCurrentImage(file.get(), path, index + 1, gzip, file_size, error);
   }
 
   // The primary HDU, or the first image extension with data when the primary is empty.
@@ -507,11 +711,6 @@ std::optional<FitsImage> ReadFitsImage(const std::string& path, std::string* err
   }
   int hdu = 1;
   if (naxis == 0) {
-    int num_hdus = 0;
-    if (fits_get_num_hdus(file.get(), &num_hdus, &status)) {
-      *error = Corrupt(path, status);
-      return std::nullopt;
-    }
     std::string first_extension;  // what the first extension was, for the message
     hdu = 0;
     for (int h = 2; h <= num_hdus; ++h) {
@@ -545,69 +744,41 @@ std::optional<FitsImage> ReadFitsImage(const std::string& path, std::string* err
       return std::nullopt;
     }
   }
+  return ReadCurrentImage(file.get(), path, hdu, gzip, file_size, error);
+}
 
-  if (naxis != 2) {
-    *error = Quoted(path) + ": image is " + std::to_string(naxis) + "-D, expected 2-D";
-    return std::nullopt;
-  }
-  LONGLONG naxes[2] = {0, 0};
-  int bitpix = 0;
-  int compressed = 0;
-  if (fits_get_img_sizell(file.get(), 2, naxes, &status) ||
-      fits_get_img_type(file.get(), &bitpix, &status)) {
+std::vector<FitsHduInfo> ListFitsImageHdus(const std::string& path, std::string* error) {
+  std::vector<FitsHduInfo> out;
+  FitsFile file;
+  bool gzip = false;
+  long long file_size = -1;
+  if (!OpenForReading(path, &file, &gzip, &file_size, error)) return out;
+  int status = 0;
+  int num_hdus = 0;
+  if (fits_get_num_hdus(file.get(), &num_hdus, &status)) {
     *error = Corrupt(path, status);
-    return std::nullopt;
+    return out;
   }
-  compressed = fits_is_compressed_image(file.get(), &status);
-  if (naxes[0] <= 0 || naxes[1] <= 0) {
-    *error = Quoted(path) + ": image is empty (" + std::to_string(naxes[0]) + " x " +
-             std::to_string(naxes[1]) + ")";
-    return std::nullopt;
-  }
-  // A bound on what we are willing to allocate (2^31 pixels = 16 GiB of doubles): a corrupt
-  // header must not make us try to allocate terabytes.
-  constexpr LONGLONG kMaxPixels = LONGLONG{1} << 31;
-  if (naxes[0] > INT_MAX || naxes[1] > INT_MAX || naxes[0] > kMaxPixels / naxes[1]) {
-    *error = Quoted(path) + ": image is too large (" + std::to_string(naxes[0]) + " x " +
-             std::to_string(naxes[1]) + ")";
-    return std::nullopt;
-  }
-  const LONGLONG num_pixels = naxes[0] * naxes[1];
-  // For a plain (not compressed) file the data must fit in the file; checking before
-  // reading gives a clear message and avoids allocating for data that are not there.
-  if (!gzip && !compressed && *file_size >= 0) {
-    LONGLONG header_start = 0, data_start = 0, data_end = 0;
-    if (fits_get_hduaddrll(file.get(), &header_start, &data_start, &data_end, &status)) {
+  for (int h = 1; h <= num_hdus; ++h) {
+    int type = 0;
+    if (fits_movabs_hdu(file.get(), h, &type, &status)) {
       *error = Corrupt(path, status);
-      return std::nullopt;
+      out.clear();
+      return out;
     }
-    const LONGLONG data_bytes = num_pixels * (std::abs(bitpix) / 8);
-    if (data_start + data_bytes > *file_size) {
-      *error = Quoted(path) + " is truncated or corrupt (the image needs " +
-               std::to_string(data_start + data_bytes) + " bytes, the file has " +
-               std::to_string(*file_size) + ")";
-      return std::nullopt;
+    int naxis = 0;
+    LONGLONG naxes[2] = {0, 0};
+    if (type != IMAGE_HDU && !fits_is_compressed_image(file.get(), &status)) continue;
+    if (fits_get_img_dim(file.get(), &naxis, &status) || naxis != 2 ||
+        fits_get_img_sizell(file.get(), 2, naxes, &status) || naxes[0] <= 0 || naxes[1] <= 0) {
+      status = 0;
+      fits_clear_errmsg();
+      continue;
     }
+    out.push_back({h - 1, ExtName(file.get()), static_cast<long long>(naxes[0]),
+                   static_cast<long long>(naxes[1])});
   }
-
-  FitsImage result;
-  result.bitpix = bitpix;
-  result.hdu = hdu;
-  result.pixels = Image(static_cast<int>(naxes[0]), static_cast<int>(naxes[1]));
-  // Reading as TDOUBLE makes CFITSIO apply BSCALE/BZERO; a NaN null value turns BLANK
-  // pixels of integer images (and NaNs of float images) into NaN.
-  double null_value = std::numeric_limits<double>::quiet_NaN();
-  int any_null = 0;
-  if (fits_read_img(file.get(), TDOUBLE, 1, num_pixels, &null_value, result.pixels.data.data(),
-                    &any_null, &status)) {
-    *error = Corrupt(path, status);
-    return std::nullopt;
-  }
-  if (!ReadHeader(file.get(), compressed != 0, &result.header, &status)) {
-    *error = Corrupt(path, status);
-    return std::nullopt;
-  }
-  return result;
+  return out;
 }
 
 bool WriteFitsImageU16(const std::string& path, const Image& image, const FitsHeader& header,

@@ -187,7 +187,9 @@ TEST(Exposure, AllNanImage) {
 
 TEST(Exposure, NoGain) {
   const std::string error = CalibrateError(test_support::MakeSpotFrame(SyntheticFrame()), {});
-  EXPECT_EQ(error, "'frame.fits': no gain: give --gain_e_per_adu or a GAIN keyword");
+  EXPECT_EQ(error,
+            "'frame.fits': no gain: give --gain_e_per_adu, a manifest column gain_e_per_adu or a "
+            "GAIN keyword");
 }
 
 TEST(Exposure, NegativeOrZeroGain) {
@@ -195,13 +197,13 @@ TEST(Exposure, NegativeOrZeroGain) {
   EXPECT_TRUE(Contains(CalibrateError(frame, {{"GAIN", -3.1, ""}}), "gain must be positive"));
   EXPECT_TRUE(Contains(CalibrateError(frame, {{"GAIN", 0LL, ""}}), "gain must be positive"));
   EXPECT_TRUE(Contains(CalibrateError(frame, {{"GAIN", std::string("high"), ""}}),
-                       "keyword GAIN is not a number"));
+                       "keyword GAIN (gain_e_per_adu) is not a finite number"));
   CalibrationOptions zero;
-  zero.gain_e_per_adu = 0.0;
-  EXPECT_TRUE(
-      Contains(CalibrateError(frame, kGainHeader, zero), "gain_e_per_adu must be positive"));
+  zero.Set("gain_e_per_adu", 0.0);
+  EXPECT_TRUE(Contains(CalibrateError(frame, kGainHeader, zero),
+                       "gain_e_per_adu must be positive and finite, got 0 (option)"));
   CalibrationOptions nan;
-  nan.gain_e_per_adu = kNaN;
+  nan.Set("gain_e_per_adu", kNaN);
   EXPECT_TRUE(Contains(CalibrateError(frame, kGainHeader, nan), "gain_e_per_adu must be positive"));
 }
 
@@ -213,8 +215,8 @@ TEST(Exposure, StampWhollyMasked) {
     for (int x = 0; x < 28; ++x) frame(x, y) = kNaN;
   }
   CalibrationOptions options;
-  options.spot_x_px = 13.0;
-  options.spot_y_px = 30.0;
+  options.Set("spot_x_px", 13.0);
+  options.Set("spot_y_px", 30.0);
   const std::string error = CalibrateError(frame, kGainHeader, options);
   EXPECT_TRUE(Contains(error, "every pixel of the 21x21 stamp")) << error;
 }
@@ -226,12 +228,14 @@ TEST(Exposure, MalformedBiassec) {
     FitsHeader header = kGainHeader;
     header.push_back({"BIASSEC", std::string(section), ""});
     const std::string error = CalibrateError(frame, header);
-    EXPECT_TRUE(Contains(error, "BIASSEC '" + std::string(section) + "' is malformed")) << error;
+    EXPECT_TRUE(Contains(error, "bias section (keyword BIASSEC) '" + std::string(section) +
+                                    "' is malformed"))
+        << error;
   }
   // Not a string at all.
   FitsHeader header = kGainHeader;
   header.push_back({"BIASSEC", 5LL, ""});
-  EXPECT_TRUE(Contains(CalibrateError(frame, header), "BIASSEC is not a string"));
+  EXPECT_TRUE(Contains(CalibrateError(frame, header), "keyword BIASSEC (bias_section) is not a string"));
 }
 
 TEST(Exposure, BiassecOutsideFrame) {
@@ -240,8 +244,8 @@ TEST(Exposure, BiassecOutsideFrame) {
     FitsHeader header = kGainHeader;
     header.push_back({"BIASSEC", std::string(section), ""});
     const std::string error = CalibrateError(frame, header);
-    EXPECT_TRUE(
-        Contains(error, "BIASSEC '" + std::string(section) + "' is outside the 64x64 frame"))
+    EXPECT_TRUE(Contains(error, "bias section (keyword BIASSEC) '" + std::string(section) +
+                                    "' is outside the 64x64 frame"))
         << error;
   }
 }
@@ -252,14 +256,15 @@ TEST(Exposure, InvalidOptions) {
   tiny.stamp_size = 4;
   EXPECT_TRUE(Contains(CalibrateError(frame, kGainHeader, tiny), "stamp_size must be at least 5"));
   CalibrationOptions half_position;
-  half_position.spot_x_px = 30.0;
+  half_position.Set("spot_x_px", 30.0);
   EXPECT_TRUE(Contains(CalibrateError(frame, kGainHeader, half_position), "give both"));
   CalibrationOptions outside;
-  outside.spot_x_px = 80.0;
-  outside.spot_y_px = 30.0;
-  EXPECT_TRUE(Contains(CalibrateError(frame, kGainHeader, outside), "outside the 64x64 frame"));
+  outside.Set("spot_x_px", 80.0);
+  outside.Set("spot_y_px", 30.0);
+  EXPECT_TRUE(Contains(CalibrateError(frame, kGainHeader, outside), "outside the 64x64 frame"))
+      << CalibrateError(frame, kGainHeader, outside);
   CalibrationOptions negative_noise;
-  negative_noise.read_noise_e = -1.0;
+  negative_noise.Set("read_noise_e", -1.0);
   EXPECT_TRUE(Contains(CalibrateError(frame, kGainHeader, negative_noise), "read_noise_e"));
 }
 
@@ -275,10 +280,10 @@ TEST(Exposure, BiasFromBiaslvl) {
   header.push_back({"BIASSEC", std::string("[1:10,1:64]"), ""});  // lower precedence
   const Exposure exposure = Calibrate(test_support::MakeSpotFrame(spec), header);
   EXPECT_EQ(exposure.stamp.bias_adu, 999.75);
-  EXPECT_EQ(exposure.report.bias_source, "keyword BIASLVL");
+  EXPECT_EQ(exposure.report.Source("bias_adu"), "keyword BIASLVL");
   // The read noise still comes from the BIASSEC pixels.
-  EXPECT_EQ(exposure.report.read_noise_source,
-            "BIASSEC [1:10,1:64] (" + std::to_string(exposure.report.noise_pixels) + " px)");
+  EXPECT_EQ(exposure.report.Source("read_noise_e"),
+            "bias section [1:10,1:64] (" + std::to_string(exposure.report.noise_pixels) + " px)");
 }
 
 // The overscan columns 1-10 (IRAF, 1-based) are given a different level, 990.7 ADU, from the
@@ -302,7 +307,8 @@ TEST(Exposure, BiasFromBiassec) {
   const Exposure exposure = Calibrate(frame, header);
   const double standard_error = BackgroundSigmaAdu(spec) / std::sqrt(640.0) * 1.02;
   EXPECT_NEAR(exposure.stamp.bias_adu, 990.7, 5.0 * standard_error);
-  EXPECT_TRUE(Contains(exposure.report.bias_source, "BIASSEC")) << exposure.report.bias_source;
+  EXPECT_TRUE(Contains(exposure.report.Source("bias_adu"), "bias section"))
+      << exposure.report.Source("bias_adu");
   // 3-sigma clipping drops ~0.3 % of Gaussian values: a handful of the 640.
   EXPECT_GE(exposure.report.noise_pixels, 625);
   EXPECT_LE(exposure.report.noise_pixels, 640);
@@ -320,7 +326,7 @@ TEST(Exposure, BiasFromBackground) {
   const Exposure exposure = Calibrate(test_support::MakeSpotFrame(spec), kGainHeader);
   const double standard_error = BackgroundSigmaAdu(spec) / std::sqrt(7367.0) * 1.02;
   EXPECT_NEAR(exposure.stamp.bias_adu, 1000.3, 5.0 * standard_error);
-  EXPECT_TRUE(Contains(exposure.report.bias_source, "sigma-clipped background"));
+  EXPECT_TRUE(Contains(exposure.report.Source("bias_adu"), "sigma-clipped background"));
   EXPECT_GE(exposure.report.noise_pixels, 7300);
   EXPECT_LE(exposure.report.noise_pixels, 7367);
 }
@@ -360,7 +366,7 @@ TEST(Exposure, ReadNoiseFromBackground) {
   spec.seed = 5;
   const Exposure exposure = Calibrate(test_support::MakeSpotFrame(spec), kGainHeader);
   EXPECT_NEAR(exposure.stamp.read_noise_e, spec.read_noise_e, 0.15);
-  EXPECT_EQ(exposure.report.read_noise_source, exposure.report.bias_source);
+  EXPECT_EQ(exposure.report.Source("read_noise_e"), exposure.report.Source("bias_adu"));
   // The measured rms (rounding included) is sqrt(RN^2 / g^2 + 1/12) = 1.480 ADU.
   EXPECT_NEAR(exposure.report.noise_rms_adu, BackgroundSigmaAdu(spec), 0.15 / spec.gain_e_per_adu);
 }
@@ -376,9 +382,9 @@ TEST(Exposure, OptionsOverrideKeywords) {
   EXPECT_EQ(from_keys.stamp.read_noise_e, 4.5);
   EXPECT_EQ(from_keys.stamp.bias_adu, 1000.0);
   EXPECT_EQ(from_keys.stamp.saturation_adu, 65535.0);
-  EXPECT_EQ(from_keys.report.gain_source, "keyword GAIN");
-  EXPECT_EQ(from_keys.report.read_noise_source, "keyword RDNOISE");
-  EXPECT_EQ(from_keys.report.saturation_source, "keyword SATURATE");
+  EXPECT_EQ(from_keys.report.Source("gain_e_per_adu"), "keyword GAIN");
+  EXPECT_EQ(from_keys.report.Source("read_noise_e"), "keyword RDNOISE");
+  EXPECT_EQ(from_keys.report.Source("saturation_adu"), "keyword SATURATE");
   EXPECT_EQ(from_keys.stamp.info.wavelength_nm, 800.0);
   EXPECT_EQ(from_keys.stamp.info.exptime_s, 2.5);
   EXPECT_EQ(from_keys.stamp.info.pixel_um, 12.0);
@@ -387,21 +393,21 @@ TEST(Exposure, OptionsOverrideKeywords) {
   EXPECT_TRUE(std::isnan(from_keys.report.noise_rms_adu));  // nothing estimated
 
   CalibrationOptions options;
-  options.gain_e_per_adu = 2.0;
-  options.read_noise_e = 3.0;
-  options.bias_adu = 1001.0;
-  options.saturation_adu = 60000.0;
-  options.wavelength_nm = 700.0;
-  options.exptime_s = 1.0;
-  options.pixel_um = 10.0;
-  options.focus_position_um = -20.0;
+  options.Set("gain_e_per_adu", 2.0);
+  options.Set("read_noise_e", 3.0);
+  options.Set("bias_adu", 1001.0);
+  options.Set("saturation_adu", 60000.0);
+  options.Set("wavelength_nm", 700.0);
+  options.Set("exptime_s", 1.0);
+  options.Set("pixel_um", 10.0);
+  options.Set("focus_position_um", -20.0);
   const Exposure from_options = Calibrate(frame, header, options);
   EXPECT_EQ(from_options.stamp.gain_e_per_adu, 2.0);
   EXPECT_EQ(from_options.stamp.read_noise_e, 3.0);
   EXPECT_EQ(from_options.stamp.bias_adu, 1001.0);
   EXPECT_EQ(from_options.stamp.saturation_adu, 60000.0);
-  EXPECT_EQ(from_options.report.gain_source, "option");
-  EXPECT_EQ(from_options.report.bias_source, "option");
+  EXPECT_EQ(from_options.report.Source("gain_e_per_adu"), "option");
+  EXPECT_EQ(from_options.report.Source("bias_adu"), "option");
   EXPECT_EQ(from_options.stamp.info.wavelength_nm, 700.0);
   EXPECT_EQ(from_options.stamp.info.exptime_s, 1.0);
   EXPECT_EQ(from_options.stamp.info.pixel_um, 10.0);
@@ -411,8 +417,10 @@ TEST(Exposure, OptionsOverrideKeywords) {
   const Exposure bare = Calibrate(frame, kGainHeader);
   EXPECT_TRUE(std::isnan(bare.stamp.info.wavelength_nm));
   EXPECT_TRUE(std::isnan(bare.stamp.info.focus_position_um));
-  EXPECT_EQ(bare.stamp.info.pixel_um, 12.0);
-  EXPECT_EQ(bare.report.saturation_source, "none");
+  // Nothing physical is defaulted: without PIXSIZE or an option the pixel size is unknown.
+  EXPECT_TRUE(std::isnan(bare.stamp.info.pixel_um));
+  EXPECT_EQ(bare.report.Source("pixel_um"), "unknown");
+  EXPECT_EQ(bare.report.Source("saturation_adu"), "unknown");
   EXPECT_TRUE(std::isinf(bare.stamp.saturation_adu));
 }
 
@@ -473,8 +481,8 @@ TEST(Exposure, GivenPositionSkipsSpotFinding) {
   SyntheticFrame spec;
   spec.flux_e = 0.0;  // nothing to find: only the given position places the stamp
   CalibrationOptions options;
-  options.spot_x_px = 30.4;
-  options.spot_y_px = 20.6;
+  options.Set("spot_x_px", 30.4);
+  options.Set("spot_y_px", 20.6);
   const Exposure exposure = Calibrate(test_support::MakeSpotFrame(spec), kGainHeader, options);
   EXPECT_EQ(exposure.report.spot_source, "option");
   EXPECT_EQ(exposure.report.spot_x_px, 30.4);
@@ -502,8 +510,10 @@ TEST(Exposure, StampCentreConvention) {
 }
 
 // A bright spot clipped at 65535 ADU by the converter, with SATURATE = 65535: exactly the
-// clipped pixels (counted here from the frame) and the NaN one are masked.
-TEST(Exposure, SaturatedAndNonFinitePixelsAreMasked) {
+// clipped pixels (counted here from the frame) are censored (valid, "at or above" the
+// level, holding the level in electrons), the NaN one is masked, and the verdict names the
+// saturated core.
+TEST(Exposure, SaturatedPixelsAreCensoredAndNonFiniteOnesMasked) {
   SyntheticFrame spec;
   spec.flux_e = 2.0e6;  // peak ~ 4e5 e- = 1.3e5 ADU
   spec.spot_x_px = 32.2;
@@ -523,29 +533,38 @@ TEST(Exposure, SaturatedAndNonFinitePixelsAreMasked) {
 
   const Exposure exposure = Calibrate(frame, header);
   const Stamp& stamp = exposure.stamp;
-  // Spot finding ignores masked pixels, so the peak is a pixel beside the saturated core;
-  // the stamp still holds the spot near its centre.
-  EXPECT_LE(std::abs(stamp.origin_x + 10 - 32), 2);
-  EXPECT_LE(std::abs(stamp.origin_y + 10 - 32), 2);
-  int expected_masked = 0;
+  EXPECT_LE(std::abs(stamp.origin_x + 10 - 32), 1);
+  EXPECT_LE(std::abs(stamp.origin_y + 10 - 32), 1);
+  int expected_censored = 0;
   for (int j = 0; j < stamp.ny(); ++j) {
     for (int i = 0; i < stamp.nx(); ++i) {
+      const size_t q = static_cast<size_t>(j) * stamp.nx() + i;
       const double adu = frame(stamp.origin_x + i, stamp.origin_y + j);
-      const bool should_mask = !std::isfinite(adu) || adu >= 65535.0;
-      expected_masked += should_mask;
-      EXPECT_EQ(stamp.valid[static_cast<size_t>(j) * stamp.nx() + i], should_mask ? 0 : 1)
-          << i << ", " << j;
+      if (!std::isfinite(adu)) {
+        EXPECT_EQ(stamp.valid[q], 0) << i << ", " << j;
+        continue;
+      }
+      EXPECT_EQ(stamp.valid[q], 1) << i << ", " << j;
+      const bool censored = adu >= 65535.0;
+      expected_censored += censored;
+      EXPECT_EQ(stamp.CensorAt(q), censored ? Censor::kAtOrAbove : Censor::kNone) << i << ", " << j;
+      if (censored) {
+        // The censoring level in electrons: (SATURATE - bias) x gain.
+        EXPECT_NEAR(stamp.electrons.data[q], (65535.0 - stamp.bias_adu) * 3.1, 1e-6);
+      }
     }
   }
-  EXPECT_EQ(expected_masked, saturated + 1);
-  EXPECT_EQ(exposure.report.masked_pixels, expected_masked);
-  EXPECT_EQ(stamp.NumValid(), 21 * 21 - expected_masked);
+  EXPECT_EQ(expected_censored, saturated);
+  EXPECT_EQ(exposure.report.censored_high, saturated);
+  EXPECT_EQ(exposure.report.masked_pixels, 1);
+  EXPECT_TRUE(exposure.report.quality.Has("saturated_core"));
+  EXPECT_EQ(exposure.report.quality.Verdict(), "suspect");
 
-  // A lower saturation option masks more.
+  // A lower saturation option censors more.
   CalibrationOptions options;
-  options.saturation_adu = 30000.0;
+  options.Set("saturation_adu", 30000.0);
   const Exposure stricter = Calibrate(frame, header, options);
-  EXPECT_GT(stricter.report.masked_pixels, exposure.report.masked_pixels);
+  EXPECT_GT(stricter.report.censored_high, exposure.report.censored_high);
 }
 
 TEST(Exposure, LoadsWrittenFrame) {

@@ -491,7 +491,9 @@ TEST(FitConfig, ParsesOverridesAndRejectsUnknownKeys) {
   EXPECT_EQ(c.model.priors.airy_radius_px[0], 0.2);
   EXPECT_EQ(c.fit.mcmc.seed, 9u);
   EXPECT_EQ(c.fit.num_walkers, 40);
-  EXPECT_EQ(*c.calibration.gain_e_per_adu, 2.5);
+  ASSERT_TRUE(c.calibration.given.Find("gain_e_per_adu") != nullptr);
+  EXPECT_EQ(*c.calibration.given.Find("gain_e_per_adu")->number, 2.5);
+  EXPECT_EQ(c.calibration.given.Find("gain_e_per_adu")->source, "FIT.json");
   EXPECT_EQ(c.calibration.stamp_size, 15);
   for (const char* bad :
        {R"({"priors": {"airy_radius": [0.2, 1.0]}})",

@@ -406,7 +406,8 @@ TEST(ThroughFocus, CliFitsASimulatedSeries) {
   ASSERT_EQ(testing_support::RunCcdpsf("fit --joint --nomcmc --out=" + dir + "/fit" + files, &out),
             0)
       << out;
-  EXPECT_NE(out.find("note: the 5 files carry FOCUSPOS with 5 distinct values"), std::string::npos)
+  EXPECT_NE(out.find("note: the 5 files carry focus positions with 5 distinct values"),
+            std::string::npos)
       << out;
   std::ifstream in(dir + "/fit/fit.json");
   const nlohmann::json fit = nlohmann::json::parse(in);
@@ -428,7 +429,7 @@ TEST(ThroughFocus, CliFitsASimulatedSeries) {
           "fit --joint --nomcmc --nothrough_focus --out=" + dir + "/fit_shared" + files, &out),
       0)
       << out;
-  EXPECT_EQ(out.find("note:"), std::string::npos) << out;
+  EXPECT_EQ(out.find("through-focus"), std::string::npos) << out;
   std::ifstream in2(dir + "/fit_shared/fit.json");
   const nlohmann::json shared = nlohmann::json::parse(in2);
   EXPECT_EQ(shared["model"]["through_focus"], false);

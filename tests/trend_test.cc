@@ -111,7 +111,7 @@ TEST(Campaign, ManifestIsReadStrictly) {
   std::string error;
   ASSERT_TRUE(LoadCampaign({root}, &groups, &error)) << error;
   ASSERT_EQ(groups.size(), 1u);
-  EXPECT_EQ(groups[0].files[0], root + "/g0/exposure_000.fits");
+  EXPECT_EQ(groups[0].files[0], fs::path(root + "/g0/exposure_000.fits").lexically_normal().string());
   EXPECT_EQ(*groups[0].nominal_peak_e, 1e5);
   std::ofstream(root + "/bad.json")
       << R"({"groups": [{"name": "g0", "wavelength_nm": 800, "files": [], "colour": 1}]})";

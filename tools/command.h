@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "ccdpsf/fit/fit_config.h"
+#include "ccdpsf/manifest.h"
 
 namespace ccdpsf::tools {
 
@@ -33,6 +34,18 @@ bool ResolveFitConfig(fit::FitConfig* config, std::string* error);
 
 // Prints "ccdpsf: error: <message>" on stderr and returns exit code 1.
 int Fail(const std::string& message);
+
+// Exit code of a completed run whose verdict is suspect or invalid under --strict.
+constexpr int kExitStrict = 3;
+
+// The metadata flags shared by fit, diagnose and trend (tools/input_flags.cc).
+const std::vector<const char*>& InputFlagNames();
+// The values the flags give (sources "flag --name") and the keyword map's overlay.
+bool InputFlags(GivenMetadata* given, KeywordMap* keywords, std::string* error);
+// The run's files with their options: flags, then --manifest's rows, then `config`.
+// `files` may be empty with --manifest. *manifest receives the manifest if one was given.
+bool ResolveInputs(const std::vector<std::string>& files, const CalibrationOptions& config,
+                   std::vector<InputFile>* inputs, Manifest* manifest, std::string* error);
 
 // True when --name was given on the command line.
 bool FlagGiven(const char* name);

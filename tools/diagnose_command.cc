@@ -5,6 +5,8 @@
 #include "ccdpsf/diagnose/diagnose.h"
 #include "ccdpsf/diagnose/diagnose_report.h"
 #include "ccdpsf/exposure.h"
+#include "ccdpsf/exposure_set.h"
+#include "ccdpsf/fit/fit_quality.h"
 #include "ccdpsf/fit/fit_config.h"
 #include "ccdpsf/provenance.h"
 #include "command.h"
@@ -13,14 +15,14 @@
 DECLARE_string(out);
 DECLARE_uint64(seed);
 DECLARE_int32(threads);
+DECLARE_bool(strict);
+DECLARE_string(flux);
+DECLARE_bool(mixed_wavelengths);
 DEFINE_int32(max_rounds, 3, "diagnose: rounds of testing (each may name one effect)");
 DEFINE_int32(predictive_sims, 50,
              "diagnose: simulations of each fitted model for the predictive p-values (0: none)");
 DEFINE_double(alpha, 0.01,
               "diagnose: family-wise false-claim rate per round (Bonferroni over the candidates)");
-DEFINE_string(flux, "auto",
-              "diagnose: auto (a flux per exposure when the set spans several intensities), "
-              "shared or per_exposure");
 DEFINE_string(baseline, "paper",
               "diagnose: paper (the paper's model) or no_defocus (without the defocus, which "
               "then becomes a candidate); add effects with +, e.g. paper+background");
@@ -52,7 +54,9 @@ bool ParseKinds(const std::string& text, std::vector<model::EffectKind>* kinds,
 
 int RunDiagnose(const std::vector<std::string>& files) {
   if (FLAGS_out.empty()) return Fail("diagnose needs --out=DIR");
-  if (files.empty()) return Fail("diagnose needs at least one FITS file");
+  if (files.empty() && !FlagGiven("manifest")) {
+    return Fail("diagnose needs at least one FITS file (or --manifest)");
+  }
   fit::FitConfig config;
   std::string error;
   if (!ResolveFitConfig(&config, &error)) return Fail(error);
@@ -77,7 +81,7 @@ int RunDiagnose(const std::vector<std::string>& files) {
   } else if (FLAGS_flux == "per_exposure") {
     options.flux = diagnose::FluxChoice::kPerExposure;
   } else {
-    return Fail("--flux must be auto, shared or per_exposure");
+    return Fail("diagnose: --flux must be auto, shared or per_exposure");
   }
   {
     std::string b = FLAGS_baseline;
@@ -100,18 +104,74 @@ int RunDiagnose(const std::vector<std::string>& files) {
     return Fail("--candidates: " + error);
   }
   if (!options.IsValid(&error)) return Fail(error);
+  std::vector<InputFile> inputs;
+  Manifest manifest;
+  if (!ResolveInputs(files, config.calibration, &inputs, &manifest, &error)) return Fail(error);
+  ExposureSet set;
+  ExposureSetOptions set_options;
+  set_options.allow_mixed_wavelengths = FLAGS_mixed_wavelengths;
+  if (!LoadExposureSet(inputs, set_options, &set, &error)) return Fail(error);
   std::vector<Stamp> stamps;
-  for (const std::string& f : files) {
-    auto e = LoadExposure(f, config.calibration, &error);
-    if (!e) return Fail(error);
-    stamps.push_back(std::move(e->stamp));
+  std::vector<std::string> paths;
+  int censored = 0;
+  for (Exposure& e : set.exposures) {
+    // The effect models take measured pixels only: censored ones (saturated, clipped) are
+    // masked here, and said.
+    for (size_t q = 0; q < e.stamp.valid.size(); ++q) {
+      if (e.stamp.valid[q] && e.stamp.CensorAt(q) != Censor::kNone) {
+        e.stamp.valid[q] = 0;
+        ++censored;
+      }
+    }
+    e.stamp.censor.clear();
+    stamps.push_back(e.stamp);
+    paths.push_back(e.stamp.info.source);
   }
   auto base = fit::FitModel::Create(stamps, config.model, &error);
   if (!base) return Fail(error);
   diagnose::DiagnoseResult result;
   if (!diagnose::RunDiagnosis(*base, options, &result, &error)) return Fail(error);
+  // The verdict on the data: calibration's and the set's findings, and the noise check.
+  for (size_t k = 0; k < set.exposures.size(); ++k) {
+    for (const Finding& f : set.exposures[k].report.quality.findings) {
+      result.quality.Add(f.code, f.severity, "exposure " + std::to_string(k) + ": " + f.message,
+                         static_cast<int>(k));
+    }
+  }
+  for (const Finding& f : set.quality.findings) {
+    result.quality.Add(f.code, f.severity, "exposure " + std::to_string(f.exposure) + ": " + f.message,
+                       f.exposure);
+  }
+  if (censored > 0) {
+    result.quality.Add("censored_masked", Severity::kNote,
+                       std::to_string(censored) +
+                           " censored pixel(s) (saturated or clipped) left out: the effect models "
+                           "fit measured pixels only");
+  }
+  {
+    // The noise check: the tests compare residuals with the noise model, so a chi^2 below
+    // its range (noise overstated) makes every p-value too large; one above it after the
+    // last round means the final model does not describe the data either.
+    Quality noise;
+    const diagnose::ResidualStatistics& first = result.rounds.front().statistics;
+    fit::AssessChi2(first.chi2, first.dof, fit::FitQualityOptions(), &noise);
+    for (const Finding& f : noise.findings) {
+      if (f.code == "chi2_low") {
+        result.quality.Add("noise_check_failed", Severity::kSuspect,
+                           "baseline " + f.message + "; the tests assume the noise model, so "
+                           "their p-values are not right");
+      }
+    }
+    Quality last;
+    const diagnose::ResidualStatistics& final_stats = result.rounds.back().statistics;
+    fit::AssessChi2(final_stats.chi2, final_stats.dof,
+                    fit::FitQualityOptions(), &last);
+    for (const Finding& f : last.findings) {
+      if (f.code != "chi2_low") result.quality.Add(f.code, f.severity, "final model: " + f.message);
+    }
+  }
   nlohmann::json run = {{"command", "diagnose"},
-                        {"files", files},
+                        {"files", paths},
                         {"options",
                          {{"fit", fit::FitConfigJson(config)},
                           {"max_rounds", options.max_rounds},
@@ -131,23 +191,32 @@ int RunDiagnose(const std::vector<std::string>& files) {
   for (const std::string& w : warnings) std::fprintf(stderr, "ccdpsf: warning: %s\n", w.c_str());
   std::string named;
   for (model::EffectKind k : result.named) named += (named.empty() ? "" : ", ") + model::ToString(k);
-  std::printf("%s; chi2/dof %.4g -> %.4g; results in %s/diagnose.json (report.md, plots)\n",
+  std::printf("%s; chi2/dof %.4g -> %.4g; verdict on the data %s; results in %s/diagnose.json "
+              "(report.md, plots)\n",
               named.empty() ? "no missing effect" : ("missing: " + named).c_str(),
               result.rounds.front().statistics.chi2_per_dof,
-              result.rounds.back().statistics.chi2_per_dof, FLAGS_out.c_str());
+              result.rounds.back().statistics.chi2_per_dof, result.quality.OneLine().c_str(),
+              FLAGS_out.c_str());
+  if (FLAGS_strict && result.quality.Worst() != Severity::kNote) return kExitStrict;
   return 0;
 }
 
 }  // namespace
 
+std::vector<const char*> DiagnoseFlagNames() {
+  std::vector<const char*> names = {"out",        "config",     "sampling",          "defocus",
+                                    "seed",       "threads",    "max_rounds",        "predictive_sims",
+                                    "alpha",      "flux",       "baseline",          "candidates",
+                                    "thresholds", "threshold_sims", "strict", "mixed_wavelengths"};
+  for (const char* n : InputFlagNames()) names.push_back(n);
+  return names;
+}
+
 Command DiagnoseCommand() {
   return {"diagnose",
           "ccdpsf diagnose --out=DIR [--baseline=paper] [--max_rounds=3] [options] FILE.fits...",
           "Find the physical effect the model is missing: fit, test the catalogue, add, repeat.",
-          {"out", "config", "sampling", "defocus", "seed", "threads", "gain_e_per_adu",
-           "read_noise_e", "bias_adu", "saturation_adu", "stamp_size", "spot_x_px", "spot_y_px",
-           "max_rounds", "predictive_sims", "alpha", "flux", "baseline", "candidates",
-           "thresholds", "threshold_sims"},
+          DiagnoseFlagNames(),
           RunDiagnose};
 }
 

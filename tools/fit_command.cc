@@ -5,6 +5,8 @@
 #include <filesystem>
 
 #include "ccdpsf/exposure.h"
+#include "ccdpsf/exposure_set.h"
+#include "ccdpsf/fit/fit_exposures.h"
 #include "ccdpsf/fit/fit.h"
 #include "ccdpsf/fit/fit_config.h"
 #include "ccdpsf/fit/fit_report.h"
@@ -16,6 +18,7 @@ DECLARE_string(config);
 DECLARE_string(out);
 DECLARE_string(sampling);
 DECLARE_string(defocus);
+DECLARE_int32(stamp_size);
 DEFINE_bool(joint, false,
             "fit: one joint fit of all files (CCD widths, intensity, defocus and Airy radius "
             "shared; a position per exposure) instead of one fit per file");
@@ -35,13 +38,16 @@ DEFINE_double(target_ess, 1000,
               "fit: effective sample size every parameter must reach (trend: 400 unless given)");
 DEFINE_int32(threads, 2, "fit: threads for the MCMC; trend: groups fitted at a time; diagnose: Ceres threads and predictive simulations run at a time");
 DEFINE_bool(mcmc, true, "fit: run the MCMC (--nomcmc: MAP and Laplace only)");
-DEFINE_double(gain_e_per_adu, 0, "fit: gain [e-/ADU], overrides GAIN");
-DEFINE_double(read_noise_e, 0, "fit: read noise [e-], overrides RDNOISE");
-DEFINE_double(bias_adu, 0, "fit: bias [ADU], overrides BIASLVL / BIASSEC");
-DEFINE_double(saturation_adu, 0, "fit: saturation [ADU], overrides SATURATE");
-DEFINE_int32(stamp_size, 21, "fit: stamp side [px]");
-DEFINE_double(spot_x_px, 0, "fit: spot x (frame pixels); with --spot_y_px skips spot finding");
-DEFINE_double(spot_y_px, 0, "fit: spot y (frame pixels)");
+DEFINE_string(flux, "auto",
+              "How the exposures of a joint fit share the light: auto (chosen from the data "
+              "and said), shared, per_exposure or (fit, trend) exptime_scaled");
+DEFINE_bool(mixed_wavelengths, false,
+            "Let a joint fit share one PSF across exposures at different wavelengths");
+DEFINE_bool(strict, false,
+            "Exit with code 3 when a completed fit's verdict is suspect or invalid (for "
+            "pipelines); without it a completed run exits 0 whatever the verdict");
+DEFINE_bool(outliers, true,
+            "Mask pixels the fitted model cannot explain (cosmic rays, hot pixels) and refit");
 
 namespace ccdpsf::tools {
 
@@ -72,15 +78,17 @@ bool ResolveFitConfig(fit::FitConfig* c, std::string* error) {
   if (FlagGiven("target_ess")) c->fit.mcmc.target_ess = FLAGS_target_ess;
   if (FlagGiven("threads")) c->fit.mcmc.num_threads = FLAGS_threads;
   if (FlagGiven("mcmc")) c->fit.run_mcmc = FLAGS_mcmc;
-  CalibrationOptions& k = c->calibration;
-  if (FlagGiven("gain_e_per_adu")) k.gain_e_per_adu = FLAGS_gain_e_per_adu;
-  if (FlagGiven("read_noise_e")) k.read_noise_e = FLAGS_read_noise_e;
-  if (FlagGiven("bias_adu")) k.bias_adu = FLAGS_bias_adu;
-  if (FlagGiven("saturation_adu")) k.saturation_adu = FLAGS_saturation_adu;
-  if (FlagGiven("stamp_size")) k.stamp_size = FLAGS_stamp_size;
-  if (FlagGiven("spot_x_px")) k.spot_x_px = FLAGS_spot_x_px;
-  if (FlagGiven("spot_y_px")) k.spot_y_px = FLAGS_spot_y_px;
-  if (!k.IsValid(error)) return false;
+  if (FlagGiven("stamp_size")) c->calibration.stamp_size = FLAGS_stamp_size;
+  if (!c->calibration.IsValid(error)) return false;
+  if (FlagGiven("flux") && FLAGS_flux != "auto") {
+    if (!fit::ParseFluxMode(FLAGS_flux, &c->model.flux)) {
+      *error = "--flux must be auto, shared, per_exposure or exptime_scaled";
+      return false;
+    }
+    c->flux_given = true;
+  } else if (FlagGiven("flux")) {
+    c->flux_given = false;
+  }
   if (c->fit.num_walkers < 0 || c->fit.mcmc.max_steps < 1 || c->fit.mcmc.num_threads < 1 ||
       !(c->fit.mcmc.target_ess >= 0)) {
     *error = "--walkers >= 0, --max_steps >= 1, --threads >= 1 and --target_ess >= 0 required";
@@ -100,54 +108,95 @@ namespace fs = std::filesystem;
 
 // One fit (single exposure or joint set) into out_dir. Returns the exit code.
 int FitInto(const std::string& out_dir, const std::vector<Exposure>& exposures,
-            const fit::FitConfig& config, const std::vector<std::string>& files) {
-  std::vector<Stamp> stamps;
-  std::vector<CalibrationReport> calibration;
-  for (const Exposure& e : exposures) {
-    stamps.push_back(e.stamp);
-    calibration.push_back(e.report);
-  }
+            const Quality& set_quality, const fit::FitConfig& config,
+            const std::vector<std::string>& files, bool* flagged) {
+  fit::ExposuresFitOptions options;
+  options.config = config;
+  options.config.fit.mcmc.progress_label = out_dir;
+  options.flux_given = config.flux_given;
+  options.outliers.enabled = FLAGS_outliers;
+  fit::ExposuresFit fitted;
   std::string error;
-  auto model = fit::FitModel::Create(stamps, config.model, &error);
-  if (!model) return Fail(error);
-  fit::FitOptions options = config.fit;
-  options.mcmc.progress_label = out_dir;
-  fit::FitResult result;
-  if (!fit::RunFit(*model, options, &result, &error)) return Fail(out_dir + ": " + error);
+  if (!fit::FitExposures(exposures, set_quality, options, &fitted, &error)) {
+    return Fail(out_dir + ": " + error);
+  }
+  for (const std::string& note : fitted.notes) {
+    std::fprintf(stderr, "ccdpsf: note: %s\n", note.c_str());
+  }
   nlohmann::json run = {{"command", "fit"},
                         {"files", files},
                         {"options", fit::FitConfigJson(config)},
                         {"seed", config.fit.mcmc.seed},
                         {"software", SoftwareVersions()}};
   std::vector<std::string> warnings;
-  if (!fit::WriteFitReport(out_dir, *model, result, calibration, run, &warnings, &error)) {
-    return Fail(error);
-  }
+  if (!fit::WriteFitReport(out_dir, fitted, run, &warnings, &error)) return Fail(error);
   for (const std::string& w : warnings) std::fprintf(stderr, "ccdpsf: warning: %s\n", w.c_str());
-  std::printf("%s: chi2/dof %.4g, %s; results in %s/fit.json (report.md, plots)\n",
+  const fit::FitResult& result = fitted.result;
+  std::printf("%s: chi2/dof %.4g, %s; verdict %s; results in %s/fit.json (report.md, plots)\n",
               files.size() == 1 ? files[0].c_str() : "joint fit", result.map.chi2 / result.map.dof,
               result.have_mcmc ? (result.chain.converged ? "MCMC converged" : "MCMC NOT converged")
                                : "no MCMC",
-              out_dir.c_str());
+              fitted.quality.OneLine().c_str(), out_dir.c_str());
+  if (fitted.quality.Worst() != Severity::kNote) *flagged = true;
   return 0;
+}
+
+// Output folders of separate fits, one per file: the file's stem, made unique with its
+// parent folders' names when two files share a stem (a second exposure_000.fits from
+// another folder must not overwrite the first).
+std::vector<std::string> SeparateFolders(const std::vector<std::string>& files) {
+  std::vector<std::string> names;
+  for (const std::string& f : files) names.push_back(fs::path(f).stem().string());
+  for (size_t i = 0; i < files.size(); ++i) {
+    bool clash = false;
+    for (size_t j = 0; j < files.size(); ++j) clash = clash || (i != j && names[i] == names[j]);
+    if (!clash) continue;
+    fs::path parent = fs::path(files[i]).parent_path();
+    std::string name = fs::path(files[i]).stem().string();
+    // Prefix parent folder names until the name is unique among all stems and names.
+    for (int depth = 0; depth < 8 && !parent.empty(); ++depth) {
+      name = parent.filename().string() + "_" + name;
+      parent = parent.parent_path();
+      bool unique = true;
+      for (size_t j = 0; j < files.size(); ++j) {
+        unique = unique && (j == i || fs::path(files[j]).stem().string() != name);
+      }
+      if (unique) break;
+    }
+    names[i] = name;
+  }
+  // Still equal (the same path given twice is refused earlier): number them.
+  for (size_t i = 0; i < names.size(); ++i) {
+    for (size_t j = i + 1; j < names.size(); ++j) {
+      if (names[i] == names[j]) names[j] += "_" + std::to_string(j);
+    }
+  }
+  return names;
 }
 
 int RunFit(const std::vector<std::string>& files) {
   if (FLAGS_out.empty()) return Fail("fit needs --out=DIR");
-  if (files.empty()) return Fail("fit needs at least one FITS file");
   fit::FitConfig config;
   std::string error;
   if (!ResolveFitConfig(&config, &error)) return Fail(error);
-  std::vector<Exposure> exposures;
-  for (const std::string& f : files) {
-    auto e = LoadExposure(f, config.calibration, &error);
-    if (!e) return Fail(error);
-    exposures.push_back(std::move(*e));
+  std::vector<InputFile> inputs;
+  Manifest manifest;
+  if (files.empty() && !FlagGiven("manifest")) {
+    return Fail("fit needs at least one FITS file (or --manifest)");
   }
-  if (config.model.through_focus && !config.joint && files.size() > 1) {
+  if (!ResolveInputs(files, config.calibration, &inputs, &manifest, &error)) return Fail(error);
+  std::vector<std::string> paths;
+  for (const InputFile& input : inputs) paths.push_back(input.path);
+  const bool joint = config.joint && inputs.size() > 1;
+  ExposureSet set;
+  ExposureSetOptions set_options;
+  set_options.allow_mixed_wavelengths = !joint || FLAGS_mixed_wavelengths;
+  if (!LoadExposureSet(inputs, set_options, &set, &error)) return Fail(error);
+  std::vector<Exposure>& exposures = set.exposures;
+  if (config.model.through_focus && !config.joint && inputs.size() > 1) {
     return Fail("through_focus fits a series jointly: add --joint");
   }
-  if (config.joint && files.size() > 1 && !config.through_focus_given) {
+  if (joint && !config.through_focus_given) {
     // A joint set that is a through-focus series is fitted as one unless told otherwise.
     std::vector<Stamp> stamps;
     std::vector<double> z;
@@ -163,46 +212,65 @@ int RunFit(const std::vector<std::string>& files) {
           config.model.model.defocus == model::DefocusKind::kGaussian) {
         config.model.through_focus = true;
         std::fprintf(stderr,
-                     "ccdpsf: note: the %zu files carry FOCUSPOS with %ld distinct values: "
-                     "fitting them as a through-focus series (defocus = rate x |z - z0|, CCD "
-                     "kernel fixed; --nothrough_focus to turn off)\n",
-                     files.size(), distinct);
+                     "ccdpsf: note: the %zu files carry focus positions with %ld distinct "
+                     "values: fitting them as a through-focus series (defocus = rate x |z - "
+                     "z0|, CCD kernel fixed; --nothrough_focus to turn off)\n",
+                     inputs.size(), distinct);
       } else {
         std::fprintf(stderr,
-                     "ccdpsf: note: the %zu files carry FOCUSPOS with %ld distinct values, but "
-                     "the through-focus model needs integrated sampling and a Gaussian "
-                     "defocus: fitting them with one shared defocus\n",
-                     files.size(), distinct);
+                     "ccdpsf: note: the %zu files carry focus positions with %ld distinct "
+                     "values, but the through-focus model needs integrated sampling and a "
+                     "Gaussian defocus: fitting them with one shared defocus\n",
+                     inputs.size(), distinct);
       }
     }
   }
-  if (config.joint || files.size() == 1) return FitInto(FLAGS_out, exposures, config, files);
-  // Separate fits: one folder per file, named after it.
+  bool flagged = false;
   int status = 0;
-  nlohmann::json summary = nlohmann::json::array();
-  for (size_t i = 0; i < files.size(); ++i) {
-    const std::string dir = FLAGS_out + "/" + fs::path(files[i]).stem().string();
-    const int s = FitInto(dir, {exposures[i]}, config, {files[i]});
-    summary.push_back({{"file", files[i]}, {"folder", dir}, {"ok", s == 0}});
-    if (s != 0) status = s;
+  if (joint || inputs.size() == 1) {
+    status = FitInto(FLAGS_out, exposures, set.quality, config, paths, &flagged);
+  } else {
+    // Separate fits: one folder per file.
+    const std::vector<std::string> names = SeparateFolders(paths);
+    nlohmann::json summary = nlohmann::json::array();
+    for (size_t i = 0; i < inputs.size(); ++i) {
+      const std::string dir = FLAGS_out + "/" + names[i];
+      // The set checks' findings about this exposure (compression against the others).
+      Quality own;
+      for (const Finding& f : set.quality.findings) {
+        if (f.exposure == static_cast<int>(i)) own.Add(f.code, f.severity, f.message);
+      }
+      const int s = FitInto(dir, {exposures[i]}, own, config, {paths[i]}, &flagged);
+      summary.push_back({{"file", paths[i]}, {"folder", dir}, {"ok", s == 0}});
+      if (s != 0) status = s;
+    }
+    std::string werr;
+    if (!WriteRunRecord(FLAGS_out, "fit", {{"files", paths}, {"folders", summary}},
+                        config.fit.mcmc.seed, &werr)) {
+      return Fail(werr);
+    }
   }
-  std::string werr;
-  if (!WriteRunRecord(FLAGS_out, "fit", {{"files", files}, {"folders", summary}},
-                      config.fit.mcmc.seed, &werr)) {
-    return Fail(werr);
-  }
+  if (status == 0 && flagged && FLAGS_strict) return kExitStrict;
   return status;
 }
 
 }  // namespace
 
+std::vector<const char*> FitFlagNames() {
+  std::vector<const char*> names = {"out",        "config",    "joint",     "through_focus",
+                                    "sampling",   "defocus",   "likelihood", "seed",
+                                    "walkers",    "max_steps", "target_ess", "threads",
+                                    "mcmc",       "flux",      "mixed_wavelengths", "strict",
+                                    "outliers"};
+  for (const char* n : InputFlagNames()) names.push_back(n);
+  return names;
+}
+
 Command FitCommand() {
   return {"fit",
           "ccdpsf fit --out=DIR [--joint] [--config=FIT.json] [options] FILE.fits...",
           "Fit the spot model: MAP (Ceres), Laplace covariance, MCMC credible intervals.",
-          {"out", "config", "joint", "through_focus", "sampling", "defocus", "likelihood", "seed", "walkers",
-           "max_steps", "target_ess", "threads", "mcmc", "gain_e_per_adu", "read_noise_e",
-           "bias_adu", "saturation_adu", "stamp_size", "spot_x_px", "spot_y_px"},
+          FitFlagNames(),
           RunFit};
 }
 

@@ -15,6 +15,8 @@
 DECLARE_string(out);
 DECLARE_uint64(seed);
 DECLARE_int32(threads);
+DECLARE_bool(strict);
+DECLARE_string(manifest);
 DEFINE_string(requirements, "",
               "trend: JSON list of requirements (default: the Euclid VIS ones: FWHM <= 10.8 um "
               "and e <= 0.156 at 800 nm and I0, alpha of FWHM(lambda) <= -0.2)");
@@ -37,6 +39,7 @@ int RunTrend(const std::vector<std::string>& inputs) {
   fit_options.config.fit.mcmc.target_ess = kTrendTargetEss;
   if (!ResolveFitConfig(&fit_options.config, &error)) return Fail(error);
   fit_options.seed = fit_options.config.fit.mcmc.seed;
+  fit_options.flux_given = fit_options.config.flux_given;
   fit_options.parallel_groups = FlagGiven("threads") ? FLAGS_threads
                                                      : fit_options.config.fit.mcmc.num_threads;
   if (FLAGS_group_reports) fit_options.reports_dir = FLAGS_out + "/groups";
@@ -54,8 +57,15 @@ int RunTrend(const std::vector<std::string>& inputs) {
     trend_options.requirements = *requirements;
   }
 
+  trend::CampaignOptions campaign;
+  campaign.config = fit_options.config.calibration;
+  if (!InputFlags(&campaign.flags, &campaign.config.keywords, &error)) return Fail(error);
+  if (FlagGiven("manifest")) campaign.manifest = FLAGS_manifest;
+  if (inputs.empty() && campaign.manifest.empty()) {
+    return Fail("trend needs a campaign: a manifest, a campaign folder, or FITS files / folders");
+  }
   std::vector<trend::CampaignGroup> groups;
-  if (!trend::LoadCampaign(inputs, &groups, &error)) return Fail(error);
+  if (!trend::LoadCampaign(inputs, campaign, &groups, &error)) return Fail(error);
   int exposures = 0;
   for (const auto& g : groups) exposures += static_cast<int>(g.files.size());
   std::fprintf(stderr, "ccdpsf trend: %zu groups, %d exposures, %d in parallel\n", groups.size(),
@@ -63,9 +73,11 @@ int RunTrend(const std::vector<std::string>& inputs) {
   std::vector<trend::GroupResult> results = trend::FitGroups(
       groups, fit_options, [](const trend::GroupResult& r, int done, int total) {
         if (r.ok) {
-          std::fprintf(stderr, "[%d/%d] %s: %d exposures, chi2/dof %.3f, %s, %.1f s\n", done,
-                       total, r.group.name.c_str(), r.exposures, r.chi2_per_dof,
-                       r.converged ? "MCMC converged" : "MCMC NOT converged", r.seconds);
+          std::fprintf(stderr, "[%d/%d] %s: %d exposures, chi2/dof %.3f, %s, verdict %s, %.1f s\n",
+                       done, total, r.group.name.c_str(), r.exposures, r.chi2_per_dof,
+                       r.converged ? "MCMC converged" : "MCMC NOT converged",
+                       r.quality.Verdict().c_str(), r.seconds);
+          for (const std::string& n : r.notes) std::fprintf(stderr, "    note: %s\n", n.c_str());
           for (const std::string& w : r.warnings) {
             std::fprintf(stderr, "    warning: %s\n", w.c_str());
           }
@@ -105,12 +117,28 @@ int RunTrend(const std::vector<std::string>& inputs) {
       passed += *q.pass ? 1 : 0;
     }
   }
-  std::printf("trend of %zu groups (%d failed): %d/%d requirements pass; report: %s/report.md\n",
-              trend_result.groups.size(), failed, passed, decided, FLAGS_out.c_str());
+  int suspect = 0;
+  for (const auto& g : trend_result.groups) {
+    suspect += g.ok && g.quality.Worst() == Severity::kSuspect ? 1 : 0;
+  }
+  std::printf("trend of %zu groups (%d failed or invalid, %d suspect): %d/%d requirements pass; "
+              "report: %s/report.md\n",
+              trend_result.groups.size(), failed, suspect, passed, decided, FLAGS_out.c_str());
+  if (FLAGS_strict && (failed > 0 || suspect > 0)) return kExitStrict;
   return 0;
 }
 
 }  // namespace
+
+std::vector<const char*> TrendFlagNames() {
+  std::vector<const char*> names = {"out",        "config",      "sampling",   "defocus",
+                                    "likelihood", "seed",        "walkers",    "max_steps",
+                                    "target_ess", "threads",     "mcmc",       "flux",
+                                    "strict",     "requirements", "reference_intensity_e",
+                                    "group_reports"};
+  for (const char* n : InputFlagNames()) names.push_back(n);
+  return names;
+}
 
 Command TrendCommand() {
   return {"trend",
@@ -118,10 +146,7 @@ Command TrendCommand() {
           "and folders grouped by WAVELEN / EXPTIME)",
           "Fit every setting of a campaign jointly; relations with wavelength and intensity; "
           "requirement checks.",
-          {"out", "config", "sampling", "defocus", "likelihood", "seed", "walkers", "max_steps",
-           "target_ess", "threads", "mcmc", "gain_e_per_adu", "read_noise_e", "bias_adu",
-           "saturation_adu", "stamp_size", "requirements", "reference_intensity_e",
-           "group_reports"},
+          TrendFlagNames(),
           RunTrend};
 }
 

@@ -7,6 +7,7 @@
 #ifndef CCDPSF_FITS_IO_H_
 #define CCDPSF_FITS_IO_H_
 
+#include <limits>
 #include <optional>
 #include <string>
 #include <variant>
@@ -36,7 +37,13 @@ struct FitsImage {
   Image pixels;
   FitsHeader header;
   int bitpix = 0;    // BITPIX of the stored data
-  int hdu = 1;       // 1-based HDU number the image came from
+  int hdu = 1;       // 1-based HDU number the image came from (1 = primary)
+  std::string extname;  // EXTNAME of that HDU ("" if none)
+  // The range the stored integers can represent, in physical units (BZERO + BSCALE x raw):
+  // an ADC cannot record beyond it (8-bit: [0, 255]; 16-bit with BZERO 32768: [0, 65535]).
+  // Infinite for floating-point and 64-bit data.
+  double adc_min = -std::numeric_limits<double>::infinity();
+  double adc_max = std::numeric_limits<double>::infinity();
 };
 
 // Reads the 2-D image in the primary HDU, or in the first image extension when the primary
@@ -44,6 +51,22 @@ struct FitsImage {
 // truncated file, no image HDU, an image that is not 2-D or is empty, or a table where the
 // image should be.
 std::optional<FitsImage> ReadFitsImage(const std::string& path, std::string* error);
+
+// Reads the image of one HDU: `hdu` is an extension number (0 = primary, 1 = first
+// extension: astropy's and DS9's count) or an EXTNAME (case-insensitive); "" is the default
+// choice above. Fails with a one-line reason if there is no such HDU, or it is a table or
+// empty.
+std::optional<FitsImage> ReadFitsImage(const std::string& path, const std::string& hdu,
+                                       std::string* error);
+
+// The HDUs of a file that hold a 2-D image, for picking an amplifier segment.
+struct FitsHduInfo {
+  int index = 0;         // 0 = primary, as above
+  std::string extname;
+  long long nx = 0, ny = 0;
+};
+// Empty (with *error set) if the file cannot be read.
+std::vector<FitsHduInfo> ListFitsImageHdus(const std::string& path, std::string* error);
 
 // Writes `image` as 16-bit unsigned integers (BITPIX = 16, BZERO = 32768). Every value must
 // be an integer in [0, 65535]; anything else is an error (the caller rounds and clips).

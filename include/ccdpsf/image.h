@@ -39,25 +39,37 @@ struct ExposureInfo {
   std::string source;  // file the data came from
   double wavelength_nm = std::numeric_limits<double>::quiet_NaN();
   double exptime_s = std::numeric_limits<double>::quiet_NaN();
-  double pixel_um = 12.0;  // pixel pitch [um]; VIS CCD273 default
+  // Pixel pitch [um]: 12 (VIS CCD273) for stamps built in code (simulations, tests);
+  // calibration sets it from the file's metadata, NaN when nothing gives it.
+  double pixel_um = 12.0;
   double focus_position_um = std::numeric_limits<double>::quiet_NaN();
 };
+
+// How a stamp pixel enters the likelihood (Stamp::censor). A censored pixel's true value is
+// known only to lie beyond its recorded level: at or above it (saturation, the ADC's top, a
+// clipped amplifier) or at or below it (a black level clipped at the ADC's zero).
+enum class Censor : uint8_t { kNone = 0, kAtOrAbove = 1, kAtOrBelow = 2 };
 
 // A calibrated cut-out around one spot: what every fit consumes.
 //
 // electrons holds (data_adu - bias_adu) * gain_e_per_adu: the bias-subtracted signal in
 // electrons. valid is 1 for pixels that enter the likelihood and 0 for masked ones
-// (saturated, non-finite, or flagged by the reader); a masked pixel's value is meaningless.
+// (non-finite, flagged by a mask, contaminated); a masked pixel's value is meaningless.
+// censor (empty, or one entry per pixel) marks valid pixels that are censored; their
+// electrons hold the censoring level. adc_step_e is one ADU in electrons for integer data
+// (the recorded value stands for [value - 0.5, value + 0.5) ADU), 0 for floating-point data.
 // Stamp pixel (i, j) is frame pixel (origin_x + i, origin_y + j).
 struct Stamp {
   Image electrons;
   std::vector<uint8_t> valid;
+  std::vector<Censor> censor;
   int origin_x = 0;
   int origin_y = 0;
   double gain_e_per_adu = 1.0;
   double read_noise_e = 0.0;
   double bias_adu = 0.0;
   double saturation_adu = std::numeric_limits<double>::infinity();
+  double adc_step_e = 0.0;
   ExposureInfo info;
 
   int nx() const { return electrons.nx; }
@@ -65,6 +77,12 @@ struct Stamp {
   int NumValid() const {
     int n = 0;
     for (uint8_t v : valid) n += v ? 1 : 0;
+    return n;
+  }
+  Censor CensorAt(size_t q) const { return censor.empty() ? Censor::kNone : censor[q]; }
+  int NumCensored() const {
+    int n = 0;
+    for (size_t q = 0; q < censor.size(); ++q) n += valid[q] && censor[q] != Censor::kNone;
     return n;
   }
 };

@@ -233,6 +233,7 @@ json NotNamed(const fit::FitModel& base, const DiagnoseResult& result) {
 json DiagnoseJson(const fit::FitModel& base, const DiagnoseResult& result,
                   const DiagnoseOptions& options) {
   json j;
+  j["quality"] = result.quality.ToJson();
   j["named_effects"] = json::array();
   for (model::EffectKind k : result.named) j["named_effects"].push_back(model::ToString(k));
   j["verdict"] = result.named.empty()
@@ -355,6 +356,11 @@ std::string Markdown(const DiagnoseResult& result, const json& doc,
                      const std::vector<std::string>& plot_notes) {
   std::ostringstream md;
   md << "# ccdpsf diagnose\n\n";
+  md << "**Verdict on the data: " << result.quality.Verdict() << "**\n\n";
+  for (const Finding& f : result.quality.findings) {
+    if (f.severity != Severity::kNote) md << "- " << ToString(f.severity) << ": " << f.message << "\n";
+  }
+  if (result.quality.Worst() != Severity::kNote) md << "\n";
   md << "**Verdict: " << doc["verdict"].get<std::string>() << "**";
   if (result.round_limit_reached) md << " (round limit reached: more may remain)";
   md << "\n\n";

@@ -76,12 +76,16 @@ std::vector<double> DerivedAt(const FitModel& model, const double* theta) {
 }
 
 bool RunFit(const FitModel& model, const FitOptions& options, FitResult* result,
-            std::string* error) {
+            std::string* error, const MapResult* map) {
   const auto t0 = std::chrono::steady_clock::now();
   *result = FitResult();
   result->names = model.names();
   const int dim = model.dim();
-  if (!FindMap(model, options.map, &result->map, error)) return false;
+  if (map != nullptr) {
+    result->map = *map;
+  } else if (!FindMap(model, options.map, &result->map, error)) {
+    return false;
+  }
   const std::vector<double>& theta_map = result->map.theta;
 
   std::unique_ptr<FitEvaluator> evaluator = model.NewEvaluator();

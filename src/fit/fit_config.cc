@@ -43,12 +43,6 @@ bool NumberList(JsonReader* r, const std::string& key, std::vector<double>* out)
   return true;
 }
 
-void OptionalNumber(JsonReader* r, const std::string& key, std::optional<double>* out) {
-  if (!r->Has(key)) return;
-  double v = 0;
-  r->Number(key, &v);
-  if (r->ok()) *out = v;
-}
 
 }  // namespace
 
@@ -92,6 +86,16 @@ bool ParseFitConfig(const std::string& text, FitConfig* c, std::string* error) {
     } else {
       c->model.through_focus = v.get<bool>();
       c->through_focus_given = true;
+    }
+  }
+  if (r.Has("flux")) {
+    r.String("flux", &s);
+    if (r.ok() && s == "auto") {
+      c->flux_given = false;
+    } else if (r.ok() && !ParseFluxMode(s, &c->model.flux)) {
+      r.Fail("'flux' must be \"auto\", \"shared\", \"per_exposure\" or \"exptime_scaled\"");
+    } else if (r.ok()) {
+      c->flux_given = true;
     }
   }
   if (r.ok() && r.Has("priors")) {
@@ -186,20 +190,50 @@ bool ParseFitConfig(const std::string& text, FitConfig* c, std::string* error) {
     c->fit.mcmc.num_threads = static_cast<int>(threads);
   }
   if (r.ok() && r.Has("calibration")) {
-    JsonReader k(r.Get("calibration"), "calibration", error);
+    const json& k = r.Get("calibration");
+    if (!k.is_object()) {
+      *error = "'calibration' must be a JSON object";
+      return false;
+    }
     CalibrationOptions& co = c->calibration;
-    OptionalNumber(&k, "gain_e_per_adu", &co.gain_e_per_adu);
-    OptionalNumber(&k, "read_noise_e", &co.read_noise_e);
-    OptionalNumber(&k, "bias_adu", &co.bias_adu);
-    OptionalNumber(&k, "saturation_adu", &co.saturation_adu);
-    OptionalNumber(&k, "wavelength_nm", &co.wavelength_nm);
-    OptionalNumber(&k, "pixel_um", &co.pixel_um);
-    long long size = co.stamp_size;
-    k.Integer("stamp_size", &size);
-    co.stamp_size = static_cast<int>(size);
-    k.RejectUnknownKeys();
-    if (!k.ok()) return false;
+    for (auto it = k.begin(); it != k.end(); ++it) {
+      const std::string key = it.key();
+      const json& v = it.value();
+      if (key == "stamp_size") {
+        if (!v.is_number_integer()) {
+          *error = "'calibration.stamp_size' must be an integer";
+          return false;
+        }
+        co.stamp_size = v.get<int>();
+        continue;
+      }
+      if (!IsMetadataQuantity(key)) {
+        *error = "unknown key 'calibration." + key + "'";
+        return false;
+      }
+      if (v.is_null()) continue;  // as written by run.json for "not given"
+      std::string text;
+      if (v.is_number()) {
+        std::ostringstream out;
+        out.precision(17);
+        out << v.get<double>();
+        text = out.str();
+      } else if (v.is_string()) {
+        text = v.get<std::string>();
+      } else {
+        *error = "'calibration." + key + "' must be a number or a string";
+        return false;
+      }
+      std::string why;
+      if (!co.given.SetFromText(key, text, "FIT.json", &why)) {
+        *error = "calibration: " + why;
+        return false;
+      }
+    }
     if (!co.IsValid(error)) return false;
+  }
+  if (r.ok() && r.Has("keywords")) {
+    if (!c->calibration.keywords.Overlay(r.Get("keywords"), error)) return false;
   }
   r.RejectUnknownKeys();
   return r.ok();
@@ -220,14 +254,24 @@ bool LoadFitConfig(const std::string& path, FitConfig* config, std::string* erro
   return true;
 }
 
+json CalibrationJson(const CalibrationOptions& options) {
+  json out = json::object();
+  for (const auto& [quantity, value] : options.given.values()) {
+    if (value.number) out[quantity] = *value.number;
+    if (value.text) out[quantity] = *value.text;
+  }
+  out["stamp_size"] = options.stamp_size;
+  return out;
+}
+
 json FitConfigJson(const FitConfig& c) {
   const PriorRanges& p = c.model.priors;
-  auto opt = [](const std::optional<double>& v) { return v ? json(*v) : json(nullptr); };
   return {{"sampling", model::ToString(c.model.model.sampling)},
           {"defocus", model::ToString(c.model.model.defocus)},
           {"likelihood", ToString(c.model.likelihood)},
           {"joint", c.joint},
           {"through_focus", c.model.through_focus},
+          {"flux", c.flux_given ? ToString(c.model.flux) : std::string("auto")},
           {"priors",
            {{"airy_radius_px", {p.airy_radius_px[0], p.airy_radius_px[1]}},
             {"defocus_px", {p.defocus_px[0], p.defocus_px[1]}},
@@ -252,14 +296,8 @@ json FitConfigJson(const FitConfig& c) {
             {"position_update_every", c.fit.target.position_update_every},
             {"seed", c.fit.mcmc.seed},
             {"threads", c.fit.mcmc.num_threads}}},
-          {"calibration",
-           {{"gain_e_per_adu", opt(c.calibration.gain_e_per_adu)},
-            {"read_noise_e", opt(c.calibration.read_noise_e)},
-            {"bias_adu", opt(c.calibration.bias_adu)},
-            {"saturation_adu", opt(c.calibration.saturation_adu)},
-            {"wavelength_nm", opt(c.calibration.wavelength_nm)},
-            {"pixel_um", opt(c.calibration.pixel_um)},
-            {"stamp_size", c.calibration.stamp_size}}}};
+          {"calibration", CalibrationJson(c.calibration)},
+          {"keywords", c.calibration.keywords.ToJson()}};
 }
 
 }  // namespace ccdpsf::fit

@@ -42,6 +42,31 @@ CcdNoise NoiseOf(const Stamp& s) {
 
 }  // namespace
 
+bool ParseFluxMode(const std::string& text, FluxMode* mode) {
+  if (text == "shared") {
+    *mode = FluxMode::kShared;
+  } else if (text == "per_exposure") {
+    *mode = FluxMode::kPerExposure;
+  } else if (text == "exptime_scaled") {
+    *mode = FluxMode::kExptimeScaled;
+  } else {
+    return false;
+  }
+  return true;
+}
+
+std::string ToString(FluxMode mode) {
+  switch (mode) {
+    case FluxMode::kShared:
+      return "shared";
+    case FluxMode::kPerExposure:
+      return "per_exposure";
+    case FluxMode::kExptimeScaled:
+      return "exptime_scaled";
+  }
+  return "shared";
+}
+
 bool IsFocusSeries(const std::vector<Stamp>& stamps, std::string* why) {
   std::vector<double> z;
   for (size_t k = 0; k < stamps.size(); ++k) {
@@ -167,13 +192,32 @@ std::unique_ptr<FitModel> FitModel::Create(std::vector<Stamp> stamps,
     }
     m->centroid_x_.push_back(s.origin_x + wx / w);
     m->centroid_y_.push_back(s.origin_y + wy / w);
+    m->signal_per_stamp_e_.push_back(total);
     signal_sum += total;
   }
   m->signal_e_ = signal_sum / m->stamps_.size();
 
+  // Fixed flux scales: exposure-time ratios when the flux follows the exposure time.
+  m->fixed_flux_scale_.assign(m->stamps_.size(), 1.0);
+  if (options.flux == FluxMode::kExptimeScaled) {
+    const double t0 = m->stamps_[0].info.exptime_s;
+    for (size_t k = 0; k < m->stamps_.size(); ++k) {
+      const double t = m->stamps_[k].info.exptime_s;
+      if (!(std::isfinite(t) && t > 0 && std::isfinite(t0) && t0 > 0)) {
+        *error = "flux scaled by exposure time needs a positive exposure time on every "
+                 "exposure; exposure " + std::to_string(k) +
+                 (m->stamps_[k].info.source.empty() ? "" : " ('" + m->stamps_[k].info.source + "')") +
+                 " has none (give --exptime_s, a manifest column exptime_s or EXPTIME)";
+        return nullptr;
+      }
+      m->fixed_flux_scale_[k] = t / t0;
+    }
+  }
+
   // Flux bounds: around the summed signal for the total flux; the 2015 meta-parameter m has
-  // no simple relation to it (the model is unnormalised), so its range is wide.
-  const double s_e = m->signal_e_;
+  // no simple relation to it (the model is unnormalised), so its range is wide. flux_e is
+  // exposure 0's flux when the fluxes differ between exposures.
+  const double s_e = options.flux == FluxMode::kShared ? m->signal_e_ : m->signal_per_stamp_e_[0];
   m->lower_ = {peak ? 1e-4 * s_e : pr.flux_lower_fraction * s_e, pr.airy_radius_px[0],
                pr.defocus_px[0], pr.ccd_sigma_x_px[0], pr.ccd_sigma_y_px[0]};
   m->upper_ = {peak ? 1e4 * s_e : pr.flux_upper_fraction * s_e, pr.airy_radius_px[1],
@@ -202,6 +246,16 @@ std::unique_ptr<FitModel> FitModel::Create(std::vector<Stamp> stamps,
     m->lower_.push_back(z_min);
     m->upper_.push_back(z_max);
   }
+  if (options.flux == FluxMode::kPerExposure) {
+    // flux_ratio.k: exposure k's flux over exposure 0's, within the flux prior's factors of
+    // the ratio of their summed signals.
+    for (int k = 1; k < m->num_exposures(); ++k) {
+      const double ratio = m->signal_per_stamp_e_[k] / m->signal_per_stamp_e_[0];
+      m->names_.push_back("flux_ratio." + std::to_string(k));
+      m->lower_.push_back(pr.flux_lower_fraction * ratio);
+      m->upper_.push_back(pr.flux_upper_fraction * ratio);
+    }
+  }
   for (int i = 0; i < m->dim(); ++i) {
     if (!(m->lower_[i] < m->upper_[i])) {
       *error = "empty prior range for " + m->names_[i];
@@ -217,6 +271,17 @@ int FitModel::NumValidPixels() const {
   return n;
 }
 
+int FitModel::NumMeasuredPixels() const {
+  int n = 0;
+  for (const Stamp& s : stamps_) n += s.NumValid() - s.NumCensored();
+  return n;
+}
+
+double FitModel::FluxScale(const double* theta, int k) const {
+  const int r = RatioIndex(k);
+  return fixed_flux_scale_[k] * (r >= 0 ? theta[r] : 1.0);
+}
+
 bool FitModel::InsidePrior(const double* theta) const {
   for (int i = 0; i < dim(); ++i) {
     if (!(theta[i] >= lower_[i] && theta[i] <= upper_[i])) return false;
@@ -227,7 +292,7 @@ bool FitModel::InsidePrior(const double* theta) const {
 std::vector<int> FitModel::SharedIndices() const {
   std::vector<int> out;
   for (int i = 0; i < kNumShared; ++i) out.push_back(i);
-  if (through_focus()) out.push_back(FocusIndex());
+  for (int i = kNumShared + 2 * num_exposures(); i < dim(); ++i) out.push_back(i);
   return out;
 }
 
@@ -247,7 +312,7 @@ double FitModel::DefocusFor(const double* theta, int k, double* d_rate, double* 
 
 model::SpotParams FitModel::SpotFor(const double* theta, int k) const {
   model::SpotParams p;
-  p[model::kFlux] = theta[kFluxE];
+  p[model::kFlux] = theta[kFluxE] * FluxScale(theta, k);
   p[model::kAiryRadius] = theta[kAiryRadiusPx];
   p[model::kDefocus] = DefocusFor(theta, k);
   p[model::kCcdSigmaX] = theta[kCcdSigmaXPx];
@@ -317,6 +382,12 @@ std::vector<double> FitModel::MomentStart(double airy_radius_px, double defocus_
     theta[f] = 0.5 * (lower_[f] + upper_[f]);
     theta[kDefocusPx] /= 0.25 * (upper_[f] - lower_[f]);
   }
+  // Per-exposure flux ratios: those of the summed signals.
+  for (int k = 1; k < num_exposures(); ++k) {
+    if (RatioIndex(k) >= 0) {
+      theta[RatioIndex(k)] = StartFluxRatio(k);
+    }
+  }
   // Flux: the least-squares scale of the model to the data.
   for (int i : SharedIndices()) theta[i] = std::clamp(theta[i], lower_[i], upper_[i]);
   FitEvaluator ev(*this);
@@ -351,10 +422,16 @@ void FitEvaluator::ModelImage(const double* theta, int k, std::vector<double>* m
   const int focus = fit_model_.FocusIndex();
   double d_rate = 1.0, d_z0 = 0.0;
   if (focus >= 0) fit_model_.DefocusFor(theta, k, &d_rate, &d_z0);
+  // The renderer's flux is flux_e x scale: chain rule into flux_e and the ratio.
+  const double scale = fit_model_.FluxScale(theta, k);
+  const int ratio = fit_model_.RatioIndex(k);
+  const double d_ratio = theta[kFluxE] * fit_model_.FixedFluxScale(k);
   for (int q = 0; q < n; ++q) {
     const double* g = &spot_jacobian_[static_cast<size_t>(q) * model::kNumSpotParams];
     double* row = &(*jacobian)[static_cast<size_t>(q) * dim];
     for (int p = 0; p < model::kNumSpotParams; ++p) row[ThetaIndex(p, k)] = g[p];
+    row[kFluxE] = g[model::kFlux] * scale;
+    if (ratio >= 0) row[ratio] = g[model::kFlux] * d_ratio;
     if (focus >= 0) {
       row[kDefocusPx] = g[model::kDefocus] * d_rate;
       row[focus] = g[model::kDefocus] * d_z0;
@@ -366,10 +443,10 @@ template <typename Visit>
 void FitEvaluator::ForEachValidPixel(const double* theta, int first, int last, Visit visit) {
   for (int k = first; k < last; ++k) {
     const Stamp& s = fit_model_.stamps()[k];
-    const CcdNoise noise = NoiseOf(s);
+    const PixelNoise noise = StampNoise(s);
     ModelImage(theta, k, &pixels_, nullptr);
     for (size_t q = 0; q < pixels_.size(); ++q) {
-      if (s.valid[q]) visit(s.electrons.data[q], pixels_[q], noise);
+      if (s.valid[q]) visit(s.electrons.data[q], s.CensorAt(q), pixels_[q], noise);
     }
   }
 }
@@ -377,9 +454,12 @@ void FitEvaluator::ForEachValidPixel(const double* theta, int first, int last, V
 double FitEvaluator::ExposureLogLikelihood(const double* theta, int k) {
   const LikelihoodKind kind = fit_model_.options().likelihood;
   double total = 0.0;
-  ForEachValidPixel(theta, k, k + 1, [&](double data_e, double model_e, const CcdNoise& noise) {
-    total += PixelLogLikelihood(kind, data_e, model_e, noise);
-  });
+  PixelValue v;
+  ForEachValidPixel(theta, k, k + 1,
+                    [&](double data_e, Censor censor, double model_e, const PixelNoise& noise) {
+                      EvaluatePixel(kind, data_e, censor, model_e, noise, false, &v);
+                      total += v.log_p;
+                    });
   return total;
 }
 
@@ -404,7 +484,7 @@ double FitEvaluator::BestFluxLogLikelihood(double* theta, int first, int last) {
     const Stamp& s = fit_model_.stamps()[k];
     ModelImage(theta, k, &unit_models_[k], nullptr);
     for (size_t q = 0; q < unit_models_[k].size(); ++q) {
-      if (!s.valid[q]) continue;
+      if (!s.valid[q] || s.CensorAt(q) != Censor::kNone) continue;
       num += unit_models_[k][q] * s.electrons.data[q];
       den += unit_models_[k][q] * unit_models_[k][q];
     }
@@ -418,13 +498,15 @@ double FitEvaluator::BestFluxLogLikelihood(double* theta, int first, int last) {
   theta[kFluxE] = flux;
   const LikelihoodKind kind = fit_model_.options().likelihood;
   double total = 0.0;
+  PixelValue v;
   for (int k = first; k < last; ++k) {
     const Stamp& s = fit_model_.stamps()[k];
-    const CcdNoise noise = NoiseOf(s);
+    const PixelNoise noise = StampNoise(s);
     for (size_t q = 0; q < unit_models_[k].size(); ++q) {
-      if (s.valid[q]) {
-        total += PixelLogLikelihood(kind, s.electrons.data[q], flux * unit_models_[k][q], noise);
-      }
+      if (!s.valid[q]) continue;
+      EvaluatePixel(kind, s.electrons.data[q], s.CensorAt(q), flux * unit_models_[k][q], noise,
+                    false, &v);
+      total += v.log_p;
     }
   }
   return std::isfinite(total) ? total : -INFINITY;
@@ -435,7 +517,8 @@ double FitEvaluator::LeastSquaresFlux(const double* theta) {
   unit[kFluxE] = 1.0;
   double num = 0.0, den = 0.0;
   ForEachValidPixel(unit.data(), 0, fit_model_.num_exposures(),
-                    [&](double data_e, double model_e, const CcdNoise&) {
+                    [&](double data_e, Censor censor, double model_e, const PixelNoise&) {
+                      if (censor != Censor::kNone) return;  // their values are bounds
                       num += model_e * data_e;
                       den += model_e * model_e;
                     });
@@ -444,10 +527,12 @@ double FitEvaluator::LeastSquaresFlux(const double* theta) {
 
 double FitEvaluator::ChiSquare(const double* theta) {
   double chi2 = 0.0;
+  PixelValue v;
   ForEachValidPixel(theta, 0, fit_model_.num_exposures(),
-                    [&](double data_e, double model_e, const CcdNoise& noise) {
-                      const double r = data_e - model_e;
-                      chi2 += r * r / noise.VarianceE2(model_e);
+                    [&](double data_e, Censor censor, double model_e, const PixelNoise& noise) {
+                      EvaluatePixel(LikelihoodKind::kGaussian, data_e, censor, model_e, noise,
+                                    false, &v);
+                      chi2 += v.chi2;
                     });
   return chi2;
 }
@@ -456,15 +541,27 @@ std::vector<double> FitEvaluator::FisherInformation(const double* theta) {
   const int dim = fit_model_.dim();
   std::vector<double> fisher(static_cast<size_t>(dim) * dim, 0.0);
   std::vector<double> jac;
+  PixelValue v;
   for (int k = 0; k < fit_model_.num_exposures(); ++k) {
     const Stamp& s = fit_model_.stamps()[k];
-    const CcdNoise noise = NoiseOf(s);
+    const PixelNoise noise = StampNoise(s);
     ModelImage(theta, k, &pixels_, &jac);
     for (size_t q = 0; q < pixels_.size(); ++q) {
       if (!s.valid[q]) continue;
-      const double var = noise.VarianceE2(pixels_[q]);
-      // dvar/dtheta = dm/dtheta where the signal is positive (VarianceE2 clamps at 0).
-      const double w = 1.0 / var + (pixels_[q] > 0 ? 0.5 / (var * var) : 0.0);
+      double w = 0.0;
+      if (s.CensorAt(q) == Censor::kNone && !noise.interval) {
+        const double var = noise.ccd.VarianceE2(pixels_[q]);
+        // dvar/dtheta = dm/dtheta where the signal is positive (VarianceE2 clamps at 0).
+        w = 1.0 / var + (pixels_[q] > 0 ? 0.5 / (var * var) : 0.0);
+      } else {
+        // Interval and censored pixels: the Gauss-Newton information of their residuals
+        // (observed, not expected: a censored pixel informs only where the model nears
+        // its level).
+        EvaluatePixel(LikelihoodKind::kGaussian, s.electrons.data[q], s.CensorAt(q), pixels_[q],
+                      noise, true, &v);
+        w = v.dr_dm[0] * v.dr_dm[0] + v.dr_dm[1] * v.dr_dm[1];
+      }
+      if (!(w > 0)) continue;
       const double* g = &jac[q * dim];
       for (int a = 0; a < dim; ++a) {
         if (g[a] == 0.0) continue;

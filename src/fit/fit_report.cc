@@ -45,14 +45,27 @@ std::string Fmt(double v, int digits = 5) {
 
 }  // namespace
 
-json FitJson(const FitModel& model, const FitResult& r,
-             const std::vector<CalibrationReport>& calibration) {
+json FitJson(const ExposuresFit& fit) {
+  const FitModel& model = *fit.model;
+  const FitResult& r = fit.result;
+  const std::vector<CalibrationReport>& calibration = fit.calibration;
   json j;
+  j["quality"] = fit.quality.ToJson();
   j["model"] = {{"sampling", model::ToString(model.options().model.sampling)},
                 {"defocus", model::ToString(model.options().model.defocus)},
                 {"likelihood", ToString(model.options().likelihood)},
                 {"joint", model.num_exposures() > 1},
-                {"through_focus", model.through_focus()}};
+                {"through_focus", model.through_focus()},
+                {"flux", ToString(model.options().flux)}};
+  j["notes"] = fit.notes;
+  json outliers = json::array();
+  for (const OutlierMask& m : fit.outliers) {
+    outliers.push_back({{"exposure", m.exposure},
+                        {"pixel_px", {m.x_px, m.y_px}},
+                        {"z", m.z},
+                        {"core", m.core}});
+  }
+  j["masked_outliers"] = outliers;
   json params = json::object();
   json priors = json::object();
   for (int i = 0; i < model.dim(); ++i) {
@@ -125,19 +138,18 @@ json FitJson(const FitModel& model, const FitResult& r,
               {"bias_adu", s.bias_adu},
               {"wavelength_nm", Num(s.info.wavelength_nm)},
               {"exptime_s", Num(s.info.exptime_s)},
-              {"pixel_um", s.info.pixel_um},
+              {"pixel_um", Num(s.info.pixel_um)},
               {"focus_position_um", Num(s.info.focus_position_um)},
-              {"masked_pixels", s.nx() * s.ny() - s.NumValid()}};
+              {"masked_pixels", s.nx() * s.ny() - s.NumValid()},
+              {"censored_pixels", s.NumCensored()}};
+    if (model.RatioIndex(k) >= 0 || model.FixedFluxScale(k) != 1.0) {
+      e["flux_scale"] = model.FluxScale(r.map.theta.data(), k);
+    }
     // Through-focus fits: this exposure's defocus at the MAP, rate |z_k - z0| [px].
     if (model.through_focus()) e["map_defocus_sigma_px"] = model.DefocusFor(r.map.theta.data(), k);
     if (k < static_cast<int>(calibration.size())) {
       const CalibrationReport& c = calibration[k];
-      e["calibration"] = {{"gain", c.gain_source},
-                          {"bias", c.bias_source},
-                          {"read_noise", c.read_noise_source},
-                          {"saturation", c.saturation_source},
-                          {"spot", c.spot_source},
-                          {"peak_e", Num(c.peak_e)}};
+      e["calibration"] = CalibrationReportJson(c);
     }
     exposures.push_back(e);
   }
@@ -145,9 +157,10 @@ json FitJson(const FitModel& model, const FitResult& r,
   return j;
 }
 
-bool WriteFitReport(const std::string& out_dir, const FitModel& model, const FitResult& r,
-                    const std::vector<CalibrationReport>& calibration, const json& run_record,
+bool WriteFitReport(const std::string& out_dir, const ExposuresFit& fit, const json& run_record,
                     std::vector<std::string>* warnings, std::string* error) {
+  const FitModel& model = *fit.model;
+  const FitResult& r = fit.result;
   StagedOutput out;
   if (!out.Begin(out_dir, error)) return false;
   const int dim = model.dim();
@@ -160,7 +173,8 @@ bool WriteFitReport(const std::string& out_dir, const FitModel& model, const Fit
   for (int k = 0; k < model.num_exposures(); ++k) {
     const Stamp& s = model.stamps()[k];
     ev->ModelImage(r.map.theta.data(), k, &m, nullptr);
-    CcdNoise noise{s.gain_e_per_adu, s.read_noise_e, true};
+    const PixelNoise noise = StampNoise(s);
+    PixelValue v;
     StampPanels p;
     p.title = "exposure " + std::to_string(k) + ": " + s.info.source;
     p.data = Image(s.nx(), s.ny());
@@ -174,7 +188,14 @@ bool WriteFitReport(const std::string& out_dir, const FitModel& model, const Fit
       p.data.data[q] = ok ? s.electrons.data[q] : NAN;
       p.model.data[q] = m[q];
       p.residual.data[q] = ok ? s.electrons.data[q] - m[q] : NAN;
-      p.normalised.data[q] = ok ? p.residual.data[q] / std::sqrt(noise.VarianceE2(m[q])) : NAN;
+      if (ok) {
+        // Censored pixels: the signed square root of their deviance (pixel_likelihood.h).
+        EvaluatePixel(LikelihoodKind::kGaussian, s.electrons.data[q], s.CensorAt(q), m[q], noise,
+                      false, &v);
+        p.normalised.data[q] = v.normalised;
+      } else {
+        p.normalised.data[q] = NAN;
+      }
     }
     const std::string kk = std::to_string(k);
     FitsHeader h = {{"EXPOSURE", static_cast<long long>(k), "exposure index"},
@@ -257,6 +278,26 @@ bool WriteFitReport(const std::string& out_dir, const FitModel& model, const Fit
   // report.md: the numbers people come for, and the plots.
   std::ostringstream md;
   md << "# ccdpsf fit\n\n";
+  md << "**Verdict: " << fit.quality.Verdict() << "**";
+  {
+    const json q = fit.quality.ToJson();
+    if (q["reasons"].empty()) {
+      md << " (nothing found that would make these numbers untrustworthy)\n\n";
+    } else {
+      md << "\n\n";
+      for (const json& reason : q["reasons"]) {
+        md << "- " << reason["severity"].get<std::string>() << ": "
+           << reason["message"].get<std::string>() << "\n";
+      }
+      md << "\n";
+    }
+    if (!q["notes"].empty()) {
+      md << "Notes:\n\n";
+      for (const json& note : q["notes"]) md << "- " << note["message"].get<std::string>() << "\n";
+      md << "\n";
+    }
+  }
+  for (const std::string& note : fit.notes) md << "Choice made from the data: " << note << ".\n\n";
   md << "Model: " << model::ToString(model.options().model.sampling) << " sampling, "
      << model::ToString(model.options().model.defocus) << " defocus, "
      << ToString(model.options().likelihood) << " likelihood; " << model.num_exposures()
@@ -309,8 +350,8 @@ bool WriteFitReport(const std::string& out_dir, const FitModel& model, const Fit
   if (!WriteTextFileAtomically(out.Path("run.json"), run_record.dump(2) + "\n", error)) {
     return false;
   }
-  const json fit = FitJson(model, r, calibration);
-  if (!WriteTextFileAtomically(out.Path("fit.json"), fit.dump(2) + "\n", error)) return false;
+  const json fit_json = FitJson(fit);
+  if (!WriteTextFileAtomically(out.Path("fit.json"), fit_json.dump(2) + "\n", error)) return false;
   return out.Commit({"fit.json"}, error);
 }
 

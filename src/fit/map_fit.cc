@@ -23,11 +23,19 @@ class ExposureCost : public ceres::CostFunction {
     for (size_t q = 0; q < s.valid.size(); ++q) {
       if (s.valid[q]) pixels_.push_back(static_cast<int>(q));
     }
-    noise_.gain_e_per_adu = s.gain_e_per_adu;
-    noise_.read_noise_e = s.read_noise_e;
+    noise_ = StampNoise(s);
     mutable_parameter_block_sizes()->push_back(kNumShared);
     mutable_parameter_block_sizes()->push_back(2);
-    if (model.through_focus()) mutable_parameter_block_sizes()->push_back(1);
+    focus_block_ = ratio_block_ = -1;
+    int next = 2;
+    if (model.through_focus()) {
+      mutable_parameter_block_sizes()->push_back(1);
+      focus_block_ = next++;
+    }
+    if (model.RatioIndex(k) >= 0) {
+      mutable_parameter_block_sizes()->push_back(1);
+      ratio_block_ = next++;
+    }
     set_num_residuals(2 * static_cast<int>(pixels_.size()));
   }
 
@@ -38,7 +46,9 @@ class ExposureCost : public ceres::CostFunction {
     theta[FitModel::XIndex(k_)] = parameters[1][0];
     theta[FitModel::YIndex(k_)] = parameters[1][1];
     const int focus = model_.FocusIndex();
-    if (focus >= 0) theta[focus] = parameters[2][0];
+    if (focus_block_ >= 0) theta[focus] = parameters[focus_block_][0];
+    const int ratio = model_.RatioIndex(k_);
+    if (ratio_block_ >= 0) theta[ratio] = parameters[ratio_block_][0];
     model::SpotParams p = model_.SpotFor(theta.data(), k_);
     std::string why;
     // Ceres may probe outside the bounds during a line search; an invalid point is reported
@@ -53,37 +63,39 @@ class ExposureCost : public ceres::CostFunction {
     // Focus mode: d sigma_f / d rate and d sigma_f / d z0 (the chain rule below).
     double d_rate = 1.0, d_z0 = 0.0;
     if (focus >= 0) model_.DefocusFor(theta.data(), k_, &d_rate, &d_z0);
+    // The renderer's flux is flux_e x scale (fit_model.h, FluxMode).
+    const double scale = model_.FluxScale(theta.data(), k_);
+    const double d_ratio = theta[kFluxE] * model_.FixedFluxScale(k_);
     const Stamp& s = model_.stamps()[k_];
-    const double var0 = noise_.VarianceE2(0.0);
     const int n = static_cast<int>(pixels_.size());
+    PixelValue v;
     for (int i = 0; i < n; ++i) {
       const int q = pixels_[i];
-      const double m = model_pixels_[q];
-      const double var = noise_.VarianceE2(m);
-      const double sigma = std::sqrt(var);
-      const double d = s.electrons.data[q];
-      const double r1 = (d - m) / sigma;
-      const double r2 = std::sqrt(std::log(var / var0) + 1.0);
-      residuals[i] = r1;
-      residuals[n + i] = r2;
+      EvaluatePixel(LikelihoodKind::kGaussian, s.electrons.data[q], s.CensorAt(q),
+                    model_pixels_[q], noise_, true, &v);
+      residuals[i] = v.r[0];
+      residuals[n + i] = v.r[1];
       if (!want_jacobian) continue;
       const double* g = &spot_jacobian_[static_cast<size_t>(q) * model::kNumSpotParams];
-      const double dvar_dm = m > 0 ? 1.0 : 0.0;
-      // dr1/dm = -1/sigma - (d - m) / (2 sigma^3) dvar/dm;  dr2/dm = dvar/dm / (2 var r2).
-      const double dr1 = -1.0 / sigma - (d - m) / (2.0 * var * sigma) * dvar_dm;
-      const double dr2 = dvar_dm / (2.0 * var * r2);
+      const double dr1 = v.dr_dm[0], dr2 = v.dr_dm[1];
       if (jacobians[0] != nullptr) {
         for (int sp = 0; sp < model::kNumSpotParams; ++sp) {
           const int j = kSharedIndexOfSpot[sp];
           if (j < 0) continue;
-          const double dm = sp == model::kDefocus ? g[sp] * d_rate : g[sp];
+          const double dm = sp == model::kDefocus ? g[sp] * d_rate
+                            : sp == model::kFlux  ? g[sp] * scale
+                                                  : g[sp];
           jacobians[0][i * kNumShared + j] = dr1 * dm;
           jacobians[0][(n + i) * kNumShared + j] = dr2 * dm;
         }
       }
-      if (focus >= 0 && jacobians[2] != nullptr) {
-        jacobians[2][i] = dr1 * g[model::kDefocus] * d_z0;
-        jacobians[2][n + i] = dr2 * g[model::kDefocus] * d_z0;
+      if (focus_block_ >= 0 && jacobians[focus_block_] != nullptr) {
+        jacobians[focus_block_][i] = dr1 * g[model::kDefocus] * d_z0;
+        jacobians[focus_block_][n + i] = dr2 * g[model::kDefocus] * d_z0;
+      }
+      if (ratio_block_ >= 0 && jacobians[ratio_block_] != nullptr) {
+        jacobians[ratio_block_][i] = dr1 * g[model::kFlux] * d_ratio;
+        jacobians[ratio_block_][n + i] = dr2 * g[model::kFlux] * d_ratio;
       }
       if (jacobians[1] != nullptr) {
         jacobians[1][i * 2 + 0] = dr1 * g[model::kCentreX];
@@ -99,7 +111,8 @@ class ExposureCost : public ceres::CostFunction {
   const FitModel& model_;
   const int k_;
   model::SpotRenderer renderer_;
-  CcdNoise noise_;
+  PixelNoise noise_;
+  int focus_block_ = -1, ratio_block_ = -1;  // indices of the optional parameter blocks
   std::vector<int> pixels_;  // valid pixel indices
   mutable std::vector<double> model_pixels_, spot_jacobian_;
 };
@@ -120,20 +133,19 @@ StartOutcome Solve(const FitModel& model, std::vector<double> theta, const MapOp
   const int f = model.FocusIndex();
   double* focus = f >= 0 ? theta.data() + f : nullptr;
   for (int k = 0; k < model.num_exposures(); ++k) {
-    double* position = theta.data() + FitModel::XIndex(k);
-    if (focus != nullptr) {
-      problem.AddResidualBlock(NewExposureCost(model, k), nullptr, shared, position, focus);
-    } else {
-      problem.AddResidualBlock(NewExposureCost(model, k), nullptr, shared, position);
-    }
+    std::vector<double*> blocks = {shared, theta.data() + FitModel::XIndex(k)};
+    if (focus != nullptr) blocks.push_back(focus);
+    if (model.RatioIndex(k) >= 0) blocks.push_back(theta.data() + model.RatioIndex(k));
+    problem.AddResidualBlock(NewExposureCost(model, k), nullptr, blocks);
   }
   for (int i = 0; i < kNumShared; ++i) {
     problem.SetParameterLowerBound(shared, i, model.lower()[i]);
     problem.SetParameterUpperBound(shared, i, model.upper()[i]);
   }
-  if (focus != nullptr) {
-    problem.SetParameterLowerBound(focus, 0, model.lower()[f]);
-    problem.SetParameterUpperBound(focus, 0, model.upper()[f]);
+  // The single-value blocks: best focus and the flux ratios.
+  for (int i = kNumShared + 2 * model.num_exposures(); i < model.dim(); ++i) {
+    problem.SetParameterLowerBound(theta.data() + i, 0, model.lower()[i]);
+    problem.SetParameterUpperBound(theta.data() + i, 0, model.upper()[i]);
   }
   for (int k = 0; k < model.num_exposures(); ++k) {
     double* position = theta.data() + FitModel::XIndex(k);
@@ -294,7 +306,12 @@ std::vector<std::vector<double>> JointScreenStarts(const FitModel& model,
     const StartOutcome local = Solve(*sub, start, options);
     if (!local.usable) continue;
     std::vector<double> theta = model.MomentStart(local.theta[kAiryRadiusPx], 0.5);
-    for (int i = 0; i < sub->dim(); ++i) theta[i] = local.theta[i];
+    // Shared and position parameters keep their indices; the sub-model's trailing ones
+    // (flux ratios) move to the full model's.
+    for (int i = 0; i < kNumShared + 2 * num_sub; ++i) theta[i] = local.theta[i];
+    for (int k = 1; k < num_sub; ++k) {
+      if (sub->RatioIndex(k) >= 0) theta[model.RatioIndex(k)] = local.theta[sub->RatioIndex(k)];
+    }
     std::vector<double> rest = theta;  // refine exposures num_sub.. only
     if (model.num_exposures() > num_sub) {
       RefinePositions(model, ev.get(), &rest, /*coarse_to_fine=*/true, num_sub);
@@ -382,6 +399,7 @@ std::vector<std::vector<double>> FocusStarts(const FitModel& model, const MapOpt
   {
     FitModelOptions single_options = model.options();
     single_options.through_focus = false;
+    single_options.flux = FluxMode::kShared;
     std::string error;
     auto single = FitModel::Create({model.stamps()[best]}, single_options, &error);
     MapResult single_map;
@@ -444,6 +462,9 @@ std::vector<std::vector<double>> FocusStarts(const FitModel& model, const MapOpt
       theta[FitModel::XIndex(best)] = single_theta[FitModel::XIndex(0)];
       theta[FitModel::YIndex(best)] = single_theta[FitModel::YIndex(0)];
     }
+    for (int k = 1; k < n; ++k) {
+      if (model.RatioIndex(k) >= 0) theta[model.RatioIndex(k)] = model.StartFluxRatio(k);
+    }
     for (int i = 0; i < model.dim(); ++i) {
       theta[i] = std::clamp(theta[i], model.lower()[i], model.upper()[i]);
     }
@@ -461,7 +482,46 @@ std::vector<std::vector<double>> FocusStarts(const FitModel& model, const MapOpt
   return starts;
 }
 
+void FillResult(const FitModel& model, const StartOutcome& best, MapResult* result) {
+  result->theta = best.theta;
+  result->iterations = best.iterations;
+  result->termination = best.message;
+  std::unique_ptr<FitEvaluator> ev = model.NewEvaluator();
+  result->log_likelihood = ev->LogLikelihood(best.theta.data());
+  result->chi2 = ev->ChiSquare(best.theta.data());
+  // Censored pixels are bounds, not measurements: they add their deviance to chi^2 (~0
+  // when the model agrees) but no degree of freedom.
+  result->num_pixels = model.NumMeasuredPixels();
+  result->dof = result->num_pixels - model.dim();
+}
+
 }  // namespace
+
+bool RefineMap(const FitModel& model, std::vector<double> start, const MapOptions& options,
+               MapResult* result, std::string* error) {
+  const auto t0 = std::chrono::steady_clock::now();
+  *result = MapResult();
+  if (static_cast<int>(start.size()) != model.dim()) {
+    *error = "RefineMap: the start has " + std::to_string(start.size()) + " values, the model " +
+             std::to_string(model.dim());
+    return false;
+  }
+  for (int i = 0; i < model.dim(); ++i) {
+    start[i] = std::clamp(start[i], model.lower()[i], model.upper()[i]);
+  }
+  const StartOutcome o = Solve(model, start, options);
+  result->num_starts = 1;
+  result->start_costs.push_back(o.cost);
+  if (!o.usable) {
+    *error = "the refit did not converge (" + o.message + " after " +
+             std::to_string(o.iterations) + " iterations)";
+    return false;
+  }
+  result->num_usable_starts = 1;
+  FillResult(model, o, result);
+  result->seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return true;
+}
 
 ceres::CostFunction* NewExposureCost(const FitModel& model, int k) {
   return new ExposureCost(model, k);
@@ -535,14 +595,7 @@ bool FindMap(const FitModel& model, const MapOptions& options, MapResult* result
              " starting points (last: " + last_failure + ")";
     return false;
   }
-  result->theta = best.theta;
-  result->iterations = best.iterations;
-  result->termination = best.message;
-  std::unique_ptr<FitEvaluator> ev = model.NewEvaluator();
-  result->log_likelihood = ev->LogLikelihood(best.theta.data());
-  result->chi2 = ev->ChiSquare(best.theta.data());
-  result->num_pixels = model.NumValidPixels();
-  result->dof = result->num_pixels - model.dim();
+  FillResult(model, best, result);
   result->seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return true;
 }

@@ -89,12 +89,13 @@ PosteriorTarget::PosteriorTarget(const FitModel& model, const std::vector<double
 }
 
 int PosteriorTarget::PhiIndex(int i) const {
-  if (model_.through_focus()) {
-    // State [shared (5) | best_focus_um | positions], theta [shared | positions | focus].
-    if (i < kNumShared) return i;
-    return i == kNumShared ? model_.FocusIndex() : i - 1;
-  }
-  return marginal_ && i >= kDefocusPx ? i + 1 : i;
+  // State [core shared (5, or 4 without the integrated-out defocus) | trailing shared
+  // (best_focus_um, flux ratios) | positions]; theta [shared (5) | positions | trailing].
+  const int core = marginal_ ? kNumShared - 1 : kNumShared;
+  const int trailing = model_.NumTrailing();
+  if (i < core) return marginal_ && i >= kDefocusPx ? i + 1 : i;
+  if (i < core + trailing) return kNumShared + 2 * model_.num_exposures() + (i - core);
+  return kNumShared + (i - core - trailing);
 }
 
 bool PosteriorTarget::LikelihoodTheta(const double* state, double* theta,

@@ -3,94 +3,16 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
-#include <fstream>
 #include <map>
 #include <set>
 #include <sstream>
 
 #include "ccdpsf/fits_io.h"
-#include "internal/json_reader.h"
-#include "nlohmann/json.hpp"
 
 namespace ccdpsf::trend {
 namespace {
 
 namespace fs = std::filesystem;
-using nlohmann::json;
-
-bool LoadManifest(const std::string& path, std::vector<CampaignGroup>* groups,
-                  std::string* error) {
-  std::ifstream in(path);
-  if (!in) {
-    *error = "cannot read campaign manifest " + path;
-    return false;
-  }
-  std::stringstream text;
-  text << in.rdbuf();
-  const json j = json::parse(text.str(), nullptr, false, true);
-  if (j.is_discarded() || !j.is_object()) {
-    *error = path + " is not a JSON object";
-    return false;
-  }
-  internal::JsonReader top(j, path, error);
-  if (!j.contains("groups") || !j["groups"].is_array() || j["groups"].empty()) {
-    *error = path + ": 'groups' must be a non-empty list";
-    return false;
-  }
-  top.Get("groups");
-  top.RejectUnknownKeys();
-  if (!top.ok()) return false;
-  const fs::path base = fs::path(path).parent_path();
-  std::set<std::string> names;
-  for (size_t i = 0; i < j["groups"].size(); ++i) {
-    const json& g = j["groups"][i];
-    internal::JsonReader r(g, "groups[" + std::to_string(i) + "]", error);
-    CampaignGroup group;
-    r.String("name", &group.name, true);
-    r.Number("wavelength_nm", &group.wavelength_nm, true);
-    if (r.Has("nominal_peak_e")) {
-      double v = 0;
-      r.Number("nominal_peak_e", &v);
-      group.nominal_peak_e = v;
-    }
-    if (r.Has("exptime_s")) {
-      double v = 0;
-      r.Number("exptime_s", &v);
-      group.exptime_s = v;
-    }
-    if (r.Has("focus_series")) {
-      const json& v = r.Get("focus_series");
-      if (!v.is_boolean()) r.Fail("'" + r.Path("focus_series") + "' must be true or false");
-      else group.focus_series = v.get<bool>();
-    }
-    std::vector<std::string> files;
-    if (!r.Has("files")) {
-      r.Fail("'" + r.Path("files") + "' is required");
-    } else {
-      const json& list = r.Get("files");
-      bool strings = list.is_array();
-      for (const json& f : list) strings = strings && f.is_string();
-      if (!strings) r.Fail("'" + r.Path("files") + "' must be a list of file names");
-      else files = list.get<std::vector<std::string>>();
-    }
-    r.RejectUnknownKeys();
-    if (!r.ok()) return false;
-    if (!(group.wavelength_nm > 0)) {
-      *error = r.Path("wavelength_nm") + " must be > 0";
-      return false;
-    }
-    if (!names.insert(group.name).second) {
-      *error = path + ": group name '" + group.name + "' appears twice";
-      return false;
-    }
-    for (const std::string& f : files) {
-      group.files.push_back(fs::path(f).is_absolute() ? f : (base / f).string());
-    }
-    if (group.files.empty()) group.problem = "the manifest lists no files for this group";
-    groups->push_back(std::move(group));
-  }
-  return true;
-}
 
 std::string FormatValue(double v) {
   std::ostringstream out;
@@ -98,74 +20,194 @@ std::string FormatValue(double v) {
   return out.str();
 }
 
-bool LoadFolders(const std::vector<std::string>& inputs, std::vector<CampaignGroup>* groups,
-                 std::string* error) {
-  std::vector<std::string> files;
-  for (const std::string& input : inputs) {
-    std::error_code ec;
-    if (fs::is_directory(input, ec)) {
-      std::vector<std::string> found;
-      for (const auto& entry : fs::directory_iterator(input, ec)) {
-        const std::string ext = entry.path().extension().string();
-        if (entry.is_regular_file() && (ext == ".fits" || ext == ".fit" || ext == ".fts")) {
-          found.push_back(entry.path().string());
-        }
-      }
-      std::sort(found.begin(), found.end());
-      files.insert(files.end(), found.begin(), found.end());
-    } else if (fs::exists(input, ec)) {
-      files.push_back(input);
-    } else {
-      *error = "no such file or folder: " + input;
-      return false;
-    }
+bool IsFitsName(const fs::path& p) {
+  const std::string ext = p.extension().string();
+  const std::string name = p.filename().string();
+  return ext == ".fits" || ext == ".fit" || ext == ".fts" ||
+         (name.size() > 8 && name.compare(name.size() - 8, 8, ".fits.gz") == 0);
+}
+
+std::vector<std::string> FitsFilesIn(const fs::path& folder) {
+  std::vector<std::string> found;
+  std::error_code ec;
+  for (const auto& entry : fs::directory_iterator(folder, ec)) {
+    if (entry.is_regular_file() && IsFitsName(entry.path())) found.push_back(entry.path().string());
   }
-  if (files.empty()) {
-    *error = "no FITS files found in the inputs (nor a manifest.json)";
-    return false;
+  std::sort(found.begin(), found.end());
+  return found;
+}
+
+// What grouping needs of one file: its wavelength, exposure time and focus position from
+// metadata.h's sources. A file that cannot be read or has no wavelength gets a problem.
+struct Placed {
+  InputFile input;
+  double wavelength = NAN, exptime = NAN, focus = NAN;
+  std::string problem;
+};
+
+Placed Place(InputFile input) {
+  Placed p;
+  p.input = std::move(input);
+  const CalibrationOptions& o = p.input.options;
+  std::string why;
+  const GivenValue* hdu = o.given.Find("hdu");
+  const std::optional<FitsImage> image =
+      hdu != nullptr && hdu->text ? ReadFitsImage(p.input.path, *hdu->text, &why)
+                                  : ReadFitsImage(p.input.path, &why);
+  if (!image) {
+    p.problem = why;
+    return p;
   }
-  // (wavelength, exposure time) -> files; exposure time NaN-safe through its text form.
+  std::optional<double> value;
+  std::string source;
+  if (!ResolveNumber(o.given, o.keywords, image->header, "wavelength_nm", &value, &source, &why)) {
+    p.problem = "'" + p.input.path + "': " + why;
+    return p;
+  }
+  if (!value || !(*value > 0)) {
+    p.problem = "'" + p.input.path +
+                "': no wavelength (a WAVELEN keyword, --wavelength_nm or a manifest column "
+                "wavelength_nm), so its setting is unknown";
+    return p;
+  }
+  p.wavelength = *value;
+  if (ResolveNumber(o.given, o.keywords, image->header, "exptime_s", &value, &source, &why) &&
+      value) {
+    p.exptime = *value;
+  }
+  if (ResolveNumber(o.given, o.keywords, image->header, "focus_position_um", &value, &source,
+                    &why) &&
+      value) {
+    p.focus = *value;
+  }
+  return p;
+}
+
+CampaignGroup FailedFile(const Placed& p) {
+  CampaignGroup bad;
+  bad.name = fs::path(p.input.path).stem().string();
+  bad.wavelength_nm = NAN;
+  bad.files = {p.input.path};
+  bad.inputs = {p.input};
+  bad.problem = p.problem;
+  return bad;
+}
+
+// A group of placed files: its wavelength (which they must share), exposure time and
+// whether it is a focus series.
+CampaignGroup MakeGroup(const std::string& name, const std::vector<Placed>& files) {
+  CampaignGroup g;
+  g.name = name;
+  std::set<double> focus;
+  std::set<double> exptimes;
+  double lo = INFINITY, hi = -INFINITY;
+  for (const Placed& p : files) {
+    g.files.push_back(p.input.path);
+    g.inputs.push_back(p.input);
+    if (std::isfinite(p.focus)) focus.insert(p.focus);
+    if (std::isfinite(p.exptime)) exptimes.insert(p.exptime);
+    lo = std::min(lo, p.wavelength);
+    hi = std::max(hi, p.wavelength);
+  }
+  g.wavelength_nm = lo;
+  if (exptimes.size() == 1) g.exptime_s = *exptimes.begin();
+  g.focus_series = focus.size() >= 3;
+  if (hi - lo > 1.0) {
+    g.problem = "its files are at wavelengths from " + FormatValue(lo) + " to " + FormatValue(hi) +
+                " nm, which do not share one PSF";
+  }
+  return g;
+}
+
+// Groups placed files by (wavelength, exposure time).
+void GroupByMetadata(const std::vector<Placed>& placed, std::vector<CampaignGroup>* groups) {
   struct Key {
     double wavelength;
-    double exptime;
+    double exptime;  // -1 when unknown
     bool operator<(const Key& o) const {
       if (wavelength != o.wavelength) return wavelength < o.wavelength;
       return exptime < o.exptime;
     }
   };
-  std::map<Key, CampaignGroup> by_setting;
-  std::map<Key, std::set<double>> focus_values;
-  for (const std::string& f : files) {
-    std::string why;
-    const std::optional<FitsImage> image = ReadFitsImage(f, &why);
-    std::optional<double> wavelength;
-    if (image) wavelength = FindNumber(image->header, "WAVELEN");
-    if (!image || !wavelength || !(*wavelength > 0)) {
-      CampaignGroup bad;
-      bad.name = fs::path(f).stem().string();
-      bad.wavelength_nm = NAN;
-      bad.files = {f};
-      bad.problem = image ? f + ": no valid WAVELEN keyword, so its setting is unknown" : why;
-      groups->push_back(std::move(bad));
+  std::map<Key, std::vector<Placed>> by_setting;
+  for (const Placed& p : placed) {
+    if (!p.problem.empty()) {
+      groups->push_back(FailedFile(p));
       continue;
     }
-    const double exptime = FindNumber(image->header, "EXPTIME").value_or(-1.0);
-    const Key key{*wavelength, exptime};
-    CampaignGroup& g = by_setting[key];
-    if (g.files.empty()) {
-      g.wavelength_nm = *wavelength;
-      if (exptime >= 0) g.exptime_s = exptime;
-      g.name = FormatValue(*wavelength) + "nm" +
-               (exptime >= 0 ? "_" + FormatValue(exptime) + "s" : std::string());
-    }
-    g.files.push_back(f);
-    if (auto focus = FindNumber(image->header, "FOCUSPOS")) focus_values[key].insert(*focus);
+    by_setting[{p.wavelength, std::isfinite(p.exptime) ? p.exptime : -1.0}].push_back(p);
   }
-  for (auto& [key, g] : by_setting) {
-    g.focus_series = focus_values[key].size() >= 3;
+  for (const auto& [key, files] : by_setting) {
+    std::string name = FormatValue(key.wavelength) + "nm" +
+                       (key.exptime >= 0 ? "_" + FormatValue(key.exptime) + "s" : std::string());
+    CampaignGroup g = MakeGroup(name, files);
     if (g.focus_series) g.name += "_focus";
     groups->push_back(std::move(g));
   }
+}
+
+std::vector<Placed> PlaceAll(const std::vector<InputFile>& inputs) {
+  std::vector<Placed> out;
+  for (const InputFile& input : inputs) out.push_back(Place(input));
+  return out;
+}
+
+bool FromManifest(const Manifest& manifest, const std::vector<std::string>& files,
+                  const CampaignOptions& options, std::vector<CampaignGroup>* groups,
+                  std::string* error) {
+  std::vector<InputFile> inputs;
+  if (!ResolveInputFiles(files, &manifest, options.flags, options.config, &inputs, error)) {
+    return false;
+  }
+  // Files with a setting, in the manifest's order of settings; the rest by metadata.
+  std::vector<std::string> order;
+  std::map<std::string, std::vector<Placed>> by_setting;
+  std::vector<Placed> unset;
+  for (const InputFile& input : inputs) {
+    Placed p = Place(input);
+    if (input.setting.empty()) {
+      unset.push_back(std::move(p));
+      continue;
+    }
+    if (!by_setting.count(input.setting)) order.push_back(input.setting);
+    by_setting[input.setting].push_back(std::move(p));
+  }
+  for (const std::string& name : order) {
+    const std::vector<Placed>& members = by_setting[name];
+    CampaignGroup g;
+    bool failed = false;
+    for (const Placed& p : members) {
+      if (!p.problem.empty()) {
+        g = FailedFile(p);
+        g.name = name;
+        for (const Placed& q : members) {
+          if (&q != &p) {
+            g.files.push_back(q.input.path);
+            g.inputs.push_back(q.input);
+          }
+        }
+        failed = true;
+        break;
+      }
+    }
+    if (!failed) g = MakeGroup(name, members);
+    for (const ManifestSetting& s : manifest.settings) {
+      if (s.name != name) continue;
+      g.nominal_peak_e = s.nominal_peak_e;
+      if (!failed) g.focus_series = s.focus_series || g.focus_series;
+    }
+    groups->push_back(std::move(g));
+  }
+  for (const ManifestSetting& s : manifest.settings) {
+    if (!by_setting.count(s.name)) {
+      CampaignGroup g;
+      g.name = s.name;
+      g.wavelength_nm = NAN;
+      g.problem = "the manifest lists no files for this group";
+      groups->push_back(std::move(g));
+    }
+  }
+  GroupByMetadata(unset, groups);
   return true;
 }
 
@@ -173,20 +215,99 @@ bool LoadFolders(const std::vector<std::string>& inputs, std::vector<CampaignGro
 
 bool LoadCampaign(const std::vector<std::string>& inputs, std::vector<CampaignGroup>* groups,
                   std::string* error) {
+  return LoadCampaign(inputs, CampaignOptions(), groups, error);
+}
+
+bool LoadCampaign(const std::vector<std::string>& inputs, const CampaignOptions& options,
+                  std::vector<CampaignGroup>* groups, std::string* error) {
   groups->clear();
+  std::error_code ec;
+  // A manifest: --manifest, a manifest file given, or a folder holding manifest.json.
+  std::string manifest_path = options.manifest;
+  std::vector<std::string> rest;
+  for (const std::string& input : inputs) {
+    const fs::path p(input);
+    if (manifest_path.empty() && inputs.size() == 1 && fs::is_directory(p, ec) &&
+        fs::exists(p / "manifest.json", ec)) {
+      manifest_path = (p / "manifest.json").string();
+    } else if (manifest_path.empty() && IsManifestPath(input) && !fs::is_directory(p, ec)) {
+      manifest_path = input;
+    } else {
+      rest.push_back(input);
+    }
+  }
+  if (!manifest_path.empty()) {
+    Manifest manifest;
+    if (!LoadManifest(manifest_path, &manifest, error)) return false;
+    std::vector<std::string> files;
+    for (const std::string& r : rest) {
+      if (fs::is_directory(r, ec)) {
+        for (const std::string& f : FitsFilesIn(r)) files.push_back(f);
+      } else {
+        files.push_back(r);
+      }
+    }
+    return FromManifest(manifest, files, options, groups, error);
+  }
   if (inputs.empty()) {
-    *error = "no campaign given (a manifest, or FITS files / folders)";
+    *error = "no campaign given (a manifest, a campaign folder, or FITS files / folders)";
     return false;
   }
-  std::error_code ec;
-  if (inputs.size() == 1) {
-    const fs::path p(inputs[0]);
-    if (fs::is_directory(p, ec) && fs::exists(p / "manifest.json", ec)) {
-      return LoadManifest((p / "manifest.json").string(), groups, error);
+  std::vector<std::string> files;
+  std::vector<std::pair<std::string, std::vector<std::string>>> settings;  // subfolders
+  for (const std::string& input : inputs) {
+    if (fs::is_directory(input, ec)) {
+      const std::vector<std::string> direct = FitsFilesIn(input);
+      files.insert(files.end(), direct.begin(), direct.end());
+      if (inputs.size() == 1) {
+        // A campaign folder: each subfolder holding FITS files is a setting.
+        std::vector<fs::path> subfolders;
+        for (const auto& entry : fs::directory_iterator(input, ec)) {
+          if (entry.is_directory()) subfolders.push_back(entry.path());
+        }
+        std::sort(subfolders.begin(), subfolders.end());
+        for (const fs::path& sub : subfolders) {
+          std::vector<std::string> inside = FitsFilesIn(sub);
+          if (!inside.empty()) settings.push_back({sub.filename().string(), inside});
+        }
+      }
+    } else if (fs::exists(input, ec)) {
+      files.push_back(input);
+    } else {
+      *error = "no such file or folder: " + input;
+      return false;
     }
-    if (p.extension() == ".json") return LoadManifest(p.string(), groups, error);
   }
-  return LoadFolders(inputs, groups, error);
+  if (files.empty() && settings.empty()) {
+    *error = "no FITS files found in the inputs (nor a manifest, nor subfolders of FITS files)";
+    return false;
+  }
+  for (const auto& [name, members] : settings) {
+    std::vector<InputFile> resolved;
+    if (!ResolveInputFiles(members, nullptr, options.flags, options.config, &resolved, error)) {
+      return false;
+    }
+    std::vector<Placed> placed = PlaceAll(resolved);
+    const auto bad = std::find_if(placed.begin(), placed.end(),
+                                  [](const Placed& p) { return !p.problem.empty(); });
+    if (bad != placed.end()) {
+      CampaignGroup g = FailedFile(*bad);
+      g.name = name;
+      g.files = members;
+      g.inputs = resolved;
+      groups->push_back(std::move(g));
+      continue;
+    }
+    groups->push_back(MakeGroup(name, placed));
+  }
+  if (!files.empty()) {
+    std::vector<InputFile> resolved;
+    if (!ResolveInputFiles(files, nullptr, options.flags, options.config, &resolved, error)) {
+      return false;
+    }
+    GroupByMetadata(PlaceAll(resolved), groups);
+  }
+  return true;
 }
 
 }  // namespace ccdpsf::trend

@@ -9,6 +9,8 @@
 #include <thread>
 
 #include "ccdpsf/exposure.h"
+#include "ccdpsf/exposure_set.h"
+#include "ccdpsf/fit/fit_exposures.h"
 #include "ccdpsf/fit/fit_report.h"
 #include "ccdpsf/provenance.h"
 #include "ccdpsf/random.h"
@@ -40,37 +42,36 @@ GroupResult FitOne(const CampaignGroup& group, int index, const GroupFitOptions&
         "through-focus series: fitted with defocus = rate x |z - z0| (integrated sampling, "
         "Gaussian defocus), which identifies the CCD widths");
   }
-  std::vector<Stamp> stamps;
-  std::vector<CalibrationReport> calibration;
   std::string error;
-  for (const std::string& f : group.files) {
-    std::optional<Exposure> e = LoadExposure(f, config.calibration, &error);
-    if (!e) return finish(error);
-    stamps.push_back(e->stamp);
-    calibration.push_back(e->report);
+  std::vector<InputFile> inputs = group.inputs;
+  if (inputs.empty()) {
+    for (const std::string& f : group.files) inputs.push_back({f, "", config.calibration});
   }
-  if (stamps.size() == 1) {
+  ExposureSet set;
+  ExposureSetOptions set_options;
+  if (!LoadExposureSet(inputs, set_options, &set, &error)) return finish(error);
+  if (set.exposures.size() == 1) {
     out.warnings.push_back("one exposure only: fitted alone, without the joint constraint");
   }
-  auto model = fit::FitModel::Create(stamps, config.model, &error);
-  if (!model) return finish(error);
-  fit::FitOptions fo = config.fit;
-  fo.mcmc.num_threads = 1;
-  fo.mcmc.progress = false;
-  fo.mcmc.seed = DeriveSeed(options.seed, static_cast<uint64_t>(index));
-  fit::FitResult result;
-  if (!fit::RunFit(*model, fo, &result, &error)) return finish(error);
-  out.chi2_per_dof = result.map.chi2 / result.map.dof;
-  // chi^2/dof has sd sqrt(2 / dof) for a model that describes the data: beyond 5 sd the fit
-  // is suspect (a wrong basin, or a missing effect: `ccdpsf diagnose`).
-  if (result.map.dof > 0 && out.chi2_per_dof > 1.0 + 5.0 * std::sqrt(2.0 / result.map.dof)) {
-    out.warnings.push_back("chi2/dof = " + std::to_string(out.chi2_per_dof) +
-                           " is more than 5 sd above 1: the model does not describe these "
-                           "data (a wrong local optimum, or a missing effect)");
+  fit::ExposuresFitOptions fit_options;
+  fit_options.config = config;
+  fit_options.flux_given = options.flux_given;
+  fit_options.config.fit.mcmc.num_threads = 1;
+  fit_options.config.fit.mcmc.progress = false;
+  fit_options.config.fit.mcmc.seed = DeriveSeed(options.seed, static_cast<uint64_t>(index));
+  fit::ExposuresFit fitted;
+  if (!fit::FitExposures(set.exposures, set.quality, fit_options, &fitted, &error)) {
+    return finish(error);
   }
+  const fit::FitModel* model = fitted.model.get();
+  const fit::FitResult& result = fitted.result;
+  const fit::FitOptions& fo = fit_options.config.fit;
+  out.quality = fitted.quality;
+  out.notes = fitted.notes;
+  out.chi2_per_dof = result.map.chi2 / result.map.dof;
   out.converged = result.have_mcmc && result.chain.converged;
-  if (result.have_mcmc && !result.chain.converged) {
-    out.warnings.push_back("MCMC not converged: " + result.chain.stop_reason);
+  for (const Finding& f : fitted.quality.findings) {
+    if (f.severity != Severity::kNote) out.warnings.push_back(ToString(f.severity) + ": " + f.message);
   }
 
   for (const auto& [name, summary] : result.derived) out.summaries[name] = summary;
@@ -118,12 +119,15 @@ GroupResult FitOne(const CampaignGroup& group, int index, const GroupFitOptions&
                           {"seed", fo.mcmc.seed},
                           {"software", SoftwareVersions()}};
     std::vector<std::string> plot_warnings;
-    if (!fit::WriteFitReport(out.report_dir, *model, result, calibration, run, &plot_warnings,
-                             &error)) {
+    if (!fit::WriteFitReport(out.report_dir, fitted, run, &plot_warnings, &error)) {
       out.warnings.push_back("fit report not written: " + error);
       out.report_dir.clear();
     }
     for (const std::string& w : plot_warnings) out.warnings.push_back(w);
+  }
+  // An invalid fit measures nothing: the group is a gap with the reason.
+  if (out.quality.Worst() == Severity::kInvalid) {
+    return finish("verdict invalid: " + out.quality.OneLine().substr(std::string("invalid: ").size()));
   }
   return finish("");
 }

@@ -34,6 +34,8 @@ json GroupJson(const GroupResult& g) {
             {"ok", g.ok},
             {"failure", g.ok ? json() : json(g.failure)},
             {"warnings", g.warnings},
+            {"notes", g.notes},
+            {"quality", g.quality.ToJson()},
             {"mcmc_converged", g.converged},
             {"chi2_per_dof", Number(g.chi2_per_dof)},
             {"seconds", g.seconds},
@@ -366,8 +368,10 @@ bool WriteTrendReport(const std::string& out_dir, const TrendResult& r,
       auto s = g.summaries.find(m);
       return s == g.summaries.end() ? std::string("n/a") : Interval(s->second);
     };
-    std::string status = g.ok ? (g.converged ? "ok" : "ok, MCMC not converged") : "FAILED: " + g.failure;
-    if (g.ok && !g.report_dir.empty()) {
+    std::string status = g.ok ? "verdict " + g.quality.Verdict() +
+                                    (g.converged ? "" : ", MCMC not converged")
+                              : "FAILED: " + g.failure;
+    if (!g.report_dir.empty()) {
       // Linked relative to report.md's folder, so that the link works wherever the folder is
       // opened or moved (report_dir is as given on the command line, e.g. "out/campaign/...").
       const std::string link =

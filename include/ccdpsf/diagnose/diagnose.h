@@ -66,6 +66,7 @@
 #include "ccdpsf/diagnose/effect_fit.h"
 #include "ccdpsf/diagnose/statistics.h"
 #include "ccdpsf/fit/map_fit.h"
+#include "ccdpsf/quality.h"
 
 namespace ccdpsf::diagnose {
 
@@ -171,6 +172,10 @@ struct DiagnoseResult {
   bool thresholds_computed = false;
   std::vector<DetectionThreshold> thresholds;
   double seconds = 0.0;
+  // The verdict on the data and the diagnosis (quality.h): calibration's findings, the set
+  // checks', and the noise check (the baseline's chi^2: the tests assume the noise model).
+  // Filled by the caller (the command), which knows how the data were read.
+  Quality quality;
 };
 
 // Detection thresholds measured once by bench/diagnose_benchmark.cc --thresholds (section 3)

@@ -61,8 +61,10 @@ const std::vector<std::string>& DerivedNames();
 // order with peak_e = NaN.
 std::vector<double> DerivedAt(const FitModel& model, const double* theta);
 
+// MAP (FindMap, unless `map` gives one already found for this model), Laplace, MCMC and the
+// summaries.
 bool RunFit(const FitModel& model, const FitOptions& options, FitResult* result,
-            std::string* error);
+            std::string* error, const MapResult* map = nullptr);
 
 }  // namespace ccdpsf::fit
 

@@ -1,7 +1,7 @@
 // FIT.json: the fit's options as a file (command-line flags override it).
 //
 //   {"sampling": "integrated", "defocus": "gaussian", "likelihood": "gaussian",
-//    "joint": false, "through_focus": false,
+//    "joint": false, "through_focus": false, "flux": "auto",
 //    "priors": {"airy_radius_px": [0.1, 1.5], "defocus_px": [0.0, 1.5],
 //               "ccd_sigma_x_px": [0.05, 1.5], "ccd_sigma_y_px": [0.05, 1.5],
 //               "position_halfwidth_px": 2.0, "flux_fraction": [0.2, 5.0]},
@@ -12,7 +12,11 @@
 //             "min_tau_multiple": 50, "seed": 1, "threads": 2, "marginal_defocus": true,
 //             "positions_by_conditional": true, "position_update_every": 2},
 //    "calibration": {"gain_e_per_adu": 3.1, "read_noise_e": 4.5, "bias_adu": 1000,
-//                    "saturation_adu": 65535, "stamp_size": 21}}
+//                    "saturation_adu": 65535, "pixel_um": 12, "stamp_size": 21},
+//    "keywords": {"gain_e_per_adu": "EGAIN", "exptime_s": {"keyword": "EXPMS", "scale": 1e-3}}}
+//
+// "calibration" takes stamp_size and any quantity of metadata.h (values for every file, of
+// lower precedence than a flag or a manifest row); "keywords" is the keyword map (metadata.h).
 //
 // Every key is optional; unknown keys are errors. "through_focus" fits a joint set as a
 // through-focus series (fit_model.h); `ccdpsf fit --joint` switches it on by itself when it
@@ -35,6 +39,8 @@ struct FitConfig {
   bool joint = false;
   // model.through_focus was set explicitly (FIT.json or a flag): no automatic choice.
   bool through_focus_given = false;
+  // model.flux was set explicitly ("flux" in FIT.json, --flux): no choice from the data.
+  bool flux_given = false;
 };
 
 // Overlays the JSON onto *config (keys absent keep their current values). False with a
@@ -42,8 +48,10 @@ struct FitConfig {
 bool ParseFitConfig(const std::string& json_text, FitConfig* config, std::string* error);
 bool LoadFitConfig(const std::string& path, FitConfig* config, std::string* error);
 
-// The resolved configuration as JSON (for run.json).
+// The resolved configuration as JSON (for run.json; FIT.json reads it back).
 nlohmann::json FitConfigJson(const FitConfig& config);
+// The "calibration" object: the quantities given, and stamp_size.
+nlohmann::json CalibrationJson(const CalibrationOptions& options);
 
 }  // namespace ccdpsf::fit
 

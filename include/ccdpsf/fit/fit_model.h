@@ -43,6 +43,7 @@
 #include <vector>
 
 #include "ccdpsf/fit/likelihood.h"
+#include "ccdpsf/fit/pixel_likelihood.h"
 #include "ccdpsf/image.h"
 #include "ccdpsf/model/renderer.h"
 
@@ -72,12 +73,23 @@ struct PriorRanges {
   double position_halfwidth_px = 2.0;
 };
 
+// How the exposures of a joint fit share the light (flux_e):
+//   kShared          one flux for every exposure (the paper's joint fit: one setting)
+//   kPerExposure     exposure K's flux is flux_e x flux_ratio.K (K >= 1; flux_e is exposure
+//                    0's), the ratios fitted: for exposures whose lamp or shutter differ
+//   kExptimeScaled   exposure K's flux is flux_e x t_K / t_0 from the exposure times
+//                    (EXPTIME): one rate, for a clean shutter and a stable lamp
+enum class FluxMode { kShared, kPerExposure, kExptimeScaled };
+bool ParseFluxMode(const std::string& text, FluxMode* mode);
+std::string ToString(FluxMode mode);
+
 struct FitModelOptions {
   model::ModelOptions model;
   LikelihoodKind likelihood = LikelihoodKind::kGaussian;
   PriorRanges priors;
   // Fit a through-focus series with the defocus law above (see the top of this file).
   bool through_focus = false;
+  FluxMode flux = FluxMode::kShared;
 };
 
 // Whether a set of stamps can be fitted as a through-focus series: every stamp has a finite
@@ -106,18 +118,36 @@ class FitModel {
   const std::vector<Stamp>& stamps() const { return stamps_; }
   const FitModelOptions& options() const { return options_; }
   int NumValidPixels() const;
+  // Valid pixels that are not censored: the ones that count as degrees of freedom.
+  int NumMeasuredPixels() const;
 
   // Index of x_px.K and y_px.K in theta.
   static int XIndex(int k) { return kNumShared + 2 * k; }
   static int YIndex(int k) { return kNumShared + 2 * k + 1; }
 
-  // Through-focus mode: whether theta carries best_focus_um, and its index (dim() - 1;
-  // -1 when not in focus mode).
+  // Parameters after the positions ("trailing"), shared by every exposure: best_focus_um in
+  // focus mode, then flux_ratio.1 .. flux_ratio.(K-1) with per-exposure fluxes.
+  // Through-focus mode: whether theta carries best_focus_um, and its index (-1 when not in
+  // focus mode).
   bool through_focus() const { return options_.through_focus; }
-  int FocusIndex() const { return through_focus() ? dim() - 1 : -1; }
-  // Shared parameters in theta: kNumShared, plus best_focus_um in focus mode; their indices
-  // in theta order (0..4, then FocusIndex()).
-  int NumSharedParams() const { return kNumShared + (through_focus() ? 1 : 0); }
+  int FocusIndex() const { return through_focus() ? kNumShared + 2 * num_exposures() : -1; }
+  // Per-exposure fluxes: the index of flux_ratio.k (k >= 1), -1 otherwise.
+  bool per_exposure_flux() const { return options_.flux == FluxMode::kPerExposure; }
+  int RatioIndex(int k) const {
+    return per_exposure_flux() && k > 0
+               ? kNumShared + 2 * num_exposures() + (through_focus() ? 1 : 0) + (k - 1)
+               : -1;
+  }
+  // Exposure k's flux over flux_e: the exposure-time ratio, or its fitted ratio, or 1.
+  double FluxScale(const double* theta, int k) const;
+  // The fixed part of it (t_k / t_0 when exposure-time scaled, else 1).
+  double FixedFluxScale(int k) const { return fixed_flux_scale_[k]; }
+  // A starting value of flux_ratio.k: the ratio of the stamps' summed signals.
+  double StartFluxRatio(int k) const { return signal_per_stamp_e_[k] / signal_per_stamp_e_[0]; }
+  // Shared parameters in theta: kNumShared, then the trailing ones; their indices in theta
+  // order (0..4, then FocusIndex(), then the ratios).
+  int NumTrailing() const { return dim() - kNumShared - 2 * num_exposures(); }
+  int NumSharedParams() const { return kNumShared + NumTrailing(); }
   std::vector<int> SharedIndices() const;
   // Stage position of exposure k [um] (NaN when unknown).
   double FocusPositionUm(int k) const { return stamps_[k].info.focus_position_um; }
@@ -158,6 +188,8 @@ class FitModel {
   std::vector<std::string> names_;
   std::vector<double> lower_, upper_;
   std::vector<double> centroid_x_, centroid_y_;  // frame coordinates, per stamp
+  std::vector<double> signal_per_stamp_e_;       // summed signal of each stamp
+  std::vector<double> fixed_flux_scale_;         // FixedFluxScale
   double signal_e_ = 0.0;                        // mean summed signal per stamp
 };
 
@@ -194,12 +226,14 @@ class FitEvaluator {
   // searches of map_fit.cc.
   double BestFluxLogLikelihood(double* theta, int first, int last);
 
-  // Sum of squared normalised residuals (chi^2) over valid pixels.
+  // Sum of squared normalised residuals (chi^2) over the valid measured pixels, plus the
+  // deviance of the censored ones (pixel_likelihood.h).
   double ChiSquare(const double* theta);
 
  private:
-  // Renders exposures [first, last) at theta and calls visit(data_e, model_e, noise) for each
-  // valid pixel: the one loop behind the log-likelihood, chi^2 and least-squares flux.
+  // Renders exposures [first, last) at theta and calls visit(data_e, censor, model_e, noise)
+  // for each valid pixel: the one loop behind the log-likelihood, chi^2 and least-squares
+  // flux.
   template <typename Visit>
   void ForEachValidPixel(const double* theta, int first, int last, Visit visit);
 

@@ -1,7 +1,10 @@
-// What `ccdpsf fit` leaves in its output folder (DESIGN.md section 2):
-//   fit.json        parameters, derived metrics, identifiability, MCMC diagnostics, fit
-//                   statistics, the MAP-vs-MCMC comparison, the exposures and their
-//                   calibration (written last: its presence means the folder is complete)
+// What `ccdpsf fit` leaves in its output folder:
+//   fit.json        "quality" (the verdict and its reasons, quality.h), parameters, derived
+//                   metrics, identifiability, MCMC diagnostics, fit statistics, the
+//                   MAP-vs-MCMC comparison, the choices made from the data ("notes"), masked
+//                   outliers, and the exposures with every metadata value and its source,
+//                   the spot candidates, masks and censoring (written last: its presence
+//                   means the folder is complete)
 //   residuals.fits  per exposure four image extensions DATA_K, MODEL_K, RESID_K, NRESID_K
 //                   [e-, e-, e-, sigma]; masked pixels are NaN
 //   chain.fits      binary table CHAIN: walker, step, log_prob, one column per parameter
@@ -16,19 +19,18 @@
 
 #include "ccdpsf/exposure.h"
 #include "ccdpsf/fit/fit.h"
+#include "ccdpsf/fit/fit_exposures.h"
 #include "nlohmann/json.hpp"
 
 namespace ccdpsf::fit {
 
 // The fit.json document.
-nlohmann::json FitJson(const FitModel& model, const FitResult& result,
-                       const std::vector<CalibrationReport>& calibration);
+nlohmann::json FitJson(const ExposuresFit& fit);
 
 // Writes everything above into out_dir atomically (staged, fit.json last). `run_record` is
 // stored as run.json (resolved options, seed, software versions). Plot failures (no
 // gnuplot) are not errors: they are listed in `warnings` and in report.md.
-bool WriteFitReport(const std::string& out_dir, const FitModel& model, const FitResult& result,
-                    const std::vector<CalibrationReport>& calibration,
+bool WriteFitReport(const std::string& out_dir, const ExposuresFit& fit,
                     const nlohmann::json& run_record, std::vector<std::string>* warnings,
                     std::string* error);
 

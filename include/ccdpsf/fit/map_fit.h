@@ -90,6 +90,11 @@ struct MapResult {
 bool FindMap(const FitModel& model, const MapOptions& options, MapResult* result,
              std::string* error);
 
+// One local solve from `start` (clamped into the prior), e.g. after a few pixels were masked
+// near an earlier optimum; fills *result as FindMap does. False with a reason if it fails.
+bool RefineMap(const FitModel& model, std::vector<double> start, const MapOptions& options,
+               MapResult* result, std::string* error);
+
 // The residual block of exposure k (parameter blocks: shared[5], position[2], and in
 // through-focus mode best_focus[1]). Exposed for gradient checks; the caller owns the result
 // (or hands it to a ceres::Problem).

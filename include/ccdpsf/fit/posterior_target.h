@@ -8,8 +8,10 @@
 //   tell the defocus from the CCD widths), then x_px.K, y_px.K per exposure.
 //   Through-focus fits (fit_model.h): the shared parameters in theta coordinates (identity
 //   sampling coordinates, no marginalisation: the defocus differs per exposure and the CCD
-//   widths are identified), then best_focus_um, then the positions; best_focus_um, last in
-//   theta, is moved to the shared block so that it takes the stretch moves (PhiIndex).
+//   widths are identified), then best_focus_um, then the positions.
+//   The shared parameters that follow the positions in theta (best_focus_um, the flux
+//   ratios of per-exposure fluxes) move to the shared block, before the positions, so that
+//   they take the stretch moves (PhiIndex).
 // Blocks: the shared parameters take the ensemble's stretch moves. The positions either join
 // them, or (positions_by_conditional) are updated exposure by exposure with an independence
 // Metropolis-Hastings move: the proposal is the Laplace approximation's conditional

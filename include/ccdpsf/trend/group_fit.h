@@ -17,12 +17,14 @@
 
 #include "ccdpsf/fit/fit.h"
 #include "ccdpsf/fit/fit_config.h"
+#include "ccdpsf/quality.h"
 #include "ccdpsf/trend/campaign.h"
 
 namespace ccdpsf::trend {
 
 struct GroupFitOptions {
   fit::FitConfig config;  // model, fit and calibration options (MCMC threads are set to 1)
+  bool flux_given = false;  // config.model.flux was chosen by the user (else from the data)
   uint64_t seed = 1;
   int parallel_groups = 2;
   // Posterior draws of each metric kept per group (evenly thinned from the chain).
@@ -35,12 +37,15 @@ struct GroupResult {
   CampaignGroup group;
   bool ok = false;
   std::string failure;                 // why the group has no result (ok == false)
-  std::vector<std::string> warnings;   // e.g. one exposure only, MCMC not converged
+  std::vector<std::string> warnings;   // e.g. one exposure only, the verdict's reasons
+  std::vector<std::string> notes;      // choices made from the data (e.g. the flux model)
   int exposures = 0;
   bool converged = false;
   double chi2_per_dof = NAN;
   double seconds = 0.0;
   std::string report_dir;              // the group's fit report, if written
+  Quality quality;                     // the fit's verdict (quality.h); an invalid group is
+                                       // not ok, with the verdict as its failure
   // Intensity: the model's peak pixel [e-] (mean over the exposures), posterior summary.
   fit::Summary peak_e;
   // Summaries and posterior draws of the derived metrics (fit.h DerivedNames(), peak_e

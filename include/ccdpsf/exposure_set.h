@@ -1,0 +1,55 @@
+// The exposures of one run, read and calibrated together, with the checks only a set can
+// make: the same exposure given twice, a missing pixel size, mixed wavelengths, and a peak
+// that stops growing with the signal (compression before the saturation level).
+//
+// Compression: on a linear detector the fraction of a spot's light in its peak pixel does
+// not depend on the exposure's signal. Across a set whose signals span at least a factor
+// 1.5, the fraction f = peak / (5 x 5 box) [both e-, bias-subtracted] of the faintest third
+// (at least two exposures) is the reference; an exposure at least 1.3 times brighter than
+// all of them whose fraction falls short of the reference's median by more than 3 % (what
+// sub-pixel position changes of ~0.1 px can do) and by more than 3 sd of the counting noise
+// of the two fractions (binomial, in electrons) is flagged "compressed_peak" (suspect). The
+// finding says by how much and, where exposure times are known, how far the peak falls below
+// the line through the reference peaks.
+#ifndef CCDPSF_EXPOSURE_SET_H_
+#define CCDPSF_EXPOSURE_SET_H_
+
+#include <string>
+#include <vector>
+
+#include "ccdpsf/exposure.h"
+#include "ccdpsf/manifest.h"
+#include "ccdpsf/quality.h"
+
+namespace ccdpsf {
+
+struct ExposureSetOptions {
+  // Every exposure needs a pixel size (the metrics are in um): false only for callers that
+  // report in pixels.
+  bool require_pixel_size = true;
+  // Exposures at wavelengths more than 1 nm apart are refused unless this is set (they do
+  // not share one PSF).
+  bool allow_mixed_wavelengths = false;
+};
+
+struct ExposureSet {
+  std::vector<Exposure> exposures;
+  std::vector<std::string> settings;  // the manifest's setting of each, if any
+  // Per-exposure findings of the set checks (exposure index set), to be merged with each
+  // exposure's calibration findings.
+  Quality quality;
+};
+
+// Loads every input (LoadExposure) and runs the checks. False with a one-line reason when a
+// file cannot be calibrated, a file is given twice (the same path and HDU, or identical
+// pixels), a pixel size is missing, or wavelengths are mixed without leave.
+bool LoadExposureSet(const std::vector<InputFile>& inputs, const ExposureSetOptions& options,
+                     ExposureSet* set, std::string* error);
+
+// The compression check above on calibrated exposures; findings go to *quality with the
+// exposure's index.
+void CheckPeakCompression(const std::vector<Exposure>& exposures, Quality* quality);
+
+}  // namespace ccdpsf
+
+#endif  // CCDPSF_EXPOSURE_SET_H_

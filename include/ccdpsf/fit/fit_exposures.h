@@ -1,0 +1,87 @@
+// The fit of calibrated lab exposures from start to verdict, shared by `fit`, `trend` and
+// `diagnose`:
+//
+//   1. the flux model of a joint fit, chosen from the data unless given (ChooseFluxMode);
+//   2. the MAP, then pixels the model cannot explain masked and the MAP refound (at most
+//      two rounds; OutlierOptions says which pixels);
+//   3. Laplace and MCMC (fit.h);
+//   4. the verdict (quality.h): calibration's and the set checks' findings, the masking's,
+//      and the fit's own (fit_quality.h).
+//
+// Outliers. A pixel is masked when its normalised residual |z| >= threshold_sd (8: a
+// Gaussian pixel goes there once in 10^15) and it is a transient or a spike, not part of a
+// pattern that a wrong model leaves:
+//   joint sets of >= 3 exposures: the same stamp pixel fits in the others (median |z| < 3),
+//     as a cosmic ray, which hits one exposure only;
+//   one or two exposures: |z| is at least spike_ratio (2.5) times the largest |z| among the
+//     pixels at the same distance from the spot's centre (within 0.5 px) that are not its
+//     neighbours: a wrong width or profile leaves rings of residuals, a cosmic ray or hot
+//     pixel a lone spike.
+// At most max_per_exposure pixels per exposure and round. A masked pixel within core_radius_px
+// of the centre is a suspect finding (the core carries the width), one outside it a note.
+#ifndef CCDPSF_FIT_FIT_EXPOSURES_H_
+#define CCDPSF_FIT_FIT_EXPOSURES_H_
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "ccdpsf/exposure.h"
+#include "ccdpsf/fit/fit.h"
+#include "ccdpsf/fit/fit_config.h"
+#include "ccdpsf/fit/fit_quality.h"
+#include "ccdpsf/quality.h"
+
+namespace ccdpsf::fit {
+
+struct OutlierOptions {
+  bool enabled = true;
+  double threshold_sd = 8.0;
+  double transient_others_sd = 3.0;
+  double spike_ratio = 2.5;
+  double core_radius_px = 1.5;
+  int max_per_exposure = 3;
+  int max_rounds = 2;
+};
+
+struct ExposuresFitOptions {
+  FitConfig config;         // model, fit and calibration options
+  bool flux_given = false;  // config.model.flux was set by the user: no automatic choice
+  OutlierOptions outliers;
+  FitQualityOptions quality;
+};
+
+struct OutlierMask {
+  int exposure = 0;
+  int x_px = 0, y_px = 0;  // frame coordinates
+  double z = 0.0;          // normalised residual when it was masked
+  bool core = false;
+};
+
+struct ExposuresFit {
+  std::unique_ptr<FitModel> model;  // the final model (stamps with every mask applied)
+  FitResult result;
+  std::vector<CalibrationReport> calibration;
+  std::vector<OutlierMask> outliers;
+  Quality quality;                  // the verdict
+  std::vector<std::string> notes;   // choices made from the data, for the terminal and report
+};
+
+// The flux model for a joint set: exposures at one exposure time (or none known) whose
+// summed signals agree within 3 % share one flux; exposure times that differ by more than
+// 1 % with signals proportional to them within 5 % scale it by exposure time; anything else
+// gets a flux per exposure. *why says what the data showed.
+FluxMode ChooseFluxMode(const std::vector<Stamp>& stamps, std::string* why);
+
+// Steps 1-4 above. `set_quality` holds the set checks' findings (exposure_set.h). False
+// with a one-line reason when the model cannot be built or no MAP is found.
+bool FitExposures(const std::vector<Exposure>& exposures, const Quality& set_quality,
+                  const ExposuresFitOptions& options, ExposuresFit* out, std::string* error);
+
+// Step 2's test on a fitted model: the pixels to mask at theta.
+std::vector<OutlierMask> FindOutliers(const FitModel& model, const std::vector<double>& theta,
+                                      const OutlierOptions& options);
+
+}  // namespace ccdpsf::fit
+
+#endif  // CCDPSF_FIT_FIT_EXPOSURES_H_

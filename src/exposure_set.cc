@@ -1,0 +1,188 @@
+// Sets of exposures (exposure_set.h).
+#include "ccdpsf/exposure_set.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <functional>
+#include <numeric>
+
+namespace ccdpsf {
+namespace {
+
+namespace fs = std::filesystem;
+
+std::string CanonicalPath(const std::string& path) {
+  std::error_code ec;
+  const fs::path c = fs::weakly_canonical(fs::path(path), ec);
+  return ec ? path : c.string();
+}
+
+// A fingerprint of a stamp's recorded pixels (FNV-1a over the electrons' bytes and the
+// stamp's place), to tell the same exposure under two names.
+uint64_t Fingerprint(const Stamp& s) {
+  uint64_t h = 1469598103934665603ULL;
+  auto mix = [&](const void* data, size_t bytes) {
+    const unsigned char* p = static_cast<const unsigned char*>(data);
+    for (size_t i = 0; i < bytes; ++i) {
+      h ^= p[i];
+      h *= 1099511628211ULL;
+    }
+  };
+  mix(s.electrons.data.data(), s.electrons.data.size() * sizeof(double));
+  mix(&s.origin_x, sizeof(s.origin_x));
+  mix(&s.origin_y, sizeof(s.origin_y));
+  return h;
+}
+
+// Peak pixel and 5 x 5 box around the stamp's centre [e-]; false if the box has a masked
+// or censored pixel (then the fraction means nothing).
+bool PeakAndBox(const Stamp& s, double* peak, double* box) {
+  const int c = (s.nx() - 1) / 2;
+  *peak = 0.0;
+  *box = 0.0;
+  for (int j = c - 2; j <= c + 2; ++j) {
+    for (int i = c - 2; i <= c + 2; ++i) {
+      if (i < 0 || j < 0 || i >= s.nx() || j >= s.ny()) return false;
+      const size_t q = static_cast<size_t>(j) * s.nx() + i;
+      if (!s.valid[q] || s.CensorAt(q) != Censor::kNone) return false;
+      *box += s.electrons.data[q];
+      if (i == c && j == c) *peak = s.electrons.data[q];
+    }
+  }
+  return *box > 0.0 && *peak > 0.0;
+}
+
+double Median(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  const size_t n = v.size();
+  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+// Thresholds of the compression check (exposure_set.h).
+constexpr double kMinSignalSpan = 1.5;
+constexpr double kMinBrighter = 1.3;
+constexpr double kMinDeficit = 0.03;
+constexpr double kDeficitSd = 3.0;
+
+}  // namespace
+
+void CheckPeakCompression(const std::vector<Exposure>& exposures, Quality* quality) {
+  struct Point {
+    int index;
+    double peak, box, fraction, exptime;
+  };
+  std::vector<Point> points;
+  for (size_t k = 0; k < exposures.size(); ++k) {
+    double peak = 0, box = 0;
+    if (!PeakAndBox(exposures[k].stamp, &peak, &box)) continue;
+    points.push_back({static_cast<int>(k), peak, box, peak / box,
+                      exposures[k].stamp.info.exptime_s});
+  }
+  if (points.size() < 3) return;
+  std::sort(points.begin(), points.end(), [](const Point& a, const Point& b) { return a.box < b.box; });
+  if (points.back().box < kMinSignalSpan * points.front().box) return;
+  const size_t reference = std::max<size_t>(2, points.size() / 3);
+  std::vector<double> fractions;
+  double ref_box = 0.0;
+  for (size_t i = 0; i < reference; ++i) {
+    fractions.push_back(points[i].fraction);
+    ref_box = std::max(ref_box, points[i].box);
+  }
+  const double f_ref = Median(fractions);
+  // Counting noise of a fraction f of B electrons: sqrt(f (1 - f) / B); the reference is a
+  // median of `reference` of them (variance pi/2 / n of one, for a median of normals).
+  double ref_var = 0.0;
+  for (size_t i = 0; i < reference; ++i) ref_var += f_ref * (1 - f_ref) / points[i].box;
+  ref_var = (M_PI / 2) * ref_var / (reference * static_cast<double>(reference));
+  // The line through the reference peaks against exposure time, where it is known.
+  double st = 0, sp = 0;
+  bool have_time = true;
+  for (size_t i = 0; i < reference; ++i) {
+    have_time = have_time && std::isfinite(points[i].exptime) && points[i].exptime > 0;
+    st += points[i].exptime * points[i].exptime;
+    sp += points[i].exptime * points[i].peak;
+  }
+  const double rate = have_time && st > 0 ? sp / st : NAN;
+  for (size_t i = reference; i < points.size(); ++i) {
+    const Point& p = points[i];
+    if (p.box < kMinBrighter * ref_box) continue;
+    const double deficit = 1.0 - p.fraction / f_ref;
+    const double sd =
+        std::sqrt(p.fraction * (1 - p.fraction) / p.box + ref_var) / f_ref;
+    if (!(deficit > kMinDeficit && deficit > kDeficitSd * sd)) continue;
+    char text[320];
+    int used = std::snprintf(text, sizeof(text),
+                             "the peak pixel holds %.1f %% less of the spot's light than in the "
+                             "faintest exposures (%.3f against %.3f, %.1f sd): compressed before "
+                             "saturation",
+                             100 * deficit, p.fraction, f_ref, deficit / sd);
+    if (std::isfinite(rate) && std::isfinite(p.exptime) && used > 0 && used < 300) {
+      std::snprintf(text + used, sizeof(text) - used,
+                    "; it lies %.1f %% below the line through their peaks against exposure time",
+                    100 * (1 - p.peak / (rate * p.exptime)));
+    }
+    quality->Add("compressed_peak", Severity::kSuspect, text, p.index);
+  }
+}
+
+bool LoadExposureSet(const std::vector<InputFile>& inputs, const ExposureSetOptions& options,
+                     ExposureSet* set, std::string* error) {
+  *set = ExposureSet();
+  if (inputs.empty()) {
+    *error = "no exposures to read";
+    return false;
+  }
+  std::vector<std::pair<std::string, std::string>> keys;  // (canonical path, hdu)
+  std::vector<uint64_t> prints;
+  for (const InputFile& input : inputs) {
+    std::optional<Exposure> e = LoadExposure(input.path, input.options, error);
+    if (!e) return false;
+    const auto hdu = e->report.metadata.find("hdu");
+    const std::pair<std::string, std::string> key = {
+        CanonicalPath(input.path), hdu == e->report.metadata.end() ? "" : hdu->second.text};
+    const uint64_t print = Fingerprint(e->stamp);
+    for (size_t k = 0; k < keys.size(); ++k) {
+      if (keys[k] == key) {
+        *error = "'" + input.path + "' is given twice (as '" + inputs[k].path +
+                 "' too): each exposure must count once";
+        return false;
+      }
+      if (prints[k] == print) {
+        *error = "'" + input.path + "' and '" + inputs[k].path +
+                 "' hold identical pixels: the same exposure under two names counts once";
+        return false;
+      }
+    }
+    if (options.require_pixel_size && !std::isfinite(e->stamp.info.pixel_um)) {
+      *error = "'" + input.path +
+               "': no pixel size: give --pixel_um, a manifest column pixel_um or a PIXSIZE "
+               "keyword (--keywords maps another name); the metrics are in um";
+      return false;
+    }
+    keys.push_back(key);
+    prints.push_back(print);
+    set->exposures.push_back(std::move(*e));
+    set->settings.push_back(input.setting);
+  }
+  // Mixed wavelengths do not share one PSF.
+  if (!options.allow_mixed_wavelengths) {
+    for (size_t k = 1; k < set->exposures.size(); ++k) {
+      const double a = set->exposures[0].stamp.info.wavelength_nm;
+      const double b = set->exposures[k].stamp.info.wavelength_nm;
+      if (std::isfinite(a) && std::isfinite(b) && std::fabs(a - b) > 1.0) {
+        char text[160];
+        std::snprintf(text, sizeof(text), " are at %g nm and %g nm", a, b);
+        *error = "'" + inputs[0].path + "' and '" + inputs[k].path + "'" + text +
+                 ": one PSF cannot describe both (fit them separately, or pass "
+                 "--mixed_wavelengths to share it anyway)";
+        return false;
+      }
+    }
+  }
+  CheckPeakCompression(set->exposures, &set->quality);
+  return true;
+}
+
+}  // namespace ccdpsf

@@ -1,0 +1,127 @@
+// The fit's findings (fit_quality.h).
+#include "ccdpsf/fit/fit_quality.h"
+
+#include <cmath>
+#include <cstdio>
+
+#include "ccdpsf/chi_square.h"
+#include "ccdpsf/fit/pixel_likelihood.h"
+
+namespace ccdpsf::fit {
+namespace {
+
+std::string Fmt(double v) {
+  char text[48];
+  std::snprintf(text, sizeof(text), "%.4g", v);
+  return text;
+}
+
+// Standard normal quantile of an upper tail probability p (for the message only): solved
+// by bisection on log Phi, which is accurate in the tails.
+double UpperQuantile(double p) {
+  double lo = 0.0, hi = 40.0;
+  for (int i = 0; i < 200; ++i) {
+    const double mid = 0.5 * (lo + hi);
+    if (LogNormalCdf(-mid) > std::log(p)) {
+      lo = mid;
+    } else {
+      hi = mid;
+    }
+  }
+  return 0.5 * (lo + hi);
+}
+
+}  // namespace
+
+void ExpectedChi2PerDofRange(int dof, double tail_p, double* low, double* high) {
+  const double z = UpperQuantile(tail_p);
+  const double sd = std::sqrt(2.0 / std::max(1, dof));
+  *low = std::max(0.0, 1.0 - z * sd);
+  *high = 1.0 + z * sd;
+}
+
+void AssessFit(const FitModel& model, const FitResult& r, const FitQualityOptions& options,
+               Quality* quality) {
+  AssessChi2(r.map.chi2, r.map.dof, options, quality);
+  AssessBounds(model, r, quality);
+}
+
+void AssessChi2(double chi2, int dof, const FitQualityOptions& options, Quality* quality) {
+  if (dof >= 1 && std::isfinite(chi2)) {
+    const double per_dof = chi2 / dof;
+    double low = 0, high = 0;
+    ExpectedChi2PerDofRange(dof, options.chi2_tail_p, &low, &high);
+    const std::string range = "[" + Fmt(low) + ", " + Fmt(high) + "]";
+    if (per_dof > options.gross_chi2_per_dof) {
+      quality->Add("gross_misfit", Severity::kInvalid,
+                   "chi2/dof = " + Fmt(per_dof) + " (expected " + range +
+                       "): the model does not describe this source");
+    } else if (ChiSquareUpperTail(chi2, dof) < options.chi2_tail_p) {
+      char p[32];
+      std::snprintf(p, sizeof(p), "%.2g", ChiSquareUpperTail(chi2, dof));
+      quality->Add("chi2_high", Severity::kSuspect,
+                   "chi2/dof = " + Fmt(per_dof) + " is above its expected range " + range +
+                       " (p = " + p +
+                       "): the model misses something in these data (`ccdpsf diagnose` looks "
+                       "for what)");
+    } else if (ChiSquareLowerTail(chi2, dof) < options.chi2_tail_p) {
+      char p[32];
+      std::snprintf(p, sizeof(p), "%.2g", ChiSquareLowerTail(chi2, dof));
+      quality->Add("chi2_low", Severity::kSuspect,
+                   "chi2/dof = " + Fmt(per_dof) + " is below its expected range " + range +
+                       " (p = " + p +
+                       "): the noise model overstates the noise (read noise or gain too large, "
+                       "or clipped, quantised or smoothed data)");
+    }
+  }
+
+}
+
+void AssessBounds(const FitModel& model, const FitResult& r, Quality* quality) {
+  // Parameters at prior bounds.
+  const bool split_unidentified = model.options().model.sampling == model::Sampling::kIntegrated &&
+                                  model.options().model.defocus == model::DefocusKind::kGaussian &&
+                                  !model.through_focus();
+  const std::vector<double>& lo = model.lower();
+  const std::vector<double>& hi = model.upper();
+  const std::vector<double>& theta = r.map.theta;
+  int shape_at_bound = 0;
+  for (int i : r.laplace.at_bound) {
+    const std::string& name = r.names[i];
+    const bool at_lower = theta[i] - lo[i] <= hi[i] - theta[i];
+    const std::string where = name + " = " + Fmt(theta[i]) + " sits at its prior's " +
+                              (at_lower ? "lower" : "upper") + " bound (" +
+                              Fmt(at_lower ? lo[i] : hi[i]) + ")";
+    const bool shape = i == kAiryRadiusPx || i == kDefocusPx || i == kCcdSigmaXPx ||
+                       i == kCcdSigmaYPx;
+    if (i == kDefocusPx && at_lower && split_unidentified) {
+      // The unidentified split puts the MAP at zero defocus by construction.
+      ++shape_at_bound;
+      continue;
+    }
+    if (shape) ++shape_at_bound;
+    if ((i == kCcdSigmaXPx || i == kCcdSigmaYPx) && at_lower) {
+      quality->Add("width_upper_limit", Severity::kSuspect,
+                   where + ": the spot is narrower than the model resolves there, so the width "
+                           "is only an upper limit");
+    } else if ((i == kCcdSigmaXPx || i == kCcdSigmaYPx) && !at_lower) {
+      quality->Add("width_at_upper_bound", Severity::kInvalid,
+                   where + ": the source is broader than the model allows");
+    } else {
+      quality->Add("at_bound", Severity::kSuspect,
+                   where + ": the prior cuts its interval there");
+    }
+  }
+  if (shape_at_bound >= 4) {
+    quality->Add("all_at_bounds", Severity::kInvalid,
+                 "every shape parameter (Airy radius, defocus, CCD widths) sits at a prior "
+                 "bound: the model does not describe this source");
+  }
+  if (r.have_mcmc && !r.chain.converged) {
+    quality->Add("mcmc_not_converged", Severity::kSuspect,
+                 "the MCMC did not converge (" + r.chain.stop_reason +
+                     "): its intervals are not reliable");
+  }
+}
+
+}  // namespace ccdpsf::fit

@@ -1,0 +1,118 @@
+// The flags that say what a file's header lacks, shared by fit, diagnose and trend: one
+// per metadata quantity (metadata.h), the keyword map, the manifest and the stamp size.
+#include <cmath>
+
+#include "ccdpsf/manifest.h"
+#include "ccdpsf/metadata.h"
+#include "command.h"
+#include "gflags/gflags.h"
+
+DEFINE_double(gain_e_per_adu, 0, "Gain [e-/ADU]; overrides the manifest and GAIN");
+DEFINE_double(read_noise_e, 0, "Read noise [e-]; overrides the manifest and RDNOISE");
+DEFINE_double(bias_adu, 0, "Bias level [ADU]; overrides the manifest, BIASLVL and the bias section");
+DEFINE_string(bias_section, "",
+              "Overscan / prescan as an IRAF section, e.g. [1:20,1:2048] (1-based, inclusive); "
+              "overrides the manifest and BIASSEC");
+DEFINE_string(data_section, "",
+              "Light-sensitive pixels of the image as an IRAF section; overrides DATASEC");
+DEFINE_double(saturation_adu, 0,
+              "Saturation level [ADU]: pixels at or above it are fitted as censored; overrides "
+              "the manifest and SATURATE");
+DEFINE_double(pixel_um, 0, "Pixel pitch [um]; overrides the manifest and PIXSIZE (required "
+                           "from one of them)");
+DEFINE_double(wavelength_nm, 0, "Wavelength [nm]; overrides the manifest and WAVELEN");
+DEFINE_double(exptime_s, 0, "Exposure time [s]; overrides the manifest and EXPTIME");
+DEFINE_double(focus_position_um, 0, "Stage focus position [um]; overrides FOCUSPOS");
+DEFINE_double(spot_x_px, 0, "Spot x [frame pixels, 0-based]; with --spot_y_px skips spot finding");
+DEFINE_double(spot_y_px, 0, "Spot y [frame pixels, 0-based]");
+DEFINE_string(search_region, "",
+              "Look for the spot only in this IRAF section, e.g. [600:700,420:520]");
+DEFINE_string(hdu, "",
+              "Image to read: extension number (0 = primary, 1 = first extension) or EXTNAME; "
+              "default: the primary image, or for a multi-extension file the segment holding "
+              "the spot");
+DEFINE_string(bad_pixel_mask, "",
+              "FITS image of the frame's size whose non-zero pixels are never fitted");
+DEFINE_string(keywords, "",
+              "Keyword map for another lab's headers: a JSON file, or "
+              "quantity=KEYWORD[*scale],... e.g. gain_e_per_adu=EGAIN,exptime_s=EXPMS*0.001");
+DEFINE_string(manifest, "",
+              "CSV or JSON file with one row per FITS file giving what its header lacks "
+              "(columns: file, setting, and any quantity above)");
+DEFINE_int32(stamp_size, 21, "Stamp side [px]");
+
+namespace ccdpsf::tools {
+
+const std::vector<const char*>& InputFlagNames() {
+  static const std::vector<const char*> names = {
+      "gain_e_per_adu", "read_noise_e",  "bias_adu",     "bias_section",      "data_section",
+      "saturation_adu", "pixel_um",      "wavelength_nm", "exptime_s",        "focus_position_um",
+      "spot_x_px",      "spot_y_px",     "search_region", "hdu",              "bad_pixel_mask",
+      "keywords",       "manifest",      "stamp_size"};
+  return names;
+}
+
+bool InputFlags(GivenMetadata* given, KeywordMap* keywords, std::string* error) {
+  struct NumberFlag {
+    const char* name;
+    double value;
+  };
+  const NumberFlag numbers[] = {{"gain_e_per_adu", FLAGS_gain_e_per_adu},
+                                {"read_noise_e", FLAGS_read_noise_e},
+                                {"bias_adu", FLAGS_bias_adu},
+                                {"saturation_adu", FLAGS_saturation_adu},
+                                {"pixel_um", FLAGS_pixel_um},
+                                {"wavelength_nm", FLAGS_wavelength_nm},
+                                {"exptime_s", FLAGS_exptime_s},
+                                {"focus_position_um", FLAGS_focus_position_um},
+                                {"spot_x_px", FLAGS_spot_x_px},
+                                {"spot_y_px", FLAGS_spot_y_px}};
+  for (const NumberFlag& f : numbers) {
+    if (!FlagGiven(f.name)) continue;
+    if (!std::isfinite(f.value)) {
+      *error = std::string("--") + f.name + " must be a finite number";
+      return false;
+    }
+    given->SetNumber(f.name, f.value, std::string("flag --") + f.name);
+  }
+  struct TextFlag {
+    const char* name;
+    const std::string& value;
+  };
+  const TextFlag texts[] = {{"bias_section", FLAGS_bias_section},
+                            {"data_section", FLAGS_data_section},
+                            {"search_region", FLAGS_search_region},
+                            {"hdu", FLAGS_hdu},
+                            {"bad_pixel_mask", FLAGS_bad_pixel_mask}};
+  for (const TextFlag& f : texts) {
+    if (!FlagGiven(f.name)) continue;
+    if (!given->SetFromText(f.name, f.value, std::string("flag --") + f.name, error)) {
+      *error = "--" + *error;
+      return false;
+    }
+  }
+  if (FlagGiven("keywords") && !keywords->OverlayFileOrText(FLAGS_keywords, error)) return false;
+  return true;
+}
+
+bool ResolveInputs(const std::vector<std::string>& files, const CalibrationOptions& config,
+                   std::vector<InputFile>* inputs, Manifest* manifest, std::string* error) {
+  GivenMetadata flags;
+  CalibrationOptions merged = config;
+  if (!InputFlags(&flags, &merged.keywords, error)) return false;
+  const Manifest* m = nullptr;
+  if (FlagGiven("manifest")) {
+    if (!LoadManifest(FLAGS_manifest, manifest, error)) return false;
+    m = manifest;
+  }
+  if (!ResolveInputFiles(files, m, flags, merged, inputs, error)) return false;
+  for (const InputFile& input : *inputs) {
+    if (!input.options.IsValid(error)) {
+      *error = "'" + input.path + "': " + *error;
+      return false;
+    }
+  }
+  return true;
+}
+
+}  // namespace ccdpsf::tools
