@@ -37,7 +37,8 @@ uint64_t Fingerprint(const Stamp& s) {
 }
 
 // Peak pixel and 5 x 5 box around the stamp's centre [e-]; false if the box has a masked
-// or censored pixel (then the fraction means nothing).
+// or saturated (censored from above) pixel, where the fraction means nothing. Pixels censored
+// from below (a clipped black level) count at their level, next to nothing.
 bool PeakAndBox(const Stamp& s, double* peak, double* box) {
   const int c = (s.nx() - 1) / 2;
   *peak = 0.0;
@@ -46,7 +47,7 @@ bool PeakAndBox(const Stamp& s, double* peak, double* box) {
     for (int i = c - 2; i <= c + 2; ++i) {
       if (i < 0 || j < 0 || i >= s.nx() || j >= s.ny()) return false;
       const size_t q = static_cast<size_t>(j) * s.nx() + i;
-      if (!s.valid[q] || s.CensorAt(q) != Censor::kNone) return false;
+      if (!s.valid[q] || s.CensorAt(q) == Censor::kAtOrAbove) return false;
       *box += s.electrons.data[q];
       if (i == c && j == c) *peak = s.electrons.data[q];
     }

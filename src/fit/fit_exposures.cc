@@ -16,15 +16,6 @@ std::string Fmt(double v, int digits = 3) {
   return text;
 }
 
-// Summed signal of a stamp's measured pixels [e-].
-double Signal(const Stamp& s) {
-  double total = 0.0;
-  for (size_t q = 0; q < s.valid.size(); ++q) {
-    if (s.valid[q]) total += s.electrons.data[q];
-  }
-  return total;
-}
-
 // Thresholds of ChooseFluxMode.
 constexpr double kSameSignal = 0.03;
 constexpr double kSameExptime = 0.01;
@@ -54,32 +45,53 @@ FluxMode ChooseFluxMode(const std::vector<Stamp>& stamps, std::string* why) {
     *why = "one exposure";
     return FluxMode::kShared;
   }
-  std::vector<double> signal, time;
+  // The light is compared outside the 3 x 3 core (a clipped, saturated, compressed or
+  // cosmic-ray-hit core says nothing of the flux) over the pixels measured in every stamp:
+  // stamps are centred on their peak pixel, so the same pixels hold the same part of the PSF
+  // up to sub-pixel shifts, which move light between core and wings only in second order.
+  const Stamp& first = stamps[0];
+  const int c = (first.nx() - 1) / 2;
+  std::vector<uint8_t> common(first.valid.size(), 1);
+  for (const Stamp& s : stamps) {
+    if (s.nx() != first.nx() || s.ny() != first.ny()) {
+      *why = "stamps of different sizes";
+      return FluxMode::kShared;
+    }
+    for (size_t q = 0; q < common.size(); ++q) {
+      const int x = static_cast<int>(q % s.nx()), y = static_cast<int>(q / s.nx());
+      if (!s.valid[q] || s.CensorAt(q) != Censor::kNone ||
+          (std::abs(x - c) <= 1 && std::abs(y - c) <= 1)) {
+        common[q] = 0;
+      }
+    }
+  }
+  std::vector<double> signal, time, noise;
   bool times_known = true;
-  int censored = 0;
   for (const Stamp& s : stamps) {
     times_known = times_known && std::isfinite(s.info.exptime_s) && s.info.exptime_s > 0;
-    // A censored pixel holds a lower or upper bound, not the signal: such an exposure's sum
-    // says nothing about its flux.
-    if (s.NumCensored() > 0) {
-      ++censored;
-      continue;
+    double total = 0.0, variance = 0.0;
+    for (size_t q = 0; q < common.size(); ++q) {
+      if (!common[q]) continue;
+      total += s.electrons.data[q];
+      variance += std::max(0.0, s.electrons.data[q]) + s.read_noise_e * s.read_noise_e;
     }
-    signal.push_back(Signal(s));
+    signal.push_back(total);
+    noise.push_back(std::sqrt(variance));
     time.push_back(s.info.exptime_s);
   }
   auto spread = [](const std::vector<double>& v) {
     const auto [lo, hi] = std::minmax_element(v.begin(), v.end());
     return *lo > 0 ? *hi / *lo - 1.0 : INFINITY;
   };
-  if (signal.size() < 2) {
-    // Too few exposures without censored pixels to compare their signals.
-    std::vector<double> all_times;
-    for (const Stamp& s : stamps) all_times.push_back(s.info.exptime_s);
-    const std::string which = std::to_string(censored) + " of " + std::to_string(stamps.size()) +
-                              " exposures have censored (saturated or clipped) pixels, so their "
-                              "signals cannot be compared";
-    if (times_known && spread(all_times) > kSameExptime) {
+  // The comparison needs wings measured to better than a third of the 3 % tolerance.
+  double worst = 0.0;
+  for (size_t k = 0; k < signal.size(); ++k) {
+    worst = std::max(worst, signal[k] > 0 ? noise[k] / signal[k] : INFINITY);
+  }
+  if (!(worst < kSameSignal / 3)) {
+    const std::string which = "the light outside the spot's core, over the pixels measured in "
+                              "every exposure, is too faint to compare their fluxes";
+    if (times_known && spread(time) > kSameExptime) {
       *why = which + "; exposure times differ: a flux per exposure";
       return FluxMode::kPerExposure;
     }
@@ -94,21 +106,21 @@ FluxMode ChooseFluxMode(const std::vector<Stamp>& stamps, std::string* why) {
     const auto [tlo, thi] = std::minmax_element(time.begin(), time.end());
     const std::string times = "exposure times " + Fmt(*tlo) + "-" + Fmt(*thi) + " s";
     if (spread(rate) <= kProportional) {
-      *why = times + ", signals proportional to them within " + Fmt(100 * spread(rate), 2) +
-             " %: flux scaled by exposure time";
+      *why = times + ", the spot's wings proportional to them within " +
+             Fmt(100 * spread(rate), 2) + " %: flux scaled by exposure time";
       return FluxMode::kExptimeScaled;
     }
-    *why = times + ", signal per second differing by " + Fmt(100 * spread(rate), 2) +
-           " % (shutter, lamp or saturation): a flux per exposure";
+    *why = times + ", the wings' signal per second differing by " + Fmt(100 * spread(rate), 2) +
+           " % (shutter, lamp or nonlinearity): a flux per exposure";
     return FluxMode::kPerExposure;
   }
   if (signal_spread <= kSameSignal) {
     *why = std::string(times_known ? "one exposure time" : "no exposure times") +
-           ", signals within " + Fmt(100 * signal_spread, 2) + " %: one shared flux";
+           ", the spot's wings agree within " + Fmt(100 * signal_spread, 2) + " %: one shared flux";
     return FluxMode::kShared;
   }
   *why = std::string(times_known ? "one exposure time" : "no exposure times") +
-         " but signals differing by " + Fmt(100 * signal_spread, 2) + " %: a flux per exposure";
+         " but the spot's wings differ by " + Fmt(100 * signal_spread, 2) + " %: a flux per exposure";
   return FluxMode::kPerExposure;
 }
 
@@ -134,14 +146,16 @@ std::vector<OutlierMask> FindOutliers(const FitModel& model, const std::vector<d
       const int x = static_cast<int>(q % s.nx()), y = static_cast<int>(q / s.nx());
       bool mask = false;
       if (n >= 3) {
-        // A transient: the same pixel fits in the other exposures.
+        // A transient: this exposure differs at this pixel from what the others show there
+        // (a wrong model shows alike in all; a big outlier may also pull the joint fit off
+        // the others, so they need not fit, only agree).
         std::vector<double> others;
         for (int j = 0; j < n; ++j) {
-          if (j != k && q < z[j].size() && std::isfinite(z[j][q])) others.push_back(std::fabs(z[j][q]));
+          if (j != k && q < z[j].size() && std::isfinite(z[j][q])) others.push_back(z[j][q]);
         }
         if (!others.empty()) {
           std::nth_element(others.begin(), others.begin() + others.size() / 2, others.end());
-          mask = others[others.size() / 2] < options.transient_others_sd;
+          mask = std::fabs(z[k][q] - others[others.size() / 2]) >= options.threshold_sd;
         }
       } else {
         // A spike: far above the pixels at the same distance from the centre.
@@ -160,17 +174,22 @@ std::vector<OutlierMask> FindOutliers(const FitModel& model, const std::vector<d
     }
     std::sort(candidates.begin(), candidates.end(),
               [](const Candidate& a, const Candidate& b) { return std::fabs(a.z) > std::fabs(b.z); });
-    if (static_cast<int>(candidates.size()) > options.max_per_exposure) {
-      candidates.resize(options.max_per_exposure);
-    }
+    // One core pixel per exposure and round: a bad core pixel drags the fit, which leaves its
+    // neighbours off too; they are judged again after the refit.
+    int taken = 0, core_taken = 0;
     for (const Candidate& c : candidates) {
+      if (taken >= options.max_per_exposure) break;
       const int x = static_cast<int>(c.q % s.nx()), y = static_cast<int>(c.q / s.nx());
+      const bool core = std::hypot(x - cx, y - cy) <= options.core_radius_px;
+      if (core && core_taken >= 1) continue;
+      ++taken;
+      core_taken += core;
       OutlierMask m;
       m.exposure = k;
       m.x_px = s.origin_x + x;
       m.y_px = s.origin_y + y;
       m.z = c.z;
-      m.core = std::hypot(x - cx, y - cy) <= options.core_radius_px;
+      m.core = core;
       out.push_back(m);
     }
   }
@@ -219,15 +238,35 @@ bool FitExposures(const std::vector<Exposure>& exposures, const Quality& set_qua
     model = std::move(masked);
     map = refit;
   }
+  // The flux model was chosen with the outliers in the sums: choose again without them.
+  if (!out->outliers.empty() && stamps.size() > 1 && !options.flux_given) {
+    std::string why;
+    const FluxMode again = ChooseFluxMode(stamps, &why);
+    if (again != model_options.flux) {
+      model_options.flux = again;
+      out->notes.push_back("flux: " + ToString(again) + " after masking outliers (" + why + ")");
+      std::unique_ptr<FitModel> remade = FitModel::Create(stamps, model_options, error);
+      if (!remade) return false;
+      if (!FindMap(*remade, options.config.fit.map, &map, error)) return false;
+      model = std::move(remade);
+    }
+  }
   for (const OutlierMask& m : out->outliers) {
     const std::string text = "pixel (" + std::to_string(m.x_px) + ", " + std::to_string(m.y_px) +
                              ") stood z = " + Fmt(m.z, 3) + " from the model" +
                              (model->num_exposures() >= 3 ? " in this exposure alone"
                                                           : ", a lone spike") +
-                             ": masked as a cosmic ray or hot pixel";
-    if (m.core) {
+                             (m.z > 0 ? ": masked as a cosmic ray or hot pixel"
+                                      : ": masked as a clipped, dead or cold pixel");
+    if (m.core && model->num_exposures() < 3) {
+      // One or two exposures: a lone spike in the core is the likeliest reading, not a sure one.
       out->quality.Add("core_outlier_masked", Severity::kSuspect,
                        text + " (in the spot's core, which carries the width)", m.exposure);
+    } else if (m.core) {
+      // In a set, the other exposures show the pixel as it should be.
+      out->quality.Add("core_outlier_masked", Severity::kNote,
+                       text + " (in the spot's core; the other exposures constrain it)",
+                       m.exposure);
     } else {
       out->quality.Add("outlier_masked", Severity::kNote, text, m.exposure);
     }

@@ -537,6 +537,21 @@ double FitEvaluator::ChiSquare(const double* theta) {
   return chi2;
 }
 
+int FitEvaluator::CensoredViolations(const double* theta, double sd, double* worst_sd) {
+  int count = 0;
+  *worst_sd = INFINITY;
+  PixelValue v;
+  ForEachValidPixel(theta, 0, fit_model_.num_exposures(),
+                    [&](double data_e, Censor censor, double model_e, const PixelNoise& noise) {
+                      if (censor == Censor::kNone) return;
+                      EvaluatePixel(LikelihoodKind::kGaussian, data_e, censor, model_e, noise,
+                                    false, &v);
+                      *worst_sd = std::min(*worst_sd, v.censored_sd);
+                      count += v.censored_sd < -sd;
+                    });
+  return count;
+}
+
 std::vector<double> FitEvaluator::FisherInformation(const double* theta) {
   const int dim = fit_model_.dim();
   std::vector<double> fisher(static_cast<size_t>(dim) * dim, 0.0);

@@ -44,6 +44,18 @@ void AssessFit(const FitModel& model, const FitResult& r, const FitQualityOption
                Quality* quality) {
   AssessChi2(r.map.chi2, r.map.dof, options, quality);
   AssessBounds(model, r, quality);
+  // Censored pixels add no chi^2: one the model puts well on the wrong side of its level
+  // (a saturated pixel predicted far below saturation) is a misfit of its own.
+  std::unique_ptr<FitEvaluator> ev = model.NewEvaluator();
+  double worst = INFINITY;
+  const int wrong = ev->CensoredViolations(r.map.theta.data(), options.censored_sd, &worst);
+  if (wrong > 0) {
+    quality->Add("censored_misfit", Severity::kSuspect,
+                 std::to_string(wrong) + " censored (saturated or clipped) pixel(s) lie more than " +
+                     Fmt(options.censored_sd) + " sd on the wrong side of their level under the "
+                     "fitted model (worst " + Fmt(-worst) + " sd): the model does not describe "
+                     "the core that the detector cut off");
+  }
 }
 
 void AssessChi2(double chi2, int dof, const FitQualityOptions& options, Quality* quality) {

@@ -489,8 +489,7 @@ void FillResult(const FitModel& model, const StartOutcome& best, MapResult* resu
   std::unique_ptr<FitEvaluator> ev = model.NewEvaluator();
   result->log_likelihood = ev->LogLikelihood(best.theta.data());
   result->chi2 = ev->ChiSquare(best.theta.data());
-  // Censored pixels are bounds, not measurements: they add their deviance to chi^2 (~0
-  // when the model agrees) but no degree of freedom.
+  // Censored pixels are bounds, not measurements: no chi^2, no degree of freedom.
   result->num_pixels = model.NumMeasuredPixels();
   result->dof = result->num_pixels - model.dim();
 }

@@ -138,7 +138,10 @@ void EvaluatePixel(LikelihoodKind kind, double d, Censor censor, double m, const
   const double log_p = LogNormalCdf(u);
   out->log_p = log_p;
   const double deviance = std::max(0.0, -2.0 * log_p);
-  out->chi2 = deviance;
+  // A bound is not a measurement: no chi^2 (its deviance has no fixed expectation near the
+  // level); how far the model lies on the wrong side is censored_sd.
+  out->chi2 = 0.0;
+  out->censored_sd = u;
   // Data minus model: positive when a saturated pixel's model falls short of the level.
   const double short_of = above ? (m < threshold ? 1.0 : -1.0) : (m > threshold ? -1.0 : 1.0);
   out->normalised = short_of * std::sqrt(deviance);

@@ -3,7 +3,7 @@
 //
 //   1. the flux model of a joint fit, chosen from the data unless given (ChooseFluxMode);
 //   2. the MAP, then pixels the model cannot explain masked and the MAP refound (at most
-//      two rounds; OutlierOptions says which pixels);
+//      three rounds; OutlierOptions says which pixels);
 //   3. Laplace and MCMC (fit.h);
 //   4. the verdict (quality.h): calibration's and the set checks' findings, the masking's,
 //      and the fit's own (fit_quality.h).
@@ -11,14 +11,20 @@
 // Outliers. A pixel is masked when its normalised residual |z| >= threshold_sd (8: a
 // Gaussian pixel goes there once in 10^15) and it is a transient or a spike, not part of a
 // pattern that a wrong model leaves:
-//   joint sets of >= 3 exposures: the same stamp pixel fits in the others (median |z| < 3),
-//     as a cosmic ray, which hits one exposure only;
+//   joint sets of >= 3 exposures: it also differs by >= threshold_sd from the median z of the
+//     same stamp pixel in the other exposures, as a cosmic ray, which hits one exposure only
+//     (a wrong model leaves the same residual in all; a large outlier may pull the joint fit
+//     off the others too, so they need not fit, only agree);
 //   one or two exposures: |z| is at least spike_ratio (2.5) times the largest |z| among the
 //     pixels at the same distance from the spot's centre (within 0.5 px) that are not its
 //     neighbours: a wrong width or profile leaves rings of residuals, a cosmic ray or hot
 //     pixel a lone spike.
-// At most max_per_exposure pixels per exposure and round. A masked pixel within core_radius_px
-// of the centre is a suspect finding (the core carries the width), one outside it a note.
+// At most max_per_exposure pixels per exposure and round, of which one in the core (a bad
+// core pixel drags the fit, leaving its neighbours off until the refit). A masked pixel within
+// core_radius_px of the centre of a one- or two-exposure fit is a suspect finding (the core
+// carries the width, and a lone spike is only the likeliest reading), one outside
+// it a note; in a set of >= 3 exposures, where the others show the pixel as it should be, a
+// note either way. When pixels were masked, the flux model is chosen again without them.
 #ifndef CCDPSF_FIT_FIT_EXPOSURES_H_
 #define CCDPSF_FIT_FIT_EXPOSURES_H_
 
@@ -37,11 +43,10 @@ namespace ccdpsf::fit {
 struct OutlierOptions {
   bool enabled = true;
   double threshold_sd = 8.0;
-  double transient_others_sd = 3.0;
   double spike_ratio = 2.5;
   double core_radius_px = 1.5;
   int max_per_exposure = 3;
-  int max_rounds = 2;
+  int max_rounds = 3;
 };
 
 struct ExposuresFitOptions {
@@ -67,10 +72,13 @@ struct ExposuresFit {
   std::vector<std::string> notes;   // choices made from the data, for the terminal and report
 };
 
-// The flux model for a joint set: exposures at one exposure time (or none known) whose
-// summed signals agree within 3 % share one flux; exposure times that differ by more than
-// 1 % with signals proportional to them within 5 % scale it by exposure time; anything else
-// gets a flux per exposure. *why says what the data showed.
+// The flux model for a joint set, from the light outside each stamp's 3 x 3 core over the
+// pixels measured in every stamp (a clipped, saturated or cosmic-ray-hit core says nothing of
+// the flux): exposures at one exposure time (or none known) whose such signals agree within
+// 3 % share one flux; exposure times that differ by more than 1 % with signals proportional
+// to them within 5 % scale it by exposure time; anything else gets a flux per exposure. When
+// that light is too faint to compare (counting noise above 1 %), exposures share one flux at
+// one exposure time and get one each otherwise. *why says what the data showed.
 FluxMode ChooseFluxMode(const std::vector<Stamp>& stamps, std::string* why);
 
 // Steps 1-4 above. `set_quality` holds the set checks' findings (exposure_set.h). False

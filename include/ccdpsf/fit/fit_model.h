@@ -226,9 +226,12 @@ class FitEvaluator {
   // searches of map_fit.cc.
   double BestFluxLogLikelihood(double* theta, int first, int last);
 
-  // Sum of squared normalised residuals (chi^2) over the valid measured pixels, plus the
-  // deviance of the censored ones (pixel_likelihood.h).
+  // Sum of squared normalised residuals (chi^2) over the valid measured (not censored)
+  // pixels (pixel_likelihood.h).
   double ChiSquare(const double* theta);
+  // Censored pixels whose model lies more than `sd` standard deviations on the wrong side of
+  // their level (a saturated pixel the model puts well below saturation), and the worst.
+  int CensoredViolations(const double* theta, double sd, double* worst_sd);
 
  private:
   // Renders exposures [first, last) at theta and calls visit(data_e, censor, model_e, noise)

@@ -17,6 +17,8 @@
 //   all_at_bounds         every shape parameter (Airy radius, defocus, CCD widths) at a bound
 //                         - invalid
 //   mcmc_not_converged    the chain did not reach its effective sample size - suspect
+//   censored_misfit       a censored pixel (which adds no chi^2) lies > 4 sd on the wrong side
+//                         of its level under the fitted model - suspect
 #ifndef CCDPSF_FIT_FIT_QUALITY_H_
 #define CCDPSF_FIT_FIT_QUALITY_H_
 
@@ -28,6 +30,7 @@ namespace ccdpsf::fit {
 struct FitQualityOptions {
   double chi2_tail_p = 1e-3;        // each tail of chi^2 below this probability is suspect
   double gross_chi2_per_dof = 10.0;  // above this the fit is invalid
+  double censored_sd = 4.0;  // a censored pixel this far on the wrong side of its level
 };
 
 // The chi^2 findings alone (chi2_high, chi2_low, gross_misfit), for a chi^2 with dof.

@@ -28,8 +28,11 @@
 // Their derivatives with respect to m, dr/dm, are exact (tested against finite differences).
 //
 // The pixel's chi^2 (for chi^2/dof and normalised residuals): (d - m)^2 / (s^2 + (2h)^2/12)
-// for a measured pixel, signed; for a censored one the deviance -2 log P (~0 when the model
-// agrees), and censored pixels do not count as degrees of freedom.
+// for a measured pixel. A censored pixel is a bound, not a measurement: it adds no chi^2 and
+// no degree of freedom (the deviance -2 log P of a pixel near its level has no fixed
+// expectation); instead censored_sd says by how many sd the model lies inside the allowed
+// side (negative: on the wrong side of the level), and its normalised residual is the signed
+// square root of the deviance, for maps.
 #ifndef CCDPSF_FIT_PIXEL_LIKELIHOOD_H_
 #define CCDPSF_FIT_PIXEL_LIKELIHOOD_H_
 
@@ -56,10 +59,10 @@ struct PixelValue {
                           // the probability above for either kind)
   double r[2] = {0, 0};   // residuals for Ceres
   double dr_dm[2] = {0, 0};
-  double chi2 = 0;        // signed contribution: whitened residual squared with its sign
-                          // in normalised (see above); deviance for censored pixels
+  double chi2 = 0;        // whitened residual squared (0 for censored pixels)
   double normalised = 0;  // (d - m)/sigma, or for a censored pixel the signed sqrt of its
-                          // deviance (negative when the model falls short of T from above)
+                          // deviance (positive when a saturated pixel's model falls short)
+  double censored_sd = INFINITY;  // censored pixels: (m - T)/s above, (T - m)/s below
 };
 
 // Evaluates pixel (data_e, censor) at expectation m. With want_residuals false only log_p,
