@@ -15,9 +15,11 @@ esac
 cd "$(dirname "$0")/.."
 jobs="$(nproc 2>/dev/null || echo 2)"
 
+# python3-numpy and python3-astropy: the tests add lab defects to simulated frames with a
+# separate script (tests/support/lab_defects.py) that shares no code with the tool.
 packages=(build-essential cmake pkg-config libceres-dev libeigen3-dev libgoogle-glog-dev
           libgflags-dev libcfitsio-dev libgtest-dev nlohmann-json3-dev libbenchmark-dev
-          gnuplot-nox)
+          gnuplot-nox python3-numpy python3-astropy)
 missing=()
 for p in "${packages[@]}"; do
   if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then
