@@ -205,12 +205,15 @@ TEST_F(LabDefects, SecondSpotSixPixelsAway) {
 }
 
 TEST_F(LabDefects, ClippedCoreWithoutSaturate) {
-  // One exposure: the clipped peak is a lone spike below the model (masked, said); in a set
-  // of five, the same pixel differs from the other exposures' and is masked too.
+  // One exposure: only the peak pixel is clipped (its neighbours hold < 70 % of it), and
+  // alone a clipped peak and a core flatter than the model look alike: the widths come out
+  // wrong, and the verdict says why (the rule; the stronger check does not apply).
   std::string output;
   const json one = Fit("clip1", WithDefect("clipped_core"), &output);
-  ExpectHandled(one, {"core_outlier_masked", "clipped_top"}, "", output);
+  ASSERT_TRUE(one.is_object()) << output;
   EXPECT_NE(one["quality"]["verdict"], "ok");
+  EXPECT_TRUE(Codes(one, "reasons").count("peak_deficit")) << one["quality"].dump(1);
+  // In a set of five, the same pixel differs from the other exposures' and is masked.
   std::string set = WithDefect("clipped_core");
   for (int k = 1; k < 5; ++k) set += " " + CleanSet() + "/exposure_00" + std::to_string(k) + ".fits";
   const json joint = Fit("clip5", "--joint " + set, &output);

@@ -147,28 +147,44 @@ std::vector<OutlierMask> FindOutliers(const FitModel& model, const std::vector<d
       bool mask = false;
       if (n >= 3) {
         // A transient: this exposure differs at this pixel from what the others show there
-        // (a wrong model shows alike in all; a big outlier may also pull the joint fit off
-        // the others, so they need not fit, only agree).
+        // (a big outlier may also pull the joint fit off the others, so they need not fit,
+        // only agree). Where every exposure misfits (a wrong model, with z of tens),
+        // sub-pixel shifts alone make them differ by several sd: the excess must also be
+        // large against what the others show.
         std::vector<double> others;
         for (int j = 0; j < n; ++j) {
           if (j != k && q < z[j].size() && std::isfinite(z[j][q])) others.push_back(z[j][q]);
         }
         if (!others.empty()) {
           std::nth_element(others.begin(), others.begin() + others.size() / 2, others.end());
-          mask = std::fabs(z[k][q] - others[others.size() / 2]) >= options.threshold_sd;
+          const double typical = others[others.size() / 2];
+          // The others' own spread (1.4826 MAD) says how much sub-pixel phase alone moves
+          // this pixel's residual under the fitted model.
+          std::vector<double> deviations;
+          for (double o : others) deviations.push_back(std::fabs(o - typical));
+          std::nth_element(deviations.begin(), deviations.begin() + deviations.size() / 2,
+                           deviations.end());
+          const double spread = 1.4826 * deviations[deviations.size() / 2];
+          mask = std::fabs(z[k][q] - typical) >=
+                 std::max({options.threshold_sd, options.transient_ratio * std::fabs(typical),
+                           options.transient_spread * spread});
         }
       } else {
-        // A spike: far above the pixels at the same distance from the centre.
+        // A spike: far above the other pixels at the same distance from the centre that are
+        // not its neighbours (a spike drags the fit, which leaves its neighbours off too);
+        // at least one, else there is nothing to compare with, as for the peak pixel.
         const double r = std::hypot(x - cx, y - cy);
         double ring = 0.0;
+        int ring_pixels = 0;
         for (size_t p = 0; p < z[k].size(); ++p) {
           if (p == q || !std::isfinite(z[k][p])) continue;
           const int px = static_cast<int>(p % s.nx()), py = static_cast<int>(p / s.nx());
           if (std::max(std::abs(px - x), std::abs(py - y)) <= 1) continue;
           if (std::fabs(std::hypot(px - cx, py - cy) - r) >= 0.5) continue;
           ring = std::max(ring, std::fabs(z[k][p]));
+          ++ring_pixels;
         }
-        mask = std::fabs(z[k][q]) >= options.spike_ratio * ring;
+        mask = ring_pixels >= 1 && std::fabs(z[k][q]) >= options.spike_ratio * ring;
       }
       if (mask) candidates.push_back({q, z[k][q]});
     }
@@ -269,6 +285,38 @@ bool FitExposures(const std::vector<Exposure>& exposures, const Quality& set_qua
                        m.exposure);
     } else {
       out->quality.Add("outlier_masked", Severity::kNote, text, m.exposure);
+    }
+  }
+
+  // A peak far below the model: clipped, compressed, saturated without a known level, or a
+  // PSF flatter at its core than the model (alone, these look alike; the outlier test does
+  // not mask the peak pixel).
+  {
+    std::unique_ptr<FitEvaluator> ev = model->NewEvaluator();
+    int short_peaks = 0;
+    double worst = 0.0;
+    for (int k = 0; k < model->num_exposures(); ++k) {
+      const Stamp& s = model->stamps()[k];
+      const int px = static_cast<int>(std::lround(map.theta[FitModel::XIndex(k)])) - s.origin_x;
+      const int py = static_cast<int>(std::lround(map.theta[FitModel::YIndex(k)])) - s.origin_y;
+      if (px < 0 || py < 0 || px >= s.nx() || py >= s.ny()) continue;
+      const std::vector<double> z = Residuals(*model, ev.get(), map.theta.data(), k);
+      const double zp = z[static_cast<size_t>(py) * s.nx() + px];
+      if (std::isfinite(zp) && zp <= -options.outliers.threshold_sd) {
+        ++short_peaks;
+        worst = std::min(worst, zp);
+      }
+    }
+    if (short_peaks > 0) {
+      out->quality.Add("peak_deficit", Severity::kSuspect,
+                       std::string("the peak pixel lies ") + Fmt(-worst, 3) +
+                           " sd below the fitted model" +
+                           (model->num_exposures() > 1
+                                ? " in " + std::to_string(short_peaks) + " of " +
+                                      std::to_string(model->num_exposures()) + " exposures"
+                                : "") +
+                           ": a clipped, compressed or saturated peak (give --saturation_adu "
+                           "if the detector clips), or a core flatter than the model's");
     }
   }
 

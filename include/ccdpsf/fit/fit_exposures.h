@@ -11,14 +11,19 @@
 // Outliers. A pixel is masked when its normalised residual |z| >= threshold_sd (8: a
 // Gaussian pixel goes there once in 10^15) and it is a transient or a spike, not part of a
 // pattern that a wrong model leaves:
-//   joint sets of >= 3 exposures: it also differs by >= threshold_sd from the median z of the
-//     same stamp pixel in the other exposures, as a cosmic ray, which hits one exposure only
-//     (a wrong model leaves the same residual in all; a large outlier may pull the joint fit
-//     off the others too, so they need not fit, only agree);
+//   joint sets of >= 3 exposures: it also differs from the median z of the same stamp pixel
+//     in the other exposures by >= threshold_sd, by >= transient_ratio (1) of that median
+//     and by >= transient_spread (4) times the others' own spread there (1.4826 MAD), as a
+//     cosmic ray, which hits one exposure only (a wrong model leaves much the same residual
+//     in all, up to what sub-pixel phase changes, which the others' spread measures; a large
+//     outlier may pull the joint fit off the others too, so they need not fit, only agree);
 //   one or two exposures: |z| is at least spike_ratio (2.5) times the largest |z| among the
 //     pixels at the same distance from the spot's centre (within 0.5 px) that are not its
-//     neighbours: a wrong width or profile leaves rings of residuals, a cosmic ray or hot
-//     pixel a lone spike.
+//     neighbours (a spike drags the fit, leaving its neighbours off too); at least one such
+//     pixel: a wrong width or profile leaves rings of residuals, a cosmic ray or hot pixel a
+//     lone spike. The peak pixel has no such ring and is not masked: alone, a clipped peak and
+//     a PSF flatter than the model look alike. A peak far below the model is reported
+//     instead (finding "peak_deficit").
 // At most max_per_exposure pixels per exposure and round, of which one in the core (a bad
 // core pixel drags the fit, leaving its neighbours off until the refit). A masked pixel within
 // core_radius_px of the centre of a one- or two-exposure fit is a suspect finding (the core
@@ -44,6 +49,8 @@ struct OutlierOptions {
   bool enabled = true;
   double threshold_sd = 8.0;
   double spike_ratio = 2.5;
+  double transient_ratio = 1.0;
+  double transient_spread = 4.0;
   double core_radius_px = 1.5;
   int max_per_exposure = 3;
   int max_rounds = 3;
