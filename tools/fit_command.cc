@@ -145,11 +145,12 @@ int FitInto(const std::string& out_dir, const std::vector<Exposure>& exposures,
 // parent folders' names when two files share a stem (a second exposure_000.fits from
 // another folder must not overwrite the first).
 std::vector<std::string> SeparateFolders(const std::vector<std::string>& files) {
-  std::vector<std::string> names;
-  for (const std::string& f : files) names.push_back(fs::path(f).stem().string());
+  std::vector<std::string> stems, names;
+  for (const std::string& f : files) stems.push_back(fs::path(f).stem().string());
+  names = stems;
   for (size_t i = 0; i < files.size(); ++i) {
     bool clash = false;
-    for (size_t j = 0; j < files.size(); ++j) clash = clash || (i != j && names[i] == names[j]);
+    for (size_t j = 0; j < files.size(); ++j) clash = clash || (i != j && stems[i] == stems[j]);
     if (!clash) continue;
     fs::path parent = fs::path(files[i]).parent_path();
     std::string name = fs::path(files[i]).stem().string();
@@ -158,9 +159,7 @@ std::vector<std::string> SeparateFolders(const std::vector<std::string>& files) 
       name = parent.filename().string() + "_" + name;
       parent = parent.parent_path();
       bool unique = true;
-      for (size_t j = 0; j < files.size(); ++j) {
-        unique = unique && (j == i || fs::path(files[j]).stem().string() != name);
-      }
+      for (size_t j = 0; j < files.size(); ++j) unique = unique && (j == i || stems[j] != name);
       if (unique) break;
     }
     names[i] = name;
