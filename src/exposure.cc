@@ -711,6 +711,16 @@ std::optional<Exposure> CalibrateExposure(const FitsImage& image, const std::str
           if (frame.Valid(x, y)) indices.push_back(static_cast<size_t>(y) * frame.nx + x);
         }
       }
+      // A bias section over the spot is a mistake (a wrong keyword or flag): its pixels are
+      // the spot's, and no clipping makes them a bias.
+      const int half = options.stamp_size / 2;
+      if (region->x_begin <= peak_x + half && peak_x - half < region->x_end &&
+          region->y_begin <= peak_y + half && peak_y - half < region->y_end) {
+        return fail("bias section " + Printable(*section) + " (" + section_from +
+                    ") overlaps the spot's stamp around (" + std::to_string(peak_x) + ", " +
+                    std::to_string(peak_y) + "): it cannot measure the bias (give the "
+                    "overscan's section, or --bias_adu and --read_noise_e)");
+      }
       note_text("bias_section", Printable(*section), section_from);
       sample = MeasureNoise(adu, indices, "bias section " + Printable(*section));
       if (!sample) {

@@ -183,6 +183,19 @@ TEST(Contamination, ClippedBlackLevelRefusesToEstimateTheNoise) {
   EXPECT_GT(e->report.censored_low, 100);
 }
 
+TEST(Contamination, ABiasSectionOverTheSpotIsRefused) {
+  const Image frame = test_support::MakeSpotFrame(SyntheticFrame());
+  FitsImage image;
+  image.pixels = frame;
+  image.header = {{"GAIN", 3.1, ""}, {"BIASSEC", std::string("[20:45,1:64]"), ""}};
+  std::string error;
+  EXPECT_FALSE(CalibrateExposure(image, "f.fits", CalibrationOptions(), &error));
+  EXPECT_NE(error.find("overlaps the spot's stamp"), std::string::npos) << error;
+  // Away from the spot it is used.
+  image.header.back() = {"BIASSEC", std::string("[1:8,1:64]"), ""};
+  EXPECT_TRUE(CalibrateExposure(image, "f.fits", CalibrationOptions(), &error)) << error;
+}
+
 // A set whose peak stops growing with the signal: flagged from where it falls short.
 TEST(ExposureSet, CompressionAcrossASeries) {
   std::vector<Exposure> exposures;
