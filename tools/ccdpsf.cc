@@ -25,7 +25,7 @@ namespace ccdpsf::tools {
 
 const std::vector<Command>& Commands() {
   static const std::vector<Command> commands = {SimulateCommand(), FitCommand(), TrendCommand(),
-                                                DiagnoseCommand()};
+                                                DiagnoseCommand(), GainCommand()};
   return commands;
 }
 

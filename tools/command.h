@@ -27,6 +27,7 @@ Command SimulateCommand();
 Command FitCommand();
 Command TrendCommand();
 Command DiagnoseCommand();
+Command GainCommand();
 
 // The fit options of `fit` and `trend`: defaults <- --config=FIT.json <- the fit flags given
 // (defined in fit_command.cc). False with a one-line reason on bad values.

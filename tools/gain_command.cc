@@ -1,0 +1,219 @@
+// ccdpsf gain: the camera's gain [e-/ADU] and read noise [e-] from the frames a user has, by
+// photon transfer (photon_transfer.h), for cameras whose headers record neither.
+#include <cmath>
+#include <cstdio>
+#include <limits>
+#include <string>
+#include <vector>
+
+#include "ccdpsf/atomic_file.h"
+#include "ccdpsf/manifest.h"
+#include "ccdpsf/photon_transfer.h"
+#include "ccdpsf/provenance.h"
+#include "command.h"
+#include "gflags/gflags.h"
+
+DECLARE_double(exptime_s);
+DECLARE_double(bias_adu);
+DECLARE_double(saturation_adu);
+DECLARE_string(manifest);
+DECLARE_string(out);
+DEFINE_string(gain_method, "auto",
+              "gain: auto (pairs when two frames share an exposure time, else single_frame), "
+              "pairs or single_frame");
+
+namespace ccdpsf::tools {
+namespace {
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+
+// Points are listed on screen up to this many; beyond, gain.csv has them.
+constexpr int kMaxPointsOnScreen = 15;
+
+// A number of the summary: "%.3g", or "-" when not finite.
+std::string Show(double value, const char* format = "%.3g") {
+  if (!std::isfinite(value)) return "-";
+  char text[64];
+  std::snprintf(text, sizeof(text), format, value);
+  return text;
+}
+
+// The run's files and what the manifest and flags say of them. False with a one-line reason.
+bool ResolveGainInputs(const std::vector<std::string>& args, std::vector<std::string>* files,
+                       PhotonTransferOptions* options, std::string* error) {
+  Manifest manifest;
+  const bool has_manifest = FlagGiven("manifest");
+  if (has_manifest && !LoadManifest(FLAGS_manifest, &manifest, error)) return false;
+  std::vector<const ManifestRow*> rows;
+  if (args.empty()) {
+    for (const ManifestRow& row : manifest.rows) {
+      files->push_back(row.file);
+      rows.push_back(&row);
+    }
+  } else {
+    for (const std::string& file : args) {
+      const ManifestRow* row = has_manifest ? manifest.Find(file) : nullptr;
+      if (has_manifest && row == nullptr) {
+        *error = "'" + file + "' is not listed in the manifest '" + FLAGS_manifest + "'";
+        return false;
+      }
+      files->push_back(file);
+      rows.push_back(row);
+    }
+  }
+  if (files->empty()) {
+    *error = "the manifest '" + FLAGS_manifest + "' lists no files";
+    return false;
+  }
+  auto row_number = [](const ManifestRow* row, const char* quantity,
+                       std::string* source) -> double {
+    if (row == nullptr) return kNaN;
+    const GivenValue* v = row->values.Find(quantity);
+    if (v == nullptr || !v->number) return kNaN;
+    *source = v->source;
+    return *v->number;
+  };
+
+  // Exposure times: the flag for every file, else each file's manifest row, else (NaN) the
+  // file's EXPTIME keyword.
+  for (const ManifestRow* row : rows) {
+    std::string source = "flag --exptime_s";
+    double t = kNaN;
+    if (FlagGiven("exptime_s")) {
+      t = FLAGS_exptime_s;
+    } else {
+      t = row_number(row, "exptime_s", &source);
+    }
+    if (!std::isnan(t) && !(std::isfinite(t) && t >= 0.0)) {
+      *error = "exposure time " + Show(t) + " s (" + source + ") must be >= 0";
+      return false;
+    }
+    options->exptime_s.push_back(t);
+    options->exptime_sources.push_back(std::isfinite(t) ? source : "unknown");
+    // Frames pair only within a manifest setting (the same scene).
+    options->scene.push_back(row != nullptr ? row->setting : std::string());
+  }
+
+  // Bias and saturation: one value for the set, from the flag or the manifest's rows (which
+  // must then agree: the fit has one intercept).
+  auto one_value = [&](const char* quantity, bool flag_given, double flag_value, double* value,
+                       std::string* source) {
+    if (flag_given) {
+      *value = flag_value;
+      *source = std::string("flag --") + quantity;
+      return true;
+    }
+    for (const ManifestRow* row : rows) {
+      std::string s;
+      const double v = row_number(row, quantity, &s);
+      if (std::isnan(v)) continue;
+      if (std::isfinite(*value) && v != *value) {
+        *error = std::string("the manifest gives different values of ") + quantity + " (" +
+                 Show(*value) + " and " + Show(v) + "); the gain estimate needs one";
+        return false;
+      }
+      *value = v;
+      *source = s;
+    }
+    return true;
+  };
+  std::string saturation_source;
+  if (!one_value("bias_adu", FlagGiven("bias_adu"), FLAGS_bias_adu, &options->bias_adu,
+                 &options->bias_source) ||
+      !one_value("saturation_adu", FlagGiven("saturation_adu"), FLAGS_saturation_adu,
+                 &options->saturation_adu, &saturation_source)) {
+    return false;
+  }
+  if (!ParsePtcMethod(FLAGS_gain_method, &options->method)) {
+    *error = "--gain_method must be auto, pairs or single_frame (got '" + FLAGS_gain_method + "')";
+    return false;
+  }
+  return options->IsValid(error);
+}
+
+void PrintSummary(const PhotonTransferResult& r) {
+  std::printf("ccdpsf gain: %zu frame(s), method %s", r.frames.size(), r.method.c_str());
+  if (r.method == "pairs") {
+    std::printf(" (%d pair(s) at equal exposure times)\n", r.pairs);
+  } else {
+    std::printf(" (differences within each frame)\n");
+  }
+  std::printf("  gain         %s +- %s e-/ADU\n", Show(r.gain_e_per_adu, "%.4g").c_str(),
+              Show(r.gain_sd_e_per_adu, "%.2g").c_str());
+  if (std::isfinite(r.read_noise_e)) {
+    std::printf("  read noise   %s +- %s e-\n", Show(r.read_noise_e, "%.3g").c_str(),
+                Show(r.read_noise_sd_e, "%.2g").c_str());
+  } else if (std::isfinite(r.read_noise_upper_e)) {
+    std::printf("  read noise   not determined; < %s e- (see the warnings)\n",
+                Show(r.read_noise_upper_e).c_str());
+  } else {
+    std::printf("  read noise   not determined (see the warnings)\n");
+  }
+  if (std::isfinite(r.bias_adu)) {
+    std::printf("  bias         %s ADU (%s)\n", Show(r.bias_adu, "%.5g").c_str(),
+                r.bias_source.c_str());
+  } else {
+    std::printf("  bias         unknown\n");
+  }
+  std::printf(
+      "  fit          variance = %s + mean / %s [ADU^2]; %d points from %s to %s ADU; "
+      "chi2 %s / %d\n",
+      Show(r.intercept_adu2, "%.4g").c_str(), Show(r.gain_e_per_adu, "%.4g").c_str(), r.points_used,
+      Show(r.min_level_adu, "%.4g").c_str(), Show(r.max_level_adu, "%.4g").c_str(),
+      Show(r.chi2, "%.3g").c_str(), r.dof);
+  if (r.points_used <= kMaxPointsOnScreen) {
+    std::printf("  points       mean [ADU]  variance [ADU^2]  pixels\n");
+    for (const PtcPoint& p : r.points) {
+      if (!p.used) continue;
+      std::printf("               %10.4g  %16.4g  %6lld\n", p.mean_adu, p.variance_adu2, p.pixels);
+    }
+  }
+  for (const std::string& w : r.warnings) std::printf("  warning: %s\n", w.c_str());
+}
+
+int RunGain(const std::vector<std::string>& args) {
+  if (args.empty() && !FlagGiven("manifest")) {
+    return Fail("gain needs FITS files (or --manifest)");
+  }
+  std::vector<std::string> files;
+  PhotonTransferOptions options;
+  std::string error;
+  if (!ResolveGainInputs(args, &files, &options, &error)) return Fail(error);
+  PhotonTransferResult result;
+  if (!EstimatePhotonTransferFromFiles(files, options, &result, &error)) return Fail(error);
+  PrintSummary(result);
+  if (FLAGS_out.empty()) return 0;
+  if (!MakeDirectories(FLAGS_out, &error)) return Fail(error);
+  nlohmann::json json = PhotonTransferJson(result);
+  if (!WriteTextFileAtomically(FLAGS_out + "/gain.json", json.dump(2) + "\n", &error) ||
+      !WriteTextFileAtomically(FLAGS_out + "/gain.csv", PhotonTransferCsv(result), &error)) {
+    return Fail(error);
+  }
+  const nlohmann::json run_options = {
+      {"files", files},
+      {"exptime_s", FlagGiven("exptime_s") ? nlohmann::json(FLAGS_exptime_s) : nlohmann::json()},
+      {"bias_adu", FlagGiven("bias_adu") ? nlohmann::json(FLAGS_bias_adu) : nlohmann::json()},
+      {"saturation_adu",
+       FlagGiven("saturation_adu") ? nlohmann::json(FLAGS_saturation_adu) : nlohmann::json()},
+      {"manifest", FLAGS_manifest},
+      {"gain_method", FLAGS_gain_method},
+      {"out", FLAGS_out}};
+  // Nothing random is drawn: the seed recorded is 0.
+  if (!WriteRunRecord(FLAGS_out, "gain", run_options, 0, &error)) return Fail(error);
+  std::printf("wrote %s/gain.json and %s/gain.csv\n", FLAGS_out.c_str(), FLAGS_out.c_str());
+  return 0;
+}
+
+}  // namespace
+
+Command GainCommand() {
+  return {"gain",
+          "ccdpsf gain [--exptime_s=S] [--manifest=FILE] [--bias_adu=B] [--saturation_adu=S] "
+          "[--gain_method=auto|pairs|single_frame] [--out=DIR] FILE.fits...",
+          "Estimate the gain [e-/ADU] and read noise [e-] by photon transfer, from frame pairs "
+          "at equal exposure times or from single frames.",
+          {"exptime_s", "manifest", "bias_adu", "saturation_adu", "gain_method", "out"},
+          RunGain};
+}
+
+}  // namespace ccdpsf::tools
