@@ -14,8 +14,12 @@
 #include <utility>
 #include <vector>
 
+#include "internal/text.h"
+
 namespace ccdpsf {
 namespace {
+
+using internal::Printable;
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
@@ -57,14 +61,6 @@ std::string FormatNumber(double value) {
   return text;
 }
 
-// Header text as it may appear in a one-line message: control and non-ASCII bytes (which a
-// corrupt file can hold) become '?'.
-std::string Printable(std::string text) {
-  for (char& c : text) {
-    if (c < 0x20 || c > 0x7e) c = '?';
-  }
-  return text;
-}
 
 double Median(std::vector<double> values) {
   const size_t n = values.size();

@@ -25,9 +25,12 @@
 #include <vector>
 
 #include "ccdpsf/atomic_file.h"
+#include "internal/text.h"
 
 namespace ccdpsf {
 namespace {
+
+using internal::ToUpper;
 
 // Owns an open fitsfile*. The destructor closes the file and ignores any error (it must not
 // throw and has nobody to tell); writers call Close() themselves to learn whether the final
@@ -70,10 +73,6 @@ std::string CfitsioText(int status) {
 
 std::string Quoted(const std::string& path) { return "'" + path + "'"; }
 
-std::string ToUpper(std::string text) {
-  for (char& c : text) c = static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
-  return text;
-}
 
 // True if `text` is `prefix` followed by one or more digits (NAXIS1, TFORM12, ...).
 bool IsIndexed(const std::string& text, const char* prefix) {

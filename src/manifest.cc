@@ -7,26 +7,18 @@
 #include <sstream>
 
 #include "nlohmann/json.hpp"
+#include "internal/text.h"
 
 namespace ccdpsf {
 namespace {
 
+using internal::Printable;
+using internal::Trim;
+
 namespace fs = std::filesystem;
 using nlohmann::json;
 
-std::string Printable(std::string text) {
-  for (char& c : text) {
-    if (c < 0x20 || c > 0x7e) c = '?';
-  }
-  return text;
-}
 
-std::string Trim(const std::string& text) {
-  const size_t first = text.find_first_not_of(" \t\r\n");
-  if (first == std::string::npos) return "";
-  const size_t last = text.find_last_not_of(" \t\r\n");
-  return text.substr(first, last - first + 1);
-}
 
 // Splits one CSV line into fields; double quotes protect commas, "" inside quotes is one
 // quote. False on an unterminated quote.

@@ -9,8 +9,14 @@
 #include <limits>
 #include <sstream>
 
+#include "internal/text.h"
+
 namespace ccdpsf {
 namespace {
+
+using internal::Trim;
+using internal::ToUpper;
+using internal::Printable;
 
 using nlohmann::json;
 
@@ -41,17 +47,7 @@ const QuantityInfo* Info(const std::string& name) {
   return nullptr;
 }
 
-std::string Trim(const std::string& text) {
-  const size_t first = text.find_first_not_of(" \t\r\n");
-  if (first == std::string::npos) return "";
-  const size_t last = text.find_last_not_of(" \t\r\n");
-  return text.substr(first, last - first + 1);
-}
 
-std::string ToUpper(std::string text) {
-  for (char& c : text) c = static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
-  return text;
-}
 
 // A FITS keyword name: 1-8 characters of A-Z, 0-9, '-' and '_' (FITS standard 4.0, 4.1.2.1).
 // HIERARCH names are longer; they are allowed as written.
@@ -77,11 +73,16 @@ std::optional<double> ParseFinite(const std::string& text) {
   return v;
 }
 
-std::string Printable(std::string text) {
-  for (char& c : text) {
-    if (c < 0x20 || c > 0x7e) c = '?';
+
+// The keyword rule of `quantity` when the header holds that keyword, else nullptr.
+const KeywordRule* MappedKeyword(const KeywordMap& keywords, const FitsHeader& header,
+                                 const std::string& quantity) {
+  const KeywordRule* rule = keywords.Find(quantity);
+  if (rule == nullptr) return nullptr;
+  for (const FitsKey& key : header) {
+    if (ToUpper(key.name) == rule->keyword) return rule;
   }
-  return text;
+  return nullptr;
 }
 
 }  // namespace
@@ -336,11 +337,8 @@ bool ResolveNumber(const GivenMetadata& given, const KeywordMap& keywords,
     *source = v->source.empty() ? "option" : v->source;
     return true;
   }
-  const KeywordRule* rule = keywords.Find(quantity);
+  const KeywordRule* rule = MappedKeyword(keywords, header, quantity);
   if (rule == nullptr) return true;
-  bool present = false;
-  for (const FitsKey& key : header) present = present || ToUpper(key.name) == rule->keyword;
-  if (!present) return true;
   const std::optional<double> number = FindNumber(header, rule->keyword);
   if (!number || !std::isfinite(*number)) {
     *error = "keyword " + rule->keyword + " (" + quantity + ") is not a finite number";
@@ -365,11 +363,8 @@ bool ResolveText(const GivenMetadata& given, const KeywordMap& keywords, const F
     *source = v->source.empty() ? "option" : v->source;
     return true;
   }
-  const KeywordRule* rule = keywords.Find(quantity);
+  const KeywordRule* rule = MappedKeyword(keywords, header, quantity);
   if (rule == nullptr) return true;
-  bool present = false;
-  for (const FitsKey& key : header) present = present || ToUpper(key.name) == rule->keyword;
-  if (!present) return true;
   const std::optional<std::string> text = FindString(header, rule->keyword);
   if (!text) {
     *error = "keyword " + rule->keyword + " (" + quantity + ") is not a string";
