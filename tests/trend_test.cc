@@ -14,7 +14,9 @@
 
 #include "ccdpsf/random.h"
 #include "ccdpsf/simulate.h"
+#include "ccdpsf/fits_io.h"
 #include "ccdpsf/trend/campaign.h"
+#include "ccdpsf/trend/group_fit.h"
 #include "ccdpsf/trend/trend.h"
 #include "gtest/gtest.h"
 #include "nlohmann/json.hpp"
@@ -99,6 +101,50 @@ TEST(Campaign, FoldersAreGroupedByWavelengthAndExposureTime) {
   EXPECT_EQ(sizes["700nm_2s_focus"], 3u);
   EXPECT_FALSE(LoadCampaign({root + "/nothing"}, &groups, &error));
   EXPECT_NE(error.find("no such file"), std::string::npos) << error;
+}
+
+// A setting whose fit is invalid (here: its frames hold a defocused pedestal, no compact
+// spot) is a gap with the verdict as its reason; the others are fitted as usual.
+TEST(Campaign, AnInvalidGroupIsAGapWithItsVerdict) {
+  const std::string root = Fresh("invalid");
+  SimulateSet(root + "/good", 800, 1.0);
+  fs::create_directories(root + "/pedestal");
+  for (int k = 0; k < 2; ++k) {
+    Image frame(48, 48, 1000.0);
+    for (int y = 0; y < 48; ++y) {
+      for (int x = 0; x < 48; ++x) {
+        if (std::hypot(x - 24.0, y - 24.0) <= 6.0) frame(x, y) += 300.0 + (x * 7 + y * 3 + k) % 5;
+        frame(x, y) += (x * 13 + y * 29 + k * 5) % 4;  // a little structure, integer ADU
+      }
+    }
+    std::string error;
+    ASSERT_TRUE(WriteFitsImageU16(root + "/pedestal/e" + std::to_string(k) + ".fits", frame,
+                                  {{"GAIN", 3.1, ""},
+                                   {"RDNOISE", 4.5, ""},
+                                   {"BIASLVL", 1000.0, ""},
+                                   {"PIXSIZE", 12.0, ""},
+                                   {"WAVELEN", 700.0, ""}},
+                                  &error))
+        << error;
+  }
+  std::vector<CampaignGroup> groups;
+  std::string error;
+  ASSERT_TRUE(LoadCampaign({root}, &groups, &error)) << error;
+  ASSERT_EQ(groups.size(), 2u);
+  GroupFitOptions options;
+  options.config.fit.run_mcmc = false;
+  options.parallel_groups = 1;
+  const std::vector<GroupResult> results = FitGroups(groups, options, nullptr);
+  for (const GroupResult& r : results) {
+    if (r.group.name == "good") {
+      EXPECT_TRUE(r.ok) << r.failure;
+      EXPECT_EQ(r.quality.Verdict(), "ok") << r.quality.OneLine();
+    } else {
+      EXPECT_FALSE(r.ok);
+      EXPECT_EQ(r.failure.rfind("verdict invalid: ", 0), 0u) << r.failure;
+      EXPECT_NE(r.failure.find("no compact source"), std::string::npos) << r.failure;
+    }
+  }
 }
 
 TEST(Campaign, ManifestIsReadStrictly) {
