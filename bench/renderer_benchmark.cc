@@ -44,6 +44,11 @@ void BM_IntegratedPillboxWithJacobian(benchmark::State& state) {
   options.defocus = DefocusKind::kPillbox;
   Render(state, options, {4.0e5, 10.07, 9.96, 0.47, 0.6, 0.291, 0.335}, true);
 }
+void BM_IntegratedPillboxValuesOnly(benchmark::State& state) {
+  ModelOptions options;
+  options.defocus = DefocusKind::kPillbox;
+  Render(state, options, {4.0e5, 10.07, 9.96, 0.47, 0.6, 0.291, 0.335}, false);
+}
 void BM_PixelCentreWithJacobian(benchmark::State& state) {
   ModelOptions options;
   options.sampling = Sampling::kPixelCentre;
@@ -59,6 +64,7 @@ BENCHMARK(BM_IntegratedWithJacobian)->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_IntegratedValuesOnly)->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_IntegratedNarrowestWithJacobian)->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_IntegratedPillboxWithJacobian)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_IntegratedPillboxValuesOnly)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_PixelCentreWithJacobian)->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_PixelCentreValuesOnly)->Unit(benchmark::kMicrosecond);
 

@@ -24,13 +24,14 @@ ExposureResidual Synthetic(double peak_e, std::mt19937_64& engine) {
   e.centre_x = 4.1;
   e.centre_y = 3.9;
   e.peak_e = peak_e;
+  e.flux_e = 2.7 * peak_e;  // classes go by the fitted intensity; one PSF: proportional
   return e;
 }
 
 TEST(Statistics, StacksAreSplitByIntensityClass) {
   std::mt19937_64 engine(5);
-  // Out of order on purpose. Classes: a class starts where a peak exceeds 1.25 x the class's
-  // lowest: {1.0e5, 1.2e5}, {1.3e5} (1.3 > 1.25), {4.0e5}.
+  // Out of order on purpose. Classes (by the fitted intensity, here proportional to the
+  // peaks): a class starts where it exceeds 1.25 x the class's lowest: {1.0e5, 1.2e5}, {1.3e5} (1.3 > 1.25), {4.0e5}.
   const std::vector<double> peaks = {1.3e5, 1.0e5, 4.0e5, 1.2e5};
   std::vector<ExposureResidual> residuals;
   for (double p : peaks) residuals.push_back(Synthetic(p, engine));

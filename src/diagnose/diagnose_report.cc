@@ -140,6 +140,7 @@ json Statistics(const ResidualStatistics& st) {
                     {"value", Num(s.value)},
                     {"tail", s.tail == Tail::kUpper ? "upper" : "two_sided"},
                     {"p_value", Num(s.p_value)},
+                    {"p_method", s.p_method},
                     {"predictive_mean", Num(s.predictive_mean)},
                     {"predictive_sd", Num(s.predictive_sd)},
                     {"description", i < desc.size() ? desc[i].second : ""}});

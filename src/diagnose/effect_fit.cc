@@ -701,8 +701,16 @@ std::vector<double> PeakSignals(const std::vector<Stamp>& stamps) {
 
 bool IsMultiIntensity(const std::vector<Stamp>& stamps) {
   if (stamps.size() < 2) return false;
-  const std::vector<double> peaks = PeakSignals(stamps);
-  const auto [lo, hi] = std::minmax_element(peaks.begin(), peaks.end());
+  // Sums over the pixels valid in every stamp (stamps are centred on their peak pixel).
+  std::vector<double> sums(stamps.size(), 0.0);
+  const size_t n = stamps[0].valid.size();
+  for (size_t q = 0; q < n; ++q) {
+    bool everywhere = true;
+    for (const Stamp& s : stamps) everywhere = everywhere && s.valid.size() == n && s.valid[q];
+    if (!everywhere) continue;
+    for (size_t k = 0; k < stamps.size(); ++k) sums[k] += stamps[k].electrons.data[q];
+  }
+  const auto [lo, hi] = std::minmax_element(sums.begin(), sums.end());
   if (*lo > 0 && *hi / *lo > 1.25) return true;
   double t_lo = INFINITY, t_hi = -INFINITY;
   for (const Stamp& s : stamps) {

@@ -220,7 +220,9 @@ std::vector<Image> SimulateData(const EffectModel& model, const std::vector<doub
 int SharpestExposure(const fit::FitModel& base);
 
 // The exposures' peak-pixel signals [e-] (largest valid data pixel), and whether they span
-// several intensities: max / min > 1.25, or EXPTIME values that differ by more than 1 %.
+// several intensities: their summed signals (over the pixels valid in every stamp, which do
+// not change with the spot's sub-pixel position as a peak pixel does, by > 1.25 x alone)
+// differ by more than a factor 1.25, or their EXPTIME values by more than 1 %.
 std::vector<double> PeakSignals(const std::vector<Stamp>& stamps);
 bool IsMultiIntensity(const std::vector<Stamp>& stamps);
 

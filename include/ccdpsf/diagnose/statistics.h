@@ -19,10 +19,12 @@
 //   neighbour_z       the four edge neighbours of the peak pixel minus its four diagonal
 //                     neighbours, / sqrt(8) per exposure (ipc)                     (two-sided)
 //   peak_z            r of the peak pixel, summed over exposures / sqrt(K)         (two-sided)
-//   peak_trend_z      the exposures' core_z against their peak signal I_k:
-//                     sum core_k (I_k - mean I) / sqrt(sum (I_k - mean I)^2): a peak deficit
-//                     growing with intensity (brighter_fatter, nonlinearity); only with two or
-//                     more intensities (peak ratio > 1.25)                         (two-sided)
+//   peak_trend_z      the exposures' core_z against their intensity I_k (the fitted model's
+//                     charge on the stamp, which unlike a peak pixel does not change with
+//                     the spot's sub-pixel position): sum core_k (I_k - mean I) /
+//                     sqrt(sum (I_k - mean I)^2): a peak deficit growing with intensity
+//                     (brighter_fatter, nonlinearity); only with two or more intensities
+//                     (intensity ratio > 1.25)                                   (two-sided)
 //   width_scatter     per exposure the residual projected on (rho^2 - its mean) over rho < 4,
 //                     normalised; their sum of squared deviations from the mean: widths that
 //                     differ between exposures (jitter, brighter_fatter); K >= 2   (upper)
@@ -32,9 +34,10 @@
 // The stacked images align every exposure on the pixel grid: the pixel nearest its fitted
 // centre lands on the stack's centre pixel ((n - 1) / 2), with no interpolation (so the
 // residual pattern is not smoothed); pixels shifted off the stamp are dropped. They are also
-// stacked per intensity class (exposures sorted by peak signal; a class starts where a peak
-// exceeds 1.25 x the lowest peak of the current class, the ratio that makes a set
-// multi-intensity), because an effect that grows with the signal (brighter_fatter,
+// stacked per intensity class (exposures sorted by their fitted intensity, the model's charge
+// on the stamp; a class starts where it exceeds 1.25 x the lowest of the current class, the
+// ratio that makes a set multi-intensity; a raw peak pixel varies by more than that with the
+// spot's sub-pixel position alone), because an effect that grows with the signal (brighter_fatter,
 // nonlinearity) leaves residuals of opposite sign at low and high intensity, which cancel in
 // the stack of all exposures.
 #ifndef CCDPSF_DIAGNOSE_STATISTICS_H_
@@ -59,6 +62,8 @@ struct ExposureResidual {
   double centre_x = 0.0;  // fitted spot centre in stamp indices [px]
   double centre_y = 0.0;
   double peak_e = 0.0;    // the model's largest pixel [e-]
+  double flux_e = 0.0;    // the model's charge summed over the stamp [e-]: the exposure's
+                          // intensity free of where the spot sits on the pixel grid
   int origin_x = 0;       // frame coordinates of stamp pixel (0, 0)
   int origin_y = 0;
 };
@@ -76,6 +81,7 @@ struct NamedStatistic {
   Tail tail = Tail::kTwoSided;
   // Predictive p-value (PredictiveCheck); NaN until computed.
   double p_value = NAN;
+  std::string p_method;  // "simulations", "normal tail" or "chi2 distribution"
   // The predictive distribution's mean and sd (NaN until computed).
   double predictive_mean = NAN;
   double predictive_sd = NAN;
@@ -111,7 +117,8 @@ struct ResidualStatistics {
   std::vector<IntensityStack> by_intensity;
   // Mean normalised residual in 1-px annuli rho in [b, b + 1), b = 0..9, and the counts.
   std::vector<double> radial_mean, radial_count;
-  std::vector<double> peak_e;  // per exposure
+  std::vector<double> peak_e;  // per exposure: the model's peak pixel [e-]
+  std::vector<double> flux_e;  // per exposure: the model's charge on the stamp [e-]
   std::vector<double> core_z;  // per exposure
 
   const NamedStatistic* Find(const std::string& name) const;
@@ -139,6 +146,11 @@ struct PredictiveOptions {
 // Simulates the model at `p` num_simulations times (SimulateData, noise only), computes the
 // statistics of each, and fills p_value / predictive_mean / predictive_sd of *observed:
 // upper tail p = (1 + #{sim >= obs}) / (1 + N); two-sided p = min(1, 2 min(upper, lower)).
+// With N simulations such a p cannot go below 1 / (N + 1), so a clean set and a gross misfit
+// would look alike: where fewer than 5 simulations reach the observed value, p comes from
+// the tail of a normal with the simulations' mean and sd instead (p_method "normal tail"),
+// and chi2_per_dof, whose distribution is known, always from the chi^2 distribution with its
+// dof (p_method "chi2 distribution").
 // `draws` (may be null) receives every simulation's values, [statistic][simulation].
 void PredictiveCheck(const EffectModel& model, const std::vector<double>& p,
                      const PredictiveOptions& options, ResidualStatistics* observed,
