@@ -44,6 +44,7 @@ struct AccuracyCase {
   SpotParams params{};
   int nx = 21;
   int ny = 21;
+  double pixel_window = 1.0;  // ModelOptions::pixel_response_width
 };
 
 std::string Describe(const AccuracyCase& c) {
@@ -132,6 +133,7 @@ double CheckCase(const AccuracyCase& c, std::mt19937_64& rng) {
   ModelOptions options;
   options.sampling = Sampling::kIntegrated;
   options.defocus = c.kind;
+  options.pixel_response_width = c.pixel_window;
   SpotRenderer renderer(options);
   PixelGrid grid;
   grid.nx = c.nx;
@@ -141,7 +143,8 @@ double CheckCase(const AccuracyCase& c, std::mt19937_64& rng) {
   std::vector<double> model(grid.size());
   renderer.Render(c.params, grid, model.data(), nullptr);
 
-  const testing_reference::ReferenceSpot spot = FromSpotParams(c.params, c.kind);
+  testing_reference::ReferenceSpot spot = FromSpotParams(c.params, c.kind);
+  spot.pixel_window = c.pixel_window;
   const int pi = static_cast<int>(std::lround(c.params[kCentreX]));
   const int pj = static_cast<int>(std::lround(c.params[kCentreY]));
   const ReferenceResult peak = ReferencePixel(spot, pi, pj);
@@ -239,6 +242,22 @@ TEST(RendererAccuracy, PillboxDefocus) {
   }
   double worst = 0.0;
   for (const AccuracyCase& c : cases) worst = std::max(worst, CheckCase(c, rng));
+  RecordProperty("max_error_of_peak", Scientific(worst));
+}
+
+// A pixel response narrower than the pixel (a collecting window of width 0.5-0.9 px, the
+// alternative `ccdpsf diagnose` tests), Gaussian and pillbox defocus.
+TEST(RendererAccuracy, NarrowPixelResponse) {
+  std::mt19937_64 rng(0x5eed0005);
+  double worst = 0.0;
+  for (int k = 0; k < 4; ++k) {
+    AccuracyCase c = GaussianCase("window " + std::to_string(k), Uniform(rng, 0.3, 0.9),
+                                  Uniform(rng, 0.0, 0.6), Uniform(rng, 0.1, 0.6),
+                                  Uniform(rng, 0.1, 0.6), StampSize(rng), StampSize(rng), rng);
+    c.pixel_window = Uniform(rng, 0.5, 0.9);
+    if (k == 3) c.kind = DefocusKind::kPillbox;
+    worst = std::max(worst, CheckCase(c, rng));
+  }
   RecordProperty("max_error_of_peak", Scientific(worst));
 }
 

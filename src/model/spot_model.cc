@@ -45,7 +45,10 @@ bool ValidSpotParams(const ModelOptions& options, const SpotParams& p, std::stri
     }
   }
   std::ostringstream why;
-  if (p[kFlux] < 0) why << "flux must be >= 0 (got " << p[kFlux] << ")";
+  if (!(options.pixel_response_width > 0.0 && options.pixel_response_width <= 1.0)) {
+    why << "the pixel response width must lie in (0, 1] px (got "
+        << options.pixel_response_width << ")";
+  } else if (p[kFlux] < 0) why << "flux must be >= 0 (got " << p[kFlux] << ")";
   else if (p[kAiryRadius] <= 0) why << "airy radius must be > 0 px (got " << p[kAiryRadius] << ")";
   else if (p[kDefocus] < 0) why << "defocus must be >= 0 px (got " << p[kDefocus] << ")";
   else if (p[kCcdSigmaX] < 0 || p[kCcdSigmaY] < 0) why << "ccd sigmas must be >= 0 px";

@@ -188,7 +188,9 @@ long long Sweep(const ReferenceSpot& spot, const Plan& plan, int level, AngularR
       for (int q = 0; q < n; ++q) {
         const double u = rho * ang.c[q];
         const double v = rho * ang.s[q];
-        const double g = std::exp(-(a_x * u * u + a_y * v * v)) * Sinc(u) * Sinc(v);
+        const double w = spot.pixel_window;
+        const double g =
+            std::exp(-(a_x * u * u + a_y * v * v)) * w * Sinc(w * u) * w * Sinc(w * v);
         accumulate(radial_weight * ang.w[q] * g, u, v);
       }
       nodes += n;

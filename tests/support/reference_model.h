@@ -60,6 +60,9 @@ struct ReferenceSpot {
   double defocus_px = 0.0;  // Gaussian sigma or pillbox radius [px]; 0 means no defocus
   double ccd_sigma_x_px = 0.0;
   double ccd_sigma_y_px = 0.0;
+  // Width of each pixel's collecting window [px] (1: the whole pixel). Its box transform is
+  // w sinc(w u) per axis in place of sinc(u).
+  double pixel_window = 1.0;
 };
 
 // The spot of the renderer's SpotParams (integrated sampling), in the reference's terms.

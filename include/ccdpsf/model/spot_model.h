@@ -44,6 +44,11 @@ struct ModelOptions {
   // Integrated sampling only: the quadrature is refined until its error bound, relative to
   // the total flux, is below this. 1e-10 keeps every pixel well inside 1e-6 of the peak pixel.
   double relative_tolerance = 1e-10;
+  // Integrated sampling only: the width [px] of each pixel's collecting window, centred on the
+  // pixel, along each axis: 1 collects the whole pixel (the paper's model); less models a pixel
+  // response narrower than the pixel (charge landing near the edges lost), an alternative
+  // `ccdpsf diagnose` tests. In (0, 1].
+  double pixel_response_width = 1.0;
 };
 
 // Parameters of one spot, in the order used by every Jacobian in the project.
