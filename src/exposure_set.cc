@@ -66,6 +66,9 @@ constexpr double kMinSignalSpan = 1.5;
 constexpr double kMinBrighter = 1.3;
 constexpr double kMinDeficit = 0.03;
 constexpr double kDeficitSd = 3.0;
+// The spot's light per second may differ by this fraction (lamp drift) for the exposures to
+// count as one intensity scaled by exposure time.
+constexpr double kTimeScaledTolerance = 0.15;
 
 }  // namespace
 
@@ -106,6 +109,11 @@ void CheckPeakCompression(const std::vector<Exposure>& exposures, Quality* quali
     sp += points[i].exptime * points[i].peak;
   }
   const double rate = have_time && st > 0 ? sp / st : NAN;
+  // The same for the spot's total light: the peak line only means something where the
+  // intensity was varied through the exposure time (the light per second stays put).
+  double sb = 0;
+  for (size_t i = 0; i < reference; ++i) sb += points[i].exptime * points[i].box;
+  const double box_rate = have_time && st > 0 ? sb / st : NAN;
   for (size_t i = reference; i < points.size(); ++i) {
     const Point& p = points[i];
     if (p.box < kMinBrighter * ref_box) continue;
@@ -119,7 +127,10 @@ void CheckPeakCompression(const std::vector<Exposure>& exposures, Quality* quali
                              "faintest exposures (%.3f against %.3f, %.1f sd): compressed before "
                              "saturation",
                              100 * deficit, p.fraction, f_ref, deficit / sd);
-    if (std::isfinite(rate) && std::isfinite(p.exptime) && used > 0 && used < 300) {
+    const bool time_scaled = std::isfinite(box_rate) && std::isfinite(p.exptime) &&
+                             p.exptime > 0 &&
+                             std::abs(p.box / (box_rate * p.exptime) - 1.0) < kTimeScaledTolerance;
+    if (std::isfinite(rate) && time_scaled && used > 0 && used < 300) {
       std::snprintf(text + used, sizeof(text) - used,
                     "; it lies %.1f %% below the line through their peaks against exposure time",
                     100 * (1 - p.peak / (rate * p.exptime)));

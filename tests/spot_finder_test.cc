@@ -218,6 +218,20 @@ TEST(ExposureSet, CompressionAcrossASeries) {
   EXPECT_EQ(q.findings[0].code, "compressed_peak");
   EXPECT_EQ(q.findings[0].exposure, 4);
   EXPECT_EQ(q.findings[1].exposure, 5);
+  // The intensity scaled by exposure time: the shortfall against the peak line is stated
+  // (12 % of the peak pixel, so about 12 % below the line; 3 % either way is noise and the
+  // line's own fit).
+  const std::string& message = q.findings[0].message;
+  const size_t at = message.find("lies ");
+  ASSERT_NE(at, std::string::npos) << message;
+  EXPECT_NEAR(std::stod(message.substr(at + 5)), 12.0, 3.0) << message;
+  // Equal exposure times (the lamp varied instead): no line against time is drawn.
+  for (Exposure& e : exposures) e.stamp.info.exptime_s = 4.1;
+  Quality same_time;
+  CheckPeakCompression(exposures, &same_time);
+  ASSERT_EQ(same_time.findings.size(), 2u) << same_time.OneLine();
+  EXPECT_EQ(same_time.findings[0].message.find("exposure time"), std::string::npos)
+      << same_time.findings[0].message;
   // Uncompressed, nothing is flagged.
   std::vector<Exposure> linear;
   for (int k = 0; k < 6; ++k) {
