@@ -15,11 +15,13 @@ esac
 cd "$(dirname "$0")/.."
 jobs="$(nproc 2>/dev/null || echo 2)"
 
-# python3-numpy and python3-astropy: the tests add lab defects to simulated frames with a
-# separate script (tests/support/lab_defects.py) that shares no code with the tool.
+# python3-numpy, -scipy, -astropy and -pytest: the tests add lab defects to simulated frames
+# and simulate spots by photon shooting with separate scripts (tests/support/lab_defects.py,
+# reference_sensor.py) that share no code with the tool, and check those scripts themselves.
 packages=(build-essential cmake pkg-config libceres-dev libeigen3-dev libgoogle-glog-dev
           libgflags-dev libcfitsio-dev libgtest-dev nlohmann-json3-dev libbenchmark-dev
-          gnuplot-nox python3-numpy python3-astropy)
+          gnuplot-nox python3-numpy python3-scipy python3-astropy
+          python3-pytest)
 missing=()
 for p in "${packages[@]}"; do
   if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then
