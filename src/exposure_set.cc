@@ -36,8 +36,9 @@ uint64_t Fingerprint(const Stamp& s) {
   return h;
 }
 
-// Peak pixel and 5 x 5 box around the stamp's centre [e-]; false if the box has a masked
-// or saturated (censored from above) pixel, where the fraction means nothing. Pixels censored
+// Peak pixel, scaled to a spot centred on it (below), and 5 x 5 box around the stamp's
+// centre [e-]; false if the box has a masked or saturated (censored from above) pixel, where
+// the fraction means nothing, or the peak is no peak. Pixels censored
 // from below (a clipped black level) count at their level, next to nothing.
 bool PeakAndBox(const Stamp& s, double* peak, double* box) {
   const int c = (s.nx() - 1) / 2;
@@ -52,7 +53,26 @@ bool PeakAndBox(const Stamp& s, double* peak, double* box) {
       if (i == c && j == c) *peak = s.electrons.data[q];
     }
   }
-  return *box > 0.0 && *peak > 0.0;
+  if (!(*box > 0.0 && *peak > 0.0)) return false;
+  // The peak pixel's share depends on where in it the spot's centre falls (by up to 1.9x
+  // from centre to corner for a 0.55 px Gaussian). A parabola through the logarithms of the
+  // peak and its two neighbours on each axis gives the centre's offset u and the curvature
+  // 1 / s^2 of a sampled Gaussian, whose peak sample is exp(-u^2 / 2 s^2) of its value at
+  // u = 0; the share is scaled back to u = 0 (measured on photon-shot spots at offsets up to
+  // 0.49 px: the corrected shares agree within 2 %, the raw ones differ by 15 %).
+  double scale = 1.0;
+  for (const auto& [di, dj] : {std::pair<int, int>{1, 0}, std::pair<int, int>{0, 1}}) {
+    const double lo = s.electrons(c - di, c - dj), hi = s.electrons(c + di, c + dj);
+    if (!(lo > 0.0 && hi > 0.0)) return false;
+    const double l0 = std::log(*peak), lm = std::log(lo), lp = std::log(hi);
+    const double curvature = 2 * l0 - lm - lp;  // 1 / s^2
+    if (!(curvature > 0.0)) return false;
+    const double u = 0.5 * (lp - lm) / curvature;
+    if (!(std::abs(u) <= 1.0)) return false;
+    scale *= std::exp(-0.5 * u * u * curvature);
+  }
+  *peak /= scale;
+  return true;
 }
 
 double Median(std::vector<double> v) {
@@ -121,16 +141,17 @@ void CheckPeakCompression(const std::vector<Exposure>& exposures, Quality* quali
     const double sd =
         std::sqrt(p.fraction * (1 - p.fraction) / p.box + ref_var) / f_ref;
     if (!(deficit > kMinDeficit && deficit > kDeficitSd * sd)) continue;
-    char text[320];
+    char text[400];
     int used = std::snprintf(text, sizeof(text),
                              "the peak pixel holds %.1f %% less of the spot's light than in the "
-                             "faintest exposures (%.3f against %.3f, %.1f sd): compressed before "
-                             "saturation",
+                             "faintest exposures (%.3f against %.3f centred, %.1f sd): compressed "
+                             "before saturation, or a core that broadens with the signal "
+                             "(brighter-fatter)",
                              100 * deficit, p.fraction, f_ref, deficit / sd);
     const bool time_scaled = std::isfinite(box_rate) && std::isfinite(p.exptime) &&
                              p.exptime > 0 &&
                              std::abs(p.box / (box_rate * p.exptime) - 1.0) < kTimeScaledTolerance;
-    if (std::isfinite(rate) && time_scaled && used > 0 && used < 300) {
+    if (std::isfinite(rate) && time_scaled && used > 0 && used < 380) {
       std::snprintf(text + used, sizeof(text) - used,
                     "; it lies %.1f %% below the line through their peaks against exposure time",
                     100 * (1 - p.peak / (rate * p.exptime)));

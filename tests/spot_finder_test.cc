@@ -246,6 +246,29 @@ TEST(ExposureSet, CompressionAcrossASeries) {
   EXPECT_TRUE(none.findings.empty()) << none.OneLine();
 }
 
+// A linear series whose spot falls anywhere in its pixel: the peak pixel's raw share changes
+// by up to 1.6x with the sub-pixel position here, which the centring correction takes out.
+TEST(ExposureSet, NoCompressionFromSubPixelPosition) {
+  std::vector<Exposure> exposures;
+  const double fluxes[] = {1e4, 2e4, 3e4, 4e4, 6e4, 8e4};
+  // Faint ones centred, bright ones towards a corner and an edge (the worst case for a raw
+  // share).
+  const double offsets[][2] = {{0.02, -0.05}, {-0.04, 0.03}, {0.45, 0.44},
+                               {-0.46, 0.1}, {0.3, -0.45}, {-0.44, -0.43}};
+  for (int k = 0; k < 6; ++k) {
+    SyntheticFrame spec;
+    spec.flux_e = fluxes[k];
+    spec.seed = 70 + k;
+    spec.sigma_px = 0.6;
+    spec.spot_x_px = 31 + offsets[k][0];
+    spec.spot_y_px = 31 + offsets[k][1];
+    exposures.push_back(Calibrate(test_support::MakeSpotFrame(spec)));
+  }
+  Quality q;
+  CheckPeakCompression(exposures, &q);
+  EXPECT_TRUE(q.findings.empty()) << q.OneLine();
+}
+
 TEST(ExposureSet, DuplicatesAndMixedWavelengthsAreRefused) {
   test_support::ScopedTempDir dir;
   SyntheticFrame spec;

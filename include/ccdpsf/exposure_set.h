@@ -4,13 +4,16 @@
 //
 // Compression: on a linear detector the fraction of a spot's light in its peak pixel does
 // not depend on the exposure's signal. Across a set whose signals span at least a factor
-// 1.5, the fraction f = peak / (5 x 5 box) [both e-, bias-subtracted] of the faintest third
-// (at least two exposures) is the reference; an exposure at least 1.3 times brighter than
-// all of them whose fraction falls short of the reference's median by more than 3 % (what
-// sub-pixel position changes of ~0.1 px can do) and by more than 3 sd of the counting noise
-// of the two fractions (binomial, in electrons) is flagged "compressed_peak" (suspect). The
-// finding says by how much and, where exposure times are known, how far the peak falls below
-// the line through the reference peaks.
+// 1.5, the fraction f = peak / (5 x 5 box) [both e-, bias-subtracted; the peak scaled to a
+// spot centred on its pixel, from a parabola through the logarithms of it and its
+// neighbours] of the faintest third (at least two exposures) is the reference; an exposure at
+// least 1.3 times brighter than all of them whose fraction falls short of the reference's
+// median by more than 3 % (the centring correction leaves 2 % on photon-shot spots) and by
+// more than 3 sd of the counting noise of the two fractions (binomial, in electrons) is
+// flagged "compressed_peak" (suspect). A core that broadens with the signal (brighter-fatter)
+// lowers the fraction too; the finding names both readings and says by how much and, where
+// the intensity was varied by exposure time, how far the peak falls below the line through
+// the reference peaks.
 #ifndef CCDPSF_EXPOSURE_SET_H_
 #define CCDPSF_EXPOSURE_SET_H_
 
