@@ -128,8 +128,13 @@ void FillPillboxQuadrant(double k, double dk_dr, double rho_c, double radius, do
     // by the disc area to make the mean.
     w_rho[m] = 0.5 * radius * gl.weights[m] * rho[m] * (2.0 * M_PI / (2.0 * n_theta)) * 2.0 / area;
   }
+  // With equal spacings S(|i|, |j|) = S(|j|, |i|): compute the lower triangle, mirror the rest
+  // (this fill is most of a pillbox render's time).
+  const bool mirror = hx == hy;
+  const int rows = static_cast<int>(q->rows());
   for (int ju = 0; ju < q->cols(); ++ju) {
-    for (int iu = 0; iu < q->rows(); ++iu) {
+    const int first = (mirror && ju < rows) ? ju : 0;
+    for (int iu = first; iu < rows; ++iu) {
       const double d = std::hypot(iu * hx, ju * hy);
       double s = 0.0, s_dk = 0.0;
       for (int m = 0; m < n_rho; ++m) {
@@ -158,6 +163,14 @@ void FillPillboxQuadrant(double k, double dk_dr, double rho_c, double radius, do
       (*q)(iu, ju) = s;
       (*q_dr)(iu, ju) = s_dk * dk_dr;
       (*q_dR)(iu, ju) = 2.0 / radius * (circle - s);
+    }
+  }
+  if (!mirror) return;
+  for (int ju = 1; ju < std::min<int>(q->cols(), rows); ++ju) {
+    for (int iu = 0; iu < ju; ++iu) {
+      (*q)(iu, ju) = (*q)(ju, iu);
+      (*q_dr)(iu, ju) = (*q_dr)(ju, iu);
+      (*q_dR)(iu, ju) = (*q_dR)(ju, iu);
     }
   }
 }
