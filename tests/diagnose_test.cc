@@ -485,10 +485,13 @@ TEST(Diagnose, ReportHasTheDocumentedFields) {
     }
     return -1;
   };
-  EXPECT_GT(line_index("round 0: missing effect: background"), line_index("round 0: 3 predictive"));
+  EXPECT_GT(line_index("round 0: adopted: background"), line_index("round 0: 3 predictive"));
   EXPECT_GT(line_index("round 0: 3 predictive"), 0);
-  EXPECT_GT(line_index("round 1: no missing effect"), line_index("round 1: ipc tested"));
-  EXPECT_GT(line_index("round 1: ipc tested"), line_index("round 0: missing effect"));
+  // The model alternatives are tested after the catalogue's effects.
+  EXPECT_GT(line_index("round 0: pixel_response tested"), line_index("round 0: halo tested"));
+  EXPECT_GT(line_index("round 0: adopted"), line_index("round 0: pixel_response tested"));
+  EXPECT_GT(line_index("round 1: nothing more to add"), line_index("round 1: ipc tested"));
+  EXPECT_GT(line_index("round 1: ipc tested"), line_index("round 0: adopted"));
   const std::string dir = ::testing::TempDir() + "/ccdpsf_diagnose_" +
                           std::to_string(static_cast<long>(::getpid()));
   fs::remove_all(dir);
@@ -499,9 +502,28 @@ TEST(Diagnose, ReportHasTheDocumentedFields) {
   std::ifstream in(dir + "/diagnose.json");
   const nlohmann::json j = nlohmann::json::parse(in);
   EXPECT_EQ(j["named_effects"], nlohmann::json::array({"background"}));
+  EXPECT_TRUE(j["explained"].get<bool>());
+  EXPECT_EQ(j["verdict"], "missing: background");
+  EXPECT_TRUE(j["partial"].empty());
+  EXPECT_TRUE(j["ambiguous"].empty());
+  EXPECT_TRUE(j["unexplained"].empty());
+  ASSERT_EQ(j["attributions"].size(), 1u);
+  EXPECT_EQ(j["attributions"][0]["name"], "background");
+  EXPECT_EQ(j["attributions"][0]["status"], "explains");
+  EXPECT_FALSE(j["width_trend"]["measured"].get<bool>());  // one intensity
   ASSERT_EQ(j["rounds"].size(), 2u);
-  EXPECT_EQ(j["rounds"][0]["named"], "background");
-  EXPECT_TRUE(j["rounds"][1]["named"].is_null());
+  EXPECT_EQ(j["rounds"][0]["adopted"], "background");
+  EXPECT_TRUE(j["rounds"][1]["adopted"].is_null());
+  int alternatives = 0;
+  for (const nlohmann::json& c : j["rounds"][0]["candidates"]) {
+    if (c["kind"] != "alternative") continue;
+    ++alternatives;
+    if (c["name"] == "pillbox_defocus") {
+      EXPECT_FALSE(c["nested"].get<bool>());
+      EXPECT_TRUE(c["p_value"].is_null());
+    }
+  }
+  EXPECT_EQ(alternatives, 2);
   EXPECT_TRUE(j["rounds"][0]["chi2_per_dof"].is_number());
   EXPECT_TRUE(j["rounds"][0]["statistics"].is_array());
   EXPECT_TRUE(j["rounds"][0]["candidates"].is_array());

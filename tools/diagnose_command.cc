@@ -27,7 +27,7 @@ DEFINE_string(baseline, "paper",
               "diagnose: paper (the paper's model) or no_defocus (without the defocus, which "
               "then becomes a candidate); add effects with +, e.g. paper+background");
 DEFINE_string(candidates, "",
-              "diagnose: comma-separated catalogue names that may be named (default: all)");
+              "diagnose: comma-separated catalogue effects and model alternatives (pillbox_defocus, pixel_response) that may be named (default: all)");
 DEFINE_bool(thresholds, false,
             "diagnose: simulate the detection threshold of every effect not found (slow)");
 DEFINE_int32(threshold_sims, 10, "diagnose: simulations per strength for --thresholds");
@@ -100,8 +100,25 @@ int RunDiagnose(const std::vector<std::string>& files) {
       if (!ParseKinds(rest, &options.baseline_effects, &error)) return Fail("--baseline: " + error);
     }
   }
-  if (!ParseKinds(FLAGS_candidates, &options.candidates, &error)) {
-    return Fail("--candidates: " + error);
+  {
+    // Catalogue effects and model alternatives by name.
+    std::stringstream list(FLAGS_candidates);
+    std::string item;
+    while (std::getline(list, item, ',')) {
+      if (item.empty()) continue;
+      bool alternative = false;
+      for (diagnose::AlternativeKind a : diagnose::AllAlternatives()) {
+        if (item == diagnose::ToString(a)) {
+          options.alternatives.push_back(a);
+          alternative = true;
+        }
+      }
+      if (alternative) continue;
+      if (!ParseKinds(item, &options.candidates, &error)) {
+        return Fail("--candidates: " + error + " or a model alternative (pillbox_defocus, "
+                    "pixel_response)");
+      }
+    }
   }
   if (!options.IsValid(&error)) return Fail(error);
   std::vector<InputFile> inputs;
@@ -195,11 +212,9 @@ int RunDiagnose(const std::vector<std::string>& files) {
     return Fail(error);
   }
   for (const std::string& w : warnings) std::fprintf(stderr, "ccdpsf: warning: %s\n", w.c_str());
-  std::string named;
-  for (model::EffectKind k : result.named) named += (named.empty() ? "" : ", ") + model::ToString(k);
   std::printf("%s; chi2/dof %.4g -> %.4g; verdict on the data %s; results in %s/diagnose.json "
               "(report.md, plots)\n",
-              named.empty() ? "no missing effect" : ("missing: " + named).c_str(),
+              diagnose::DiagnosisVerdict(result).c_str(),
               result.rounds.front().statistics.chi2_per_dof,
               result.rounds.back().statistics.chi2_per_dof, result.quality.OneLine().c_str(),
               FLAGS_out.c_str());

@@ -190,6 +190,7 @@ Tested TestCandidate(const fit::FitModel& base, const EffectModel& current,
   const auto t0 = std::chrono::steady_clock::now();
   Tested t;
   t.candidate.kind = kind;
+  t.candidate.name = model::ToString(kind);
   ModelSpec spec = current.spec();
   if (kind == EffectKind::kDefocus) {
     spec.defocus = true;
@@ -238,7 +239,11 @@ Tested TestCandidate(const fit::FitModel& base, const EffectModel& current,
       starts.push_back(q);
     }
   }
-  if (!FitEffectModel(*t.model, starts, options.fit, &t.fit, &error, data_e)) {
+  // The Laplace approximation (for the parameters' sd, bounds and the Bayes factor) only
+  // where the candidate could be significant: it costs about two iterations of the solve.
+  EffectFitOptions fit_options = options.fit;
+  fit_options.laplace = false;
+  if (!FitEffectModel(*t.model, starts, fit_options, &t.fit, &error, data_e)) {
     t.candidate.status = CandidateResult::Status::kFitFailed;
     t.candidate.reason = error;
     return t;
@@ -253,7 +258,15 @@ Tested TestCandidate(const fit::FitModel& base, const EffectModel& current,
   c.p_value = ChiBarSquarePValue(c.lr, c.boundary_parameters,
                                  c.num_parameters - c.boundary_parameters);
   c.delta_bic = c.num_parameters * std::log(static_cast<double>(current.NumValidPixels())) - c.lr;
-  c.log_bayes_factor = c.delta_log_likelihood + LogOccam(*t.model, t.fit, idx);
+  if (c.p_value < options.alpha && options.fit.laplace &&
+      !AddLaplace(*t.model, &t.fit, &error, data_e)) {
+    t.candidate.status = CandidateResult::Status::kFitFailed;
+    t.candidate.reason = error;
+    return t;
+  }
+  c.log_bayes_factor = t.fit.laplace.sd.empty()
+                           ? NAN
+                           : c.delta_log_likelihood + LogOccam(*t.model, t.fit, idx);
   c.parameters = Estimates(*t.model, t.fit, idx);
   c.chi2_per_dof = t.fit.chi2 / std::max(1, t.fit.dof);
   c.seconds = Seconds(t0);
@@ -346,7 +359,233 @@ double DetectionRate(const fit::FitModel& base, const EffectModel& null_model,
   return fitted > 0 ? static_cast<double>(named) / fitted : NAN;
 }
 
+// A model alternative scored against the current model (alternatives.h).
+struct TestedAlternative {
+  CandidateResult candidate;
+  AlternativeFit fit;
+};
+
+TestedAlternative TestAlternative(const EffectModel& current, const EffectFitResult& current_fit,
+                                  AlternativeKind kind, const DiagnoseOptions& options) {
+  const auto t0 = std::chrono::steady_clock::now();
+  TestedAlternative t;
+  CandidateResult& c = t.candidate;
+  c.alternative = kind;
+  c.name = ToString(kind);
+  c.nested = kind != AlternativeKind::kPillboxDefocus;
+  const std::string why = AlternativeNotApplicable(current, kind);
+  if (!why.empty()) {
+    c.status = CandidateResult::Status::kNotIdentifiable;
+    c.reason = why;
+    return t;
+  }
+  std::string error;
+  if (!FitAlternative(current, current_fit, kind, options.fit, options.map, &t.fit, &error)) {
+    c.status = CandidateResult::Status::kFitFailed;
+    c.reason = error;
+    return t;
+  }
+  c.num_parameters = 1;
+  const double gain = t.fit.fit.log_likelihood - current_fit.log_likelihood;
+  const double log_n = std::log(static_cast<double>(current.NumValidPixels()));
+  if (c.nested) {
+    // The response width: w = 1 (the current model) on the prior's boundary.
+    c.boundary_parameters = 1;
+    c.delta_log_likelihood = std::max(0.0, gain);
+    c.lr = 2.0 * c.delta_log_likelihood;
+    c.p_value = ChiBarSquarePValue(c.lr, 1, 0);
+    c.delta_bic = log_n - c.lr;
+  } else {
+    // The pillbox replaces the Gaussian's sigma_f by R: the same number of parameters.
+    c.boundary_parameters = 0;
+    c.delta_log_likelihood = gain;
+    c.lr = 2.0 * gain;
+    c.p_value = NAN;
+    c.delta_bic = -c.lr;
+  }
+  c.log_bayes_factor = NAN;
+  c.parameters.push_back({t.fit.parameter, t.fit.value, t.fit.sd, t.fit.at_bound});
+  c.chi2_per_dof = t.fit.fit.chi2 / std::max(1, t.fit.fit.dof);
+  c.seconds = Seconds(t0);
+  return t;
+}
+
+bool Significant(const CandidateResult& c, double p_threshold) {
+  if (c.status != CandidateResult::Status::kTested) return false;
+  if (!c.nested) return c.delta_bic < kNonNestedDeltaBic;
+  return c.p_value < p_threshold && c.delta_bic < 0;
+}
+
+// The p-value of a statistic, chi2_per_dof from its distribution when no simulation gave one.
+double PValue(const ResidualStatistics& st, const NamedStatistic& s) {
+  if (std::isfinite(s.p_value)) return s.p_value;
+  if (s.name == "chi2_per_dof" && st.dof > 0) return ChiSquareUpperTail(st.chi2, st.dof);
+  return NAN;
+}
+
+std::string Describe(const fit::FitModel& base, const ModelSpec& spec) {
+  const std::string options = DescribeModelOptions(base.options().model);
+  std::string d = spec.Describe();
+  if (options.empty()) return d;
+  // "baseline + ipc" -> "baseline (pillbox defocus) + ipc"
+  const size_t plus = d.find(" + ");
+  const std::string head = plus == std::string::npos ? d : d.substr(0, plus);
+  const std::string tail = plus == std::string::npos ? "" : d.substr(plus);
+  return head + " (" + options + ")" + tail;
+}
+
+// The judgement of every adopted candidate and of the data (see diagnose.h).
+void Judge(const EffectModel& final_model, const EffectFitResult& final_fit,
+           const std::vector<std::pair<std::string, ParameterEstimate>>& alternative_params,
+           DiagnoseResult* result) {
+  const ResidualStatistics& last = result->rounds.back().statistics;
+  const auto flagged = [](const ResidualStatistics& st, const NamedStatistic& s) {
+    const double p = PValue(st, s);
+    return std::isfinite(p) && p < kFlaggedP;
+  };
+  for (size_t r = 0; r < result->rounds.size(); ++r) {
+    const RoundResult& round = result->rounds[r];
+    if (round.adopted.empty()) continue;
+    Attribution a;
+    a.name = round.adopted;
+    a.round = static_cast<int>(r);
+    std::vector<std::string> reasons;
+    // (a) its flagged signature statistics, back within noise at the end.
+    const std::vector<std::string>& signature = SignatureStatistics(a.name);
+    for (const NamedStatistic& s : round.statistics.values) {
+      if (!flagged(round.statistics, s)) continue;
+      if (std::find(signature.begin(), signature.end(), s.name) == signature.end()) continue;
+      const NamedStatistic* now = last.Find(s.name);
+      const double p = now ? PValue(last, *now) : NAN;
+      if (std::isfinite(p) && p < kWithinNoiseP) {
+        char buf[160];
+        std::snprintf(buf, sizeof(buf), "%s stays off (p %.2g, was %.2g)", s.name.c_str(), p,
+                      PValue(round.statistics, s));
+        reasons.push_back(buf);
+      }
+    }
+    // (b) its parameters inside the prior.
+    if (round.named) {
+      const std::vector<int> idx = final_model.EffectIndices(*round.named);
+      for (const ParameterEstimate& e : Estimates(final_model, final_fit, idx)) {
+        // A jitter variance of 0 is an exposure without extra jitter.
+        if (*round.named == EffectKind::kJitter && e.map <= 0.0) continue;
+        if (e.at_bound) reasons.push_back(e.name + " at its prior bound (" + FormatNumber(e.map) + ")");
+      }
+    } else {
+      for (const auto& [name, e] : alternative_params) {
+        if (name != a.name) continue;
+        a.parameters.push_back(e);
+        if (e.at_bound) {
+          reasons.push_back(e.name + " at the end of the range tried (" + FormatNumber(e.map) + ")");
+        }
+      }
+    }
+    // (c) brighter_fatter against the widths measured exposure by exposure.
+    if (round.named == EffectKind::kBrighterFatter && result->width_trend.measured) {
+      const std::vector<int> idx = final_model.EffectIndices(EffectKind::kBrighterFatter);
+      const auto& bounds = final_model.base().options().model;
+      for (int axis = 0; axis < 2; ++axis) {
+        const int s = final_model.ShapeIndex(axis == 0 ? fit::kCcdSigmaXPx : fit::kCcdSigmaYPx);
+        const double defocus =
+            final_model.spec().defocus ? final_fit.p[final_model.ShapeIndex(fit::kDefocusPx)] : 0.0;
+        const double implied = TotalWidthSlope(final_fit.p[idx[axis]], final_fit.p[s], defocus,
+                                               bounds.defocus);
+        const WidthLine& line = result->width_trend.axis[axis];
+        if (!(std::isfinite(implied) && std::isfinite(line.slope_sd) && line.slope_sd > 0)) continue;
+        const double z = (implied - line.slope_px_per_e) / line.slope_sd;
+        if (std::abs(z) > 3.0) {
+          char buf[200];
+          std::snprintf(buf, sizeof(buf),
+                        "its total-width slope along %s (%.3g px/e-) is %.1f sd from the "
+                        "exposures' own widths (%.3g +- %.2g px/e-)",
+                        axis == 0 ? "x" : "y", implied, z, line.slope_px_per_e, line.slope_sd);
+          reasons.push_back(buf);
+        }
+      }
+    }
+    if (!round.rivals.empty()) {
+      a.status = Attribution::Status::kAmbiguous;
+      a.rivals = round.rivals;
+      std::string list;
+      for (const std::string& rv : round.rivals) list += (list.empty() ? "" : ", ") + rv;
+      a.reason = "within delta BIC " + FormatNumber(kAmbiguousDeltaBic) + " of " + list;
+      a.separate_by = SeparatingData(a.name, round.rivals.front());
+      if (!reasons.empty()) a.reason += "; " + reasons.front();
+    } else if (!reasons.empty()) {
+      a.status = Attribution::Status::kPartial;
+      for (const std::string& why : reasons) a.reason += (a.reason.empty() ? "" : "; ") + why;
+    }
+    result->attributions.push_back(a);
+  }
+  // Where the final model still misfits.
+  const auto& descriptions = StatisticDescriptions();
+  for (size_t i = 0; i < last.values.size(); ++i) {
+    const NamedStatistic& s = last.values[i];
+    if (!flagged(last, s)) continue;
+    char buf[96];
+    std::snprintf(buf, sizeof(buf), "%s = %.4g (p %.2g): ", s.name.c_str(), s.value,
+                  PValue(last, s));
+    std::string what;
+    for (const auto& [name, text] : descriptions) {
+      if (name == s.name) what = text;
+    }
+    result->unexplained.push_back(buf + what);
+  }
+  bool partial = false;
+  for (const Attribution& a : result->attributions) {
+    partial = partial || a.status == Attribution::Status::kPartial;
+  }
+  result->explained = result->unexplained.empty() && !partial;
+}
+
 }  // namespace
+
+std::string ToString(Attribution::Status status) {
+  switch (status) {
+    case Attribution::Status::kExplains: return "explains";
+    case Attribution::Status::kPartial: return "partial";
+    case Attribution::Status::kAmbiguous: return "ambiguous";
+  }
+  return "";
+}
+
+std::string DiagnosisVerdict(const DiagnoseResult& result) {
+  const auto join = [](const std::vector<std::string>& v, const char* sep) {
+    std::string out;
+    for (const std::string& x : v) out += (out.empty() ? "" : sep) + x;
+    return out;
+  };
+  std::vector<std::string> named = ExplainingNames(result), partial, ambiguous;
+  for (const Attribution& a : result.attributions) {
+    if (a.status == Attribution::Status::kPartial) partial.push_back(a.name);
+    if (a.status == Attribution::Status::kAmbiguous) {
+      ambiguous.push_back(a.name + " or " + join(a.rivals, " or ") + " (ambiguous)");
+    }
+  }
+  std::vector<std::string> found = named;
+  found.insert(found.end(), ambiguous.begin(), ambiguous.end());
+  if (result.explained) {
+    return found.empty() ? "no missing effect" : "missing: " + join(found, ", ");
+  }
+  std::string s = "unexplained: the catalogue does not explain the misfit";
+  if (!found.empty()) s += "; explained in part by: " + join(found, ", ");
+  if (!partial.empty()) s += "; partial: " + join(partial, ", ");
+  if (!result.unexplained.empty()) {
+    std::vector<std::string> where;
+    for (const std::string& u : result.unexplained) where.push_back(u.substr(0, u.find(' ')));
+    s += "; left in: " + join(where, ", ");
+  }
+  return s;
+}
+
+std::vector<std::string> ExplainingNames(const DiagnoseResult& result) {
+  std::vector<std::string> out;
+  for (const Attribution& a : result.attributions) {
+    if (a.status == Attribution::Status::kExplains) out.push_back(a.name);
+  }
+  return out;
+}
 
 std::string ToString(CandidateResult::Status status) {
   switch (status) {
@@ -471,8 +710,19 @@ bool RunDiagnosis(const fit::FitModel& base, const DiagnoseOptions& options,
   progress(spec.Describe() + " fitted, chi2/dof " +
            FormatNumber(current_fit.chi2 / std::max(1, current_fit.dof)));
 
-  std::vector<EffectKind> candidates = options.candidates;
-  if (candidates.empty()) candidates = model::AllEffectKinds();
+  // Both lists empty: every effect and every alternative; otherwise exactly those given.
+  const bool everything = options.candidates.empty() && options.alternatives.empty();
+  const std::vector<EffectKind> candidates =
+      everything ? model::AllEffectKinds() : options.candidates;
+  const std::vector<AlternativeKind> alternatives =
+      everything ? AllAlternatives() : options.alternatives;
+  // The stamps and model options the current model is built on: the caller's, or an adopted
+  // alternative's (kept alive here: the models refer to them).
+  const fit::FitModel* model_base = &base;
+  std::vector<std::unique_ptr<fit::FitModel>> owned_bases;
+  std::vector<std::pair<std::string, ParameterEstimate>> alternative_params;
+  bool stop_testing = false;  // after a pillbox (see diagnose.h)
+  std::string stop_reason;
   for (int round = 0;; ++round) {
     RoundResult r;
     r.spec = current->spec();
@@ -480,22 +730,30 @@ bool RunDiagnosis(const fit::FitModel& base, const DiagnoseOptions& options,
     r.lower = current->lower();
     r.upper = current->upper();
     r.fit = current_fit;
+    r.model_description = Describe(*model_base, current->spec());
     r.statistics = ComputeStatistics(ComputeResiduals(*current, current_fit.p), current->dim());
     if (options.predictive.num_simulations > 0) {
       PredictiveOptions po = options.predictive;
       po.fit = options.fit;
       po.threads = std::max(po.threads, options.fit.num_threads);
       po.seed = DeriveSeed(options.predictive.seed, static_cast<uint64_t>(round));
+      // Refitting every simulation of a pillbox model would take minutes: without refits the
+      // p-values are conservative for what a fit absorbs (statistics.h).
+      if (stop_testing) po.refit = false;
       PredictiveCheck(*current, current_fit.p, po, &r.statistics, &r.predictive_draws);
       progress("round " + std::to_string(round) + ": " +
-               std::to_string(options.predictive.num_simulations) +
-               " predictive simulations refitted");
+               std::to_string(options.predictive.num_simulations) + " predictive simulations" +
+               (po.refit ? " refitted" : " (not refitted)"));
     }
-    if (round >= options.max_rounds) {
+    if (round >= options.max_rounds || stop_testing) {
       r.tested = false;
-      r.verdict = "round limit (" + std::to_string(options.max_rounds) +
-                  ") reached: no further effects tested";
-      result->round_limit_reached = true;
+      if (stop_testing) {
+        r.verdict = stop_reason;
+      } else {
+        r.verdict = "round limit (" + std::to_string(options.max_rounds) +
+                    ") reached: no further effects tested";
+        result->round_limit_reached = true;
+      }
       result->rounds.push_back(std::move(r));
       break;
     }
@@ -504,20 +762,22 @@ bool RunDiagnosis(const fit::FitModel& base, const DiagnoseOptions& options,
     for (EffectKind kind : candidates) {
       CandidateResult c;
       c.kind = kind;
+      c.name = model::ToString(kind);
       if (current->spec().Has(kind)) {
         c.status = CandidateResult::Status::kInModel;
         c.reason = "already in the model";
         r.candidates.push_back(c);
         continue;
       }
-      const std::string why = NotIdentifiable(base, current->spec(), kind, result->multi_intensity);
+      const std::string why =
+          NotIdentifiable(*model_base, current->spec(), kind, result->multi_intensity);
       if (!why.empty()) {
         c.status = CandidateResult::Status::kNotIdentifiable;
         c.reason = why;
         r.candidates.push_back(c);
         continue;
       }
-      tested.push_back(TestCandidate(base, *current, current_fit, kind, options, nullptr));
+      tested.push_back(TestCandidate(*model_base, *current, current_fit, kind, options, nullptr));
       r.candidates.push_back(tested.back().candidate);
       const CandidateResult& done = tested.back().candidate;
       progress("round " + std::to_string(round) + ": " + model::ToString(kind) +
@@ -525,64 +785,112 @@ bool RunDiagnosis(const fit::FitModel& base, const DiagnoseOptions& options,
                     ? " tested, delta logL " + FormatNumber(done.delta_log_likelihood)
                     : " fit failed: " + done.reason));
     }
+    std::vector<TestedAlternative> tested_alternatives;
+    for (AlternativeKind kind : alternatives) {
+      tested_alternatives.push_back(TestAlternative(*current, current_fit, kind, options));
+      const CandidateResult& done = tested_alternatives.back().candidate;
+      r.candidates.push_back(done);
+      if (done.status == CandidateResult::Status::kNotIdentifiable) continue;
+      progress("round " + std::to_string(round) + ": " + done.name +
+               (done.status == CandidateResult::Status::kTested
+                    ? " tested, delta logL " + FormatNumber(done.delta_log_likelihood)
+                    : " fit failed: " + done.reason));
+    }
     r.num_tested = 0;
     for (const CandidateResult& c : r.candidates) {
-      r.num_tested += c.status == CandidateResult::Status::kTested ? 1 : 0;
+      r.num_tested += c.status == CandidateResult::Status::kTested && c.nested ? 1 : 0;
     }
     r.p_threshold = options.alpha / std::max(1, r.num_tested);
-    int winner = -1;
-    for (size_t i = 0; i < tested.size(); ++i) {
-      CandidateResult& c = tested[i].candidate;
-      if (c.status != CandidateResult::Status::kTested) continue;
-      c.significant = c.p_value < r.p_threshold && c.delta_bic < 0;
-      if (c.significant &&
-          (winner < 0 || c.delta_bic < tested[winner].candidate.delta_bic)) {
-        winner = static_cast<int>(i);
-      }
+    for (CandidateResult& c : r.candidates) c.significant = Significant(c, r.p_threshold);
+    const CandidateResult* winner = nullptr;
+    for (const CandidateResult& c : r.candidates) {
+      if (c.significant && (winner == nullptr || c.delta_bic < winner->delta_bic)) winner = &c;
     }
-    // Copy the significance flags into the round's table.
-    for (CandidateResult& c : r.candidates) {
-      for (const Tested& t : tested) {
-        if (t.candidate.kind == c.kind) c = t.candidate;
-      }
-    }
-    if (winner < 0) {
+    if (winner == nullptr) {
       r.verdict = r.num_tested == 0
-                      ? "no effect could be tested: no missing effect found"
-                      : "no missing effect: nothing passes p < " + std::to_string(r.p_threshold) +
-                            " (alpha " + std::to_string(options.alpha) + " / " +
-                            std::to_string(r.num_tested) + " tested) with delta BIC < 0";
+                      ? "no candidate could be tested"
+                      : "nothing more to add: nothing passes p < " +
+                            FormatNumber(r.p_threshold) + " (alpha " +
+                            FormatNumber(options.alpha) + " / " + std::to_string(r.num_tested) +
+                            " tested) with delta BIC < 0";
       progress("round " + std::to_string(round) + ": " + r.verdict);
       result->rounds.push_back(std::move(r));
       break;
     }
-    const EffectKind named = tested[winner].candidate.kind;
-    r.named = named;
+    for (const CandidateResult& c : r.candidates) {
+      if (&c != winner && c.significant && c.delta_bic - winner->delta_bic < kAmbiguousDeltaBic) {
+        r.rivals.push_back(c.name);
+      }
+    }
+    r.adopted = winner->name;
     std::ostringstream v;
-    v << "missing effect: " << model::ToString(named) << " (p = " << tested[winner].candidate.p_value
-      << ", delta BIC = " << tested[winner].candidate.delta_bic << ")";
+    v << "adopted: " << winner->name;
+    if (std::isfinite(winner->p_value)) v << " (p = " << winner->p_value << ",";
+    else v << " (not nested,";
+    v << " delta BIC = " << winner->delta_bic << ")";
+    if (!r.rivals.empty()) {
+      v << "; close:";
+      for (const std::string& rv : r.rivals) v << " " << rv;
+    }
     r.verdict = v.str();
     progress("round " + std::to_string(round) + ": " + r.verdict);
-    result->named.push_back(named);
+    if (winner->alternative) {
+      const AlternativeKind kind = *winner->alternative;
+      for (TestedAlternative& t : tested_alternatives) {
+        if (!t.candidate.alternative || *t.candidate.alternative != kind) continue;
+        alternative_params.push_back({t.candidate.name, t.candidate.parameters.front()});
+        owned_bases.push_back(std::move(t.fit.base));
+        model_base = owned_bases.back().get();
+        current = std::move(t.fit.model);
+        current_fit = std::move(t.fit.fit);
+      }
+      if (kind == AlternativeKind::kPillboxDefocus) {
+        stop_testing = true;
+        stop_reason =
+            "a pillbox model: further candidates are not tested in this run (each fit would "
+            "take ~50 times longer); run 'ccdpsf diagnose --defocus=pillbox' to test them";
+      }
+    } else {
+      const EffectKind named = winner->kind;
+      r.named = named;
+      result->named.push_back(named);
+      for (Tested& t : tested) {
+        if (t.candidate.kind != named || t.candidate.alternative) continue;
+        current = std::move(t.model);
+        current_fit = std::move(t.fit);
+      }
+    }
     result->rounds.push_back(std::move(r));
-    current = std::move(tested[winner].model);
-    current_fit = std::move(tested[winner].fit);
   }
 
-  if (options.compute_thresholds) {
+  if (result->multi_intensity) {
+    result->width_trend = MeasureWidthTrend(*current, current_fit, options.fit);
+    progress(result->width_trend.measured ? "widths measured exposure by exposure"
+                                          : "width trend: " + result->width_trend.note);
+  }
+  Judge(*current, current_fit, alternative_params, result);
+
+  if (options.compute_thresholds && stop_testing) {
+    result->notes.push_back("detection thresholds are not simulated for a pillbox model (each "
+                            "fit would take ~50 times longer)");
+  } else if (options.compute_thresholds) {
     result->thresholds_computed = true;
     // The decision rule of the last round that tested candidates (its Bonferroni share).
     double p_threshold = NAN;
     for (const RoundResult& r : result->rounds) {
       if (std::isfinite(r.p_threshold)) p_threshold = r.p_threshold;
     }
-    if (!std::isfinite(p_threshold)) p_threshold = options.alpha / candidates.size();
+    if (!std::isfinite(p_threshold)) {
+      p_threshold = options.alpha / std::max<size_t>(1, candidates.size());
+    }
     for (EffectKind kind : candidates) {
       if (current->spec().Has(kind)) continue;
-      if (!NotIdentifiable(base, current->spec(), kind, result->multi_intensity).empty()) continue;
+      if (!NotIdentifiable(*model_base, current->spec(), kind, result->multi_intensity).empty()) {
+        continue;
+      }
       DetectionThreshold dt;
       std::string terr;
-      if (ComputeDetectionThreshold(base, current->spec(), current_fit.p, kind, p_threshold,
+      if (ComputeDetectionThreshold(*model_base, current->spec(), current_fit.p, kind, p_threshold,
                                     options, &dt, &terr)) {
         progress("detection threshold of " + model::ToString(kind) + ": " +
                  (std::isfinite(dt.threshold) ? dt.parameter + " " + FormatNumber(dt.threshold)

@@ -25,6 +25,38 @@ std::string Fmt(double v, const char* format = "%.4g") {
   return buf;
 }
 
+json WidthTrendJson(const WidthTrend& t) {
+  json j = {{"measured", t.measured}};
+  if (!t.measured) {
+    j["note"] = t.note.empty() ? json("one intensity: not measured") : json(t.note);
+    return j;
+  }
+  j["method"] = "each exposure fitted alone (Airy convolved with one Gaussian: the total "
+                "width), widths regressed on the peak signal by weighted least squares; sd "
+                "scaled by sqrt(chi2/dof) when above 1";
+  j["exposures"] = json::array();
+  for (const WidthPoint& w : t.points) {
+    j["exposures"].push_back({{"exposure", w.exposure},
+                              {"peak_e", Num(w.peak_e)},
+                              {"sigma_x_px", Num(w.sigma_px[0])},
+                              {"sigma_x_sd", Num(w.sd_px[0])},
+                              {"sigma_y_px", Num(w.sigma_px[1])},
+                              {"sigma_y_sd", Num(w.sd_px[1])}});
+  }
+  for (int a = 0; a < 2; ++a) {
+    const WidthLine& l = t.axis[a];
+    j[a == 0 ? "x" : "y"] = {{"sigma0_px", Num(l.sigma0_px)},
+                             {"sigma0_sd", Num(l.sigma0_sd)},
+                             {"slope_px_per_e", Num(l.slope_px_per_e)},
+                             {"slope_sd", Num(l.slope_sd)},
+                             {"percent_per_1e5_e", Num(l.percent_per_1e5_e)},
+                             {"percent_sd", Num(l.percent_sd)},
+                             {"chi2", Num(l.chi2)},
+                             {"dof", l.dof}};
+  }
+  return j;
+}
+
 json Parameters(const std::vector<std::string>& names, const EffectFitResult& fit) {
   json out = json::object();
   for (size_t i = 0; i < names.size(); ++i) {
@@ -200,7 +232,7 @@ json NotNamed(const fit::FitModel& base, const DiagnoseResult& result) {
     std::string status = "not_a_candidate", reason;
     if (tested != nullptr) {
       for (const CandidateResult& c : tested->candidates) {
-        if (c.kind != kind) continue;
+        if (c.alternative || c.kind != kind) continue;
         status = ToString(c.status);
         reason = c.reason;
       }
@@ -235,15 +267,36 @@ json DiagnoseJson(const fit::FitModel& base, const DiagnoseResult& result,
                   const DiagnoseOptions& options) {
   json j;
   j["quality"] = result.quality.ToJson();
-  j["named_effects"] = json::array();
-  for (model::EffectKind k : result.named) j["named_effects"].push_back(model::ToString(k));
-  j["verdict"] = result.named.empty()
-                     ? "no missing effect"
-                     : "missing effects found: " + [&] {
-                         std::string s;
-                         for (model::EffectKind k : result.named) s += (s.empty() ? "" : ", ") + model::ToString(k);
-                         return s;
-                       }();
+  // Only what explains the data is named; what helped without explaining is partial.
+  j["named_effects"] = ExplainingNames(result);
+  j["explained"] = result.explained;
+  j["verdict"] = DiagnosisVerdict(result);
+  j["partial"] = json::array();
+  j["ambiguous"] = json::array();
+  j["attributions"] = json::array();
+  for (const Attribution& a : result.attributions) {
+    json ja = {{"name", a.name}, {"round", a.round}, {"status", ToString(a.status)},
+               {"reason", a.reason.empty() ? json(nullptr) : json(a.reason)}};
+    if (!a.parameters.empty()) {
+      json ps = json::object();
+      for (const ParameterEstimate& p : a.parameters) {
+        ps[p.name] = {{"map", Num(p.map)}, {"sd", Num(p.sd)}, {"at_bound", p.at_bound}};
+      }
+      ja["parameters"] = ps;
+    }
+    if (a.status == Attribution::Status::kPartial) {
+      j["partial"].push_back({{"name", a.name}, {"reason", a.reason}});
+    }
+    if (a.status == Attribution::Status::kAmbiguous) {
+      ja["rivals"] = a.rivals;
+      ja["separate_by"] = a.separate_by;
+      j["ambiguous"].push_back(
+          {{"name", a.name}, {"rivals", a.rivals}, {"separate_by", a.separate_by}});
+    }
+    j["attributions"].push_back(ja);
+  }
+  j["unexplained"] = result.unexplained;
+  j["width_trend"] = WidthTrendJson(result.width_trend);
   j["round_limit_reached"] = result.round_limit_reached;
   j["flux_mode"] = ToString(result.flux);
   j["multi_intensity"] = result.multi_intensity;
@@ -252,8 +305,12 @@ json DiagnoseJson(const fit::FitModel& base, const DiagnoseResult& result,
   j["exposures"] = json::array();
   for (const Stamp& s : base.stamps()) j["exposures"].push_back(s.info.source);
   j["decision"] = {{"alpha", options.alpha},
-                   {"rule", "p < alpha / tested (Bonferroni) and delta BIC < 0; the lowest delta "
-                            "BIC is named"},
+                   {"rule", "p < alpha / tested (Bonferroni) and delta BIC < 0 (a non-nested "
+                            "alternative: delta BIC < -10); the lowest delta BIC is adopted, "
+                            "and named if it explains what it was chosen for"},
+                   {"flagged_p", kFlaggedP},
+                   {"within_noise_p", kWithinNoiseP},
+                   {"ambiguous_delta_bic", kAmbiguousDeltaBic},
                    {"max_rounds", options.max_rounds},
                    {"predictive_simulations", options.predictive.num_simulations},
                    {"predictive_refit", options.predictive.refit}};
@@ -262,7 +319,7 @@ json DiagnoseJson(const fit::FitModel& base, const DiagnoseResult& result,
     json jr;
     json effects = json::array();
     for (model::EffectKind k : r.spec.effects) effects.push_back(model::ToString(k));
-    jr["model"] = {{"description", r.spec.Describe()},
+    jr["model"] = {{"description", r.model_description},
                    {"defocus", r.spec.defocus},
                    {"effects", effects},
                    {"flux", ToString(r.spec.flux)}};
@@ -293,10 +350,13 @@ json DiagnoseJson(const fit::FitModel& base, const DiagnoseResult& result,
     jr["p_threshold"] = Num(r.p_threshold);
     jr["candidates"] = json::array();
     for (const CandidateResult& c : r.candidates) {
-      json jc = {{"name", model::ToString(c.kind)}, {"status", ToString(c.status)}};
+      json jc = {{"name", c.name},
+                 {"kind", c.alternative ? "alternative" : "effect"},
+                 {"status", ToString(c.status)}};
       if (c.status != CandidateResult::Status::kTested) {
         jc["reason"] = c.reason;
       } else {
+        jc["nested"] = c.nested;
         jc["num_parameters"] = c.num_parameters;
         jc["boundary_parameters"] = c.boundary_parameters;
         jc["delta_loglike"] = Num(c.delta_log_likelihood);
@@ -314,12 +374,13 @@ json DiagnoseJson(const fit::FitModel& base, const DiagnoseResult& result,
       }
       jr["candidates"].push_back(jc);
     }
-    jr["named"] = r.named ? json(model::ToString(*r.named)) : json(nullptr);
+    jr["adopted"] = r.adopted.empty() ? json(nullptr) : json(r.adopted);
+    jr["rivals"] = r.rivals;
     jr["verdict"] = r.verdict;
     j["rounds"].push_back(jr);
   }
   const RoundResult& last = result.rounds.back();
-  j["final_fit"] = {{"model", last.spec.Describe()},
+  j["final_fit"] = {{"model", last.model_description},
                     {"chi2", last.fit.chi2},
                     {"dof", last.fit.dof},
                     {"chi2_per_dof", last.statistics.chi2_per_dof},
@@ -362,9 +423,35 @@ std::string Markdown(const DiagnoseResult& result, const json& doc,
     if (f.severity != Severity::kNote) md << "- " << ToString(f.severity) << ": " << f.message << "\n";
   }
   if (result.quality.Worst() != Severity::kNote) md << "\n";
-  md << "**Verdict: " << doc["verdict"].get<std::string>() << "**";
+  md << "**Diagnosis: " << doc["verdict"].get<std::string>() << "**";
   if (result.round_limit_reached) md << " (round limit reached: more may remain)";
   md << "\n\n";
+  for (const Attribution& a : result.attributions) {
+    md << "- " << a.name << " (round " << a.round << "): " << ToString(a.status);
+    if (!a.reason.empty()) md << " - " << a.reason;
+    if (!a.separate_by.empty()) md << ". To separate them: " << a.separate_by;
+    md << "\n";
+  }
+  if (!result.unexplained.empty()) {
+    md << "\nWhere the final model still misfits (p < " << kFlaggedP << "):\n\n";
+    for (const std::string& u : result.unexplained) md << "- " << u << "\n";
+  }
+  if (!result.attributions.empty() || !result.unexplained.empty()) md << "\n";
+  if (result.width_trend.measured) {
+    md << "Width against signal, exposure by exposure (total Gaussian width of a fit of each "
+          "exposure alone, regressed on its peak signal):\n\n"
+          "| axis | width at 0 e- [px] | slope [px per e-] | per 1e5 e- peak [%] | chi2/dof |\n"
+          "|---|---|---|---|---|\n";
+    for (int a = 0; a < 2; ++a) {
+      const WidthLine& l = result.width_trend.axis[a];
+      md << "| " << (a == 0 ? "x" : "y") << " | " << Fmt(l.sigma0_px) << " +- "
+         << Fmt(l.sigma0_sd, "%.2g") << " | " << Fmt(l.slope_px_per_e, "%.3g") << " +- "
+         << Fmt(l.slope_sd, "%.2g") << " | " << Fmt(l.percent_per_1e5_e, "%.2f") << " +- "
+         << Fmt(l.percent_sd, "%.2f") << " | " << Fmt(l.chi2 / std::max(1, l.dof), "%.2f")
+         << " |\n";
+    }
+    md << "\n";
+  }
   md << "Exposures: " << result.peak_e.size() << ", flux " << ToString(result.flux)
      << (result.multi_intensity ? " (several intensities)" : " (one intensity)")
      << ". Decision: p < alpha / tested and delta BIC < 0, alpha = "
@@ -372,7 +459,7 @@ std::string Markdown(const DiagnoseResult& result, const json& doc,
      << doc["decision"]["predictive_simulations"].get<int>() << " simulations of each fitted model.\n\n";
   for (size_t i = 0; i < result.rounds.size(); ++i) {
     const RoundResult& r = result.rounds[i];
-    md << "## Round " << i << ": " << r.spec.Describe() << "\n\n";
+    md << "## Round " << i << ": " << r.model_description << "\n\n";
     md << "chi2/dof = " << Fmt(r.statistics.chi2_per_dof) << " (expected 1 +- "
        << Fmt(r.statistics.chi2_per_dof_sd, "%.3f") << ", dof " << r.statistics.dof << ")\n\n";
     md << "| statistic | value | predictive mean +- sd | p |\n|---|---|---|---|\n";
@@ -385,7 +472,8 @@ std::string Markdown(const DiagnoseResult& result, const json& doc,
       md << "| candidate | status | delta logL | p (chi-bar^2) | delta BIC | log BF | parameters |\n"
             "|---|---|---|---|---|---|---|\n";
       for (const CandidateResult& c : r.candidates) {
-        md << "| " << model::ToString(c.kind) << (c.significant ? " **(significant)**" : "")
+        md << "| " << c.name << (c.alternative ? " (alternative)" : "")
+           << (c.significant ? " **(significant)**" : "")
            << " | " << ToString(c.status) << " | ";
         if (c.status == CandidateResult::Status::kTested) {
           md << Fmt(c.delta_log_likelihood, "%.2f") << " | " << Fmt(c.p_value, "%.3g") << " | "
@@ -404,7 +492,7 @@ std::string Markdown(const DiagnoseResult& result, const json& doc,
     }
     md << "**" << r.verdict << "**\n\n";
   }
-  md << "## Final model\n\n" << result.rounds.back().spec.Describe() << ", chi2/dof "
+  md << "## Final model\n\n" << result.rounds.back().model_description << ", chi2/dof "
      << Fmt(result.rounds.back().statistics.chi2_per_dof) << "\n\n";
   for (auto it = doc["final_fit"]["effects"].begin(); it != doc["final_fit"]["effects"].end(); ++it) {
     for (auto p = it.value().begin(); p != it.value().end(); ++p) {
@@ -539,12 +627,12 @@ bool WriteDiagnoseReport(const std::string& out_dir, const fit::FitModel& base,
   for (size_t i = 0; i + 1 < result.rounds.size(); ++i) {
     const RoundResult& before = result.rounds[i];
     const RoundResult& after = result.rounds[i + 1];
-    if (!before.named) continue;
+    if (before.adopted.empty()) continue;
     const int s = FlaggingStatistic(before.statistics);
     if (s < 0 || before.predictive_draws.empty()) continue;
     XyPlotInput in;
     const std::string name = before.statistics.values[s].name;
-    in.title = model::ToString(*before.named) + ": " + name + " before and after";
+    in.title = before.adopted + ": " + name + " before and after";
     in.x_label = "quantile of the predictive simulations";
     in.y_label = name;
     for (const RoundResult* r : {&before, &after}) {
@@ -569,7 +657,7 @@ bool WriteDiagnoseReport(const std::string& out_dir, const fit::FitModel& base,
     }
     if (in.series.empty()) continue;
     PlotResult pr;
-    if (!WriteXyPlot(dir, "flag_" + model::ToString(*before.named), in, &pr, error)) return false;
+    if (!WriteXyPlot(dir, "flag_" + before.adopted, in, &pr, error)) return false;
     note_plot(pr);
   }
   const json doc = DiagnoseJson(base, result, options);

@@ -644,18 +644,26 @@ bool FitEffectModel(const EffectModel& model, const std::vector<std::vector<doub
   Score(model, best, data_e, &result->log_likelihood, &result->chi2);
   result->num_pixels = model.NumValidPixels();
   result->dof = result->num_pixels - model.dim();
-  const std::vector<double> info = InformationMatrix(model, best, data_e);
-  if (info.empty()) {
+  if (options.laplace && !AddLaplace(model, result, error, data_e)) {
     result->usable = false;
+    return false;
+  }
+  result->seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return true;
+}
+
+bool AddLaplace(const EffectModel& model, EffectFitResult* result, std::string* error,
+                const std::vector<Image>* data_e) {
+  const std::vector<double> info = InformationMatrix(model, result->p, data_e);
+  if (info.empty()) {
     *error = "the model's derivatives cannot be evaluated at its best fit (no Laplace "
              "approximation)";
     return false;
   }
   const bool gaussian_defocus = model.spec().defocus &&
                                 model.base().options().model.defocus == model::DefocusKind::kGaussian;
-  result->laplace =
-      fit::ComputeLaplace(model.names(), model.lower(), model.upper(), best, info, gaussian_defocus);
-  result->seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  result->laplace = fit::ComputeLaplace(model.names(), model.lower(), model.upper(), result->p,
+                                        info, gaussian_defocus);
   return true;
 }
 

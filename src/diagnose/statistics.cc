@@ -303,6 +303,10 @@ void PredictiveCheck(const EffectModel& model, const std::vector<double>& p,
   const int num = std::max(0, options.num_simulations);
   EffectFitOptions fit_options = options.fit;
   fit_options.num_threads = 1;
+  // Only the refitted point is used, not its uncertainty; and 1e-8 of the cost moves the
+  // statistics by far less than their spread across simulations.
+  fit_options.laplace = false;
+  fit_options.function_tolerance = std::max(fit_options.function_tolerance, 1e-8);
   // Simulation s uses its own engine and writes only its own row: any thread count gives
   // the same rows, gathered in simulation order below.
   std::vector<std::vector<double>> rows(num);

@@ -27,10 +27,27 @@
 //                       constrained parameters (Sigma_e their Laplace covariance, w_i their
 //                       prior widths); unconstrained ones contribute 0.
 //      An effect is significant when p < alpha / (number tested) (Bonferroni over the
-//      catalogue) AND delta BIC < 0. The significant effect with the lowest delta BIC is named.
-//   3. If one is named, M + effect (already fitted) becomes the next round's model.
-// The loop stops when nothing is significant ("no missing effect") or after max_rounds
-// rounds of testing; the last round then only reports the final model's statistics.
+//      catalogue) AND delta BIC < 0.
+//      Model alternatives (alternatives.h: a pillbox defocus, a pixel response narrower than
+//      the pixel) are candidates too, scored the same way (the pillbox, not nested, by delta
+//      BIC < -10 alone). The significant candidate with the lowest delta BIC is adopted;
+//      others significant within 6 of it are its rivals (signatures.h).
+//   3. If one is adopted, M + it (already fitted) becomes the next round's model. After a
+//      pillbox, whose renders cost 50 times a Gaussian's, the next round only reports the
+//      statistics (predictive simulations without refits) and says how to go on.
+// The loop stops when nothing is significant or after max_rounds rounds of testing; the last
+// round then only reports the final model's statistics.
+//
+// Then the judgement ("unexplained" is an answer). Each adopted candidate A, adopted in round
+// r, EXPLAINS when (a) every statistic flagged in round r (p < 1e-3) that A's signature moves
+// (signatures.h; chi2_per_dof is in every signature) is back within noise (p >= 0.01) in the
+// final model, (b) none of A's parameters sits at a prior bound, and (c) for brighter_fatter
+// with a width trend measured (width_trend.h), the slope of the total width it implies agrees
+// with the trend's within 3 sd. Otherwise A is PARTIAL (it helped without explaining), with
+// the reason; with rivals it is AMBIGUOUS, with the data that would separate them. The data
+// are EXPLAINED when the final model has no flagged statistic and nothing is partial;
+// otherwise the flagged statistics say where the misfit is. Only candidates that explain are
+// the diagnosis's named effects.
 //
 // Not identifiable, and therefore never claimed (the output says why):
 //   defocus          in the baseline already; without it (baseline_defocus = false) only in
@@ -63,8 +80,11 @@
 #include <string>
 #include <vector>
 
+#include "ccdpsf/diagnose/alternatives.h"
 #include "ccdpsf/diagnose/effect_fit.h"
+#include "ccdpsf/diagnose/signatures.h"
 #include "ccdpsf/diagnose/statistics.h"
+#include "ccdpsf/diagnose/width_trend.h"
 #include "ccdpsf/fit/map_fit.h"
 #include "ccdpsf/quality.h"
 
@@ -89,8 +109,10 @@ struct DiagnoseOptions {
   // kAuto: a flux per exposure for a multi-intensity set (IsMultiIntensity), else shared (the
   // paper's joint fit).
   FluxChoice flux = FluxChoice::kAuto;
-  // Effects that may be named; empty: the whole catalogue.
+  // The catalogue effects and model alternatives that may be adopted: exactly these, or,
+  // when both are empty, every effect and every alternative.
   std::vector<model::EffectKind> candidates;
+  std::vector<AlternativeKind> alternatives;
   int max_rounds = 3;
   double alpha = 0.01;  // family-wise false-claim rate per round (Bonferroni)
   PredictiveOptions predictive;
@@ -114,7 +136,10 @@ struct ParameterEstimate {
 };
 
 struct CandidateResult {
-  model::EffectKind kind;
+  model::EffectKind kind;  // for a catalogue effect (unused for a model alternative)
+  std::optional<AlternativeKind> alternative;  // set for a model alternative (alternatives.h)
+  std::string name;        // the catalogue effect's or the alternative's name
+  bool nested = true;      // false: no LR test (pillbox_defocus), significant by delta BIC
   enum class Status { kTested, kNotIdentifiable, kInModel, kFitFailed };
   Status status = Status::kTested;
   std::string reason;  // for every status but kTested
@@ -144,9 +169,27 @@ struct RoundResult {
   std::vector<CandidateResult> candidates;
   int num_tested = 0;
   double p_threshold = NAN;  // alpha / num_tested
-  std::optional<model::EffectKind> named;
+  std::optional<model::EffectKind> named;  // a catalogue effect adopted this round
+  std::string adopted;  // the name of what was adopted (effect or alternative), empty if none
+  // Other significant candidates within kAmbiguousDeltaBic of the adopted one (signatures.h).
+  std::vector<std::string> rivals;
+  std::string model_description;  // e.g. "baseline (pillbox defocus) + ipc"
   std::string verdict;  // one line
 };
+
+// The judgement on something the workflow added to the model (see the top of this file).
+struct Attribution {
+  std::string name;  // catalogue effect or model alternative
+  int round = 0;     // where it was adopted
+  enum class Status { kExplains, kPartial, kAmbiguous };
+  Status status = Status::kExplains;
+  std::string reason;  // partial / ambiguous: why, one line
+  std::vector<std::string> rivals;  // ambiguous: the close candidates
+  std::string separate_by;          // ambiguous: data that would tell them apart
+  // Model alternatives: their parameter (pixel_response.width_px, defocus_radius_px).
+  std::vector<ParameterEstimate> parameters;
+};
+std::string ToString(Attribution::Status status);
 
 struct DetectionThreshold {
   model::EffectKind kind;
@@ -162,7 +205,16 @@ struct DetectionThreshold {
 
 struct DiagnoseResult {
   std::vector<RoundResult> rounds;
-  std::vector<model::EffectKind> named;  // in the order found
+  std::vector<model::EffectKind> named;  // catalogue effects added to the model, in order
+  // Everything added to the model (effects and alternatives), in order, with its judgement.
+  std::vector<Attribution> attributions;
+  // True when the final model leaves no statistic flagged and nothing added is partial.
+  bool explained = false;
+  // Where the final model still misfits: one line per flagged statistic.
+  std::vector<std::string> unexplained;
+  // The spot's width against its signal, exposure by exposure (width_trend.h); measured for
+  // multi-intensity sets.
+  WidthTrend width_trend;
   FluxMode flux = FluxMode::kShared;
   bool multi_intensity = false;
   std::vector<double> peak_e;  // per exposure (data)
@@ -177,6 +229,12 @@ struct DiagnoseResult {
   // Filled by the caller (the command), which knows how the data were read.
   Quality quality;
 };
+
+// The names of what explains the data (attributions with status kExplains), in order.
+std::vector<std::string> ExplainingNames(const DiagnoseResult& result);
+// One line: "no missing effect", "missing: halo", "unexplained: ...; partial: ipc; left in:
+// core_z, chi2_per_dof".
+std::string DiagnosisVerdict(const DiagnoseResult& result);
 
 // Detection thresholds measured once by bench/diagnose_benchmark.cc --thresholds (section 3)
 // on paper-like five-exposure sets, for reports whose own thresholds were not simulated: what

@@ -177,6 +177,9 @@ struct EffectFitOptions {
   int num_threads = 1;  // Ceres threads (one residual block per exposure)
   // Convergence: Ceres' function tolerance (relative change of the cost).
   double function_tolerance = 1e-10;
+  // The Laplace approximation after the solve (numeric information matrix, about the cost of
+  // two iterations); off for refits that only need the point (predictive simulations).
+  bool laplace = true;
 };
 
 struct EffectFitResult {
@@ -190,7 +193,8 @@ struct EffectFitResult {
   int num_starts = 0;
   std::string termination;
   // Laplace approximation (fit::ComputeLaplace on the Gauss-Newton information J^T J of the
-  // whitened residuals, prior-scaled): sd NaN along what the data do not constrain.
+  // whitened residuals, prior-scaled): sd NaN along what the data do not constrain; empty
+  // with EffectFitOptions::laplace off.
   fit::LaplaceResult laplace;
   double seconds = 0.0;
 };
@@ -202,6 +206,11 @@ struct EffectFitResult {
 bool FitEffectModel(const EffectModel& model, const std::vector<std::vector<double>>& starts,
                     const EffectFitOptions& options, EffectFitResult* result, std::string* error,
                     const std::vector<Image>* data_e = nullptr);
+
+// The Laplace approximation at result->p (for a fit made with EffectFitOptions::laplace
+// off). False with a reason when the derivatives cannot be evaluated there.
+bool AddLaplace(const EffectModel& model, EffectFitResult* result, std::string* error,
+                const std::vector<Image>* data_e = nullptr);
 
 // The Gauss-Newton information matrix (dim x dim, row-major) at p: J^T J of the whitened
 // residuals (r1 and r2), by numeric differences. Empty when an exposure's residuals cannot be
