@@ -410,6 +410,89 @@ TestedAlternative TestAlternative(const EffectModel& current, const EffectFitRes
   return t;
 }
 
+// A nonlinearity loses signal where the charge is high: the stamp's electrons fall short of
+// the light that arrived by L_k = 1 - sum NL(m) / sum m (m the charge image before it). With
+// the intensity set by the exposure time (times spanning >= 1.25x), the light per second
+// q_k = S_k / t_k (S_k the stamp's summed data [e-]) then falls with L_k, while without it
+// (brighter-fatter moves charge but keeps it) q_k stays put. Compares the two, each with its
+// best common rate, by chi^2 over the exposures (sd of S_k: shot and read noise); the
+// nonlinearity is contradicted when its chi^2 exceeds the no-loss one by more than 9 (3 sd)
+// and it predicts a loss between the brightest and the faintest exposure larger than 3 sd of
+// the measured ratio. Returns one line when contradicted, else empty (also when the check
+// does not apply: equal exposure times, or exposure times unknown).
+std::string NonlinearityContradiction(const EffectModel& m, const EffectFitResult& fit) {
+  const std::vector<int> idx = m.EffectIndices(EffectKind::kNonlinearity);
+  if (idx.empty()) return "";
+  const int n = m.num_exposures();
+  std::vector<double> t(n), sum(n), var(n), loss(n);
+  double t_min = INFINITY, t_max = 0;
+  for (int k = 0; k < n; ++k) {
+    const Stamp& st = m.base().stamps()[k];
+    t[k] = st.info.exptime_s;
+    if (!(std::isfinite(t[k]) && t[k] > 0)) return "";
+    t_min = std::min(t_min, t[k]);
+    t_max = std::max(t_max, t[k]);
+  }
+  if (t_max < 1.25 * t_min) return "";
+  EffectEvaluator ev(m);
+  std::vector<double> without = fit.p;
+  without[idx[0]] = 0.0;
+  std::vector<double> with_nl, linear;
+  for (int k = 0; k < n; ++k) {
+    const Stamp& st = m.base().stamps()[k];
+    if (!ev.Render(fit.p.data(), k, nullptr, &with_nl) ||
+        !ev.Render(without.data(), k, nullptr, &linear)) {
+      return "";
+    }
+    double a = 0, b = 0, s = 0;
+    int pixels = 0;
+    for (size_t q = 0; q < st.valid.size(); ++q) {
+      if (!st.valid[q]) continue;
+      a += with_nl[q];
+      b += linear[q];
+      s += st.electrons.data[q];
+      ++pixels;
+    }
+    if (!(b > 0 && s > 0)) return "";
+    loss[k] = 1.0 - a / b;
+    sum[k] = s;
+    var[k] = s + pixels * st.read_noise_e * st.read_noise_e;
+  }
+  // chi^2 of q_k = rate (1 - loss_k) with the best rate (weighted least squares), for the
+  // nonlinearity's losses and for none.
+  const auto chi2 = [&](bool with_loss) {
+    double sxy = 0, sxx = 0;
+    for (int k = 0; k < n; ++k) {
+      const double shape = t[k] * (with_loss ? 1.0 - loss[k] : 1.0);  // expected S_k / rate
+      sxy += shape * sum[k] / var[k];
+      sxx += shape * shape / var[k];
+    }
+    const double rate = sxy / sxx;
+    double c = 0;
+    for (int k = 0; k < n; ++k) {
+      const double r = sum[k] - rate * t[k] * (with_loss ? 1.0 - loss[k] : 1.0);
+      c += r * r / var[k];
+    }
+    return c;
+  };
+  const double c_nl = chi2(true), c_none = chi2(false);
+  const int hi = static_cast<int>(std::max_element(t.begin(), t.end()) - t.begin());
+  const int lo = static_cast<int>(std::min_element(t.begin(), t.end()) - t.begin());
+  const double ratio = (sum[hi] / t[hi]) / (sum[lo] / t[lo]);
+  const double ratio_sd = ratio * std::sqrt(var[hi] / (sum[hi] * sum[hi]) + var[lo] / (sum[lo] * sum[lo]));
+  const double predicted = (1.0 - loss[hi]) / (1.0 - loss[lo]);
+  if (!(c_nl - c_none > 9.0 && std::abs(1.0 - predicted) > 3.0 * ratio_sd)) return "";
+  char buf[320];
+  std::snprintf(buf, sizeof(buf),
+                "contradicted by the signal per second: the brightest exposure collects %.2f "
+                "+- %.2f %% %s per second than the faintest, where this nonlinearity would "
+                "lose %.2f %% (chi2 %.1f against %.1f without a loss; assumes the exposure "
+                "times set the intensity)",
+                100 * std::abs(1.0 - ratio), 100 * ratio_sd, ratio < 1 ? "less" : "more",
+                100 * (1.0 - predicted), c_nl, c_none);
+  return buf;
+}
+
 bool Significant(const CandidateResult& c, double p_threshold) {
   if (c.status != CandidateResult::Status::kTested) return false;
   if (!c.nested) return c.delta_bic < kNonNestedDeltaBic;
@@ -802,6 +885,18 @@ bool RunDiagnosis(const fit::FitModel& base, const DiagnoseOptions& options,
     }
     r.p_threshold = options.alpha / std::max(1, r.num_tested);
     for (CandidateResult& c : r.candidates) c.significant = Significant(c, r.p_threshold);
+    // A significant nonlinearity must also lose the signal it implies (NonlinearityContradiction).
+    for (CandidateResult& c : r.candidates) {
+      if (!c.significant || c.alternative || c.kind != EffectKind::kNonlinearity) continue;
+      for (const Tested& t : tested) {
+        if (t.candidate.kind != EffectKind::kNonlinearity || !t.model) continue;
+        const std::string why = NonlinearityContradiction(*t.model, t.fit);
+        if (why.empty()) continue;
+        c.significant = false;
+        c.reason = why;
+        progress("round " + std::to_string(round) + ": nonlinearity " + why);
+      }
+    }
     const CandidateResult* winner = nullptr;
     for (const CandidateResult& c : r.candidates) {
       if (c.significant && (winner == nullptr || c.delta_bic < winner->delta_bic)) winner = &c;

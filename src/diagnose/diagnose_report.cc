@@ -356,6 +356,7 @@ json DiagnoseJson(const fit::FitModel& base, const DiagnoseResult& result,
       if (c.status != CandidateResult::Status::kTested) {
         jc["reason"] = c.reason;
       } else {
+        if (!c.reason.empty()) jc["reason"] = c.reason;  // e.g. a contradicted nonlinearity
         jc["nested"] = c.nested;
         jc["num_parameters"] = c.num_parameters;
         jc["boundary_parameters"] = c.boundary_parameters;
@@ -482,6 +483,7 @@ std::string Markdown(const DiagnoseResult& result, const json& doc,
             md << p.name << " = " << Fmt(p.map) << " +- " << Fmt(p.sd, "%.2g")
                << (p.at_bound ? " (at bound)" : "") << "; ";
           }
+          if (!c.reason.empty()) md << c.reason;
           md << " |\n";
         } else {
           md << " | | | | " << c.reason << " |\n";

@@ -31,7 +31,11 @@
 //      Model alternatives (alternatives.h: a pillbox defocus, a pixel response narrower than
 //      the pixel) are candidates too, scored the same way (the pillbox, not nested, by delta
 //      BIC < -10 alone). The significant candidate with the lowest delta BIC is adopted;
-//      others significant within 6 of it are its rivals (signatures.h).
+//      others significant within 6 of it are its rivals (signatures.h). A nonlinearity
+//      must also lose the signal it implies where exposure times set the intensity: the
+//      light per second must fall at high signal as its compression says (brighter-fatter,
+//      which moves charge but keeps it, does not); if the data contradict that by more than
+//      3 sd it is set aside, with the reason.
 //   3. If one is adopted, M + it (already fitted) becomes the next round's model. After a
 //      pillbox, whose renders cost 50 times a Gaussian's, the next round only reports the
 //      statistics (predictive simulations without refits) and says how to go on.
@@ -142,7 +146,8 @@ struct CandidateResult {
   bool nested = true;      // false: no LR test (pillbox_defocus), significant by delta BIC
   enum class Status { kTested, kNotIdentifiable, kInModel, kFitFailed };
   Status status = Status::kTested;
-  std::string reason;  // for every status but kTested
+  std::string reason;  // for every status but kTested; for a tested one, why it was set
+                       // aside despite its p-value (a contradicted nonlinearity)
   int num_parameters = 0;
   int boundary_parameters = 0;  // b of the chi-bar-square mixture
   double delta_log_likelihood = NAN;
