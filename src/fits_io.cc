@@ -7,7 +7,9 @@
 #include "ccdpsf/fits_io.h"
 
 #include <fitsio.h>
+#include <fcntl.h>
 #include <sys/stat.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <cctype>
@@ -19,17 +21,30 @@
 #include <cstdlib>
 #include <cstring>
 #include <limits>
+#include <map>
 #include <set>
 #include <string>
 #include <utility>
 #include <vector>
 
 #include "ccdpsf/atomic_file.h"
+#include "internal/fits_screen.h"
 #include "internal/text.h"
 
 namespace ccdpsf {
 namespace {
 
+using internal::CheckImageSize;
+using internal::CheckTiles;
+using internal::FileBytes;
+using internal::FormatBytes;
+using internal::Gunzip;
+using internal::HduLayout;
+using internal::HduWhere;
+using internal::IsIndexed;
+using internal::Printable;
+using internal::Quoted;
+using internal::ScreenFile;
 using internal::ToUpper;
 
 // Owns an open fitsfile*. The destructor closes the file and ignores any error (it must not
@@ -71,16 +86,8 @@ std::string CfitsioText(int status) {
   return "cfitsio status " + std::to_string(status) + ": " + text;
 }
 
-std::string Quoted(const std::string& path) { return "'" + path + "'"; }
 
 
-// True if `text` is `prefix` followed by one or more digits (NAXIS1, TFORM12, ...).
-bool IsIndexed(const std::string& text, const char* prefix) {
-  const size_t n = std::strlen(prefix);
-  if (text.size() <= n || text.compare(0, n, prefix) != 0) return false;
-  return std::all_of(text.begin() + n, text.end(),
-                     [](char c) { return std::isdigit(static_cast<unsigned char>(c)); });
-}
 
 // Keywords that describe the layout of the HDU (or are commentary) rather than the exposure.
 // They are neither returned by the reader nor accepted from callers by the writers, because
@@ -322,10 +329,40 @@ bool ValidateImage(const std::string& path, const Image& image, std::string* err
   return true;
 }
 
+// A name CFITSIO can take for `path`. CFITSIO keeps file names in buffers of FLEN_FILENAME
+// (1025) bytes and cannot open a longer path ("could not open the named file"), which Linux
+// allows up to 4096 bytes. A long path is handed over as /proc/self/fd/N/NAME, N an open
+// descriptor of its folder; CFITSIO opens the file while this object lives and keeps its own
+// handle after.
+class CfitsioName {
+ public:
+  explicit CfitsioName(const std::string& path) : name_(path) {
+    if (path.size() < FLEN_FILENAME - 1) return;
+    const size_t slash = path.find_last_of('/');
+    if (slash == std::string::npos) return;  // a 1 KB file name: the OS refuses it anyway
+    const std::string folder = slash == 0 ? "/" : path.substr(0, slash);
+    folder_fd_ = ::open(folder.c_str(), O_PATH | O_DIRECTORY | O_CLOEXEC);
+    if (folder_fd_ >= 0) {
+      name_ = "/proc/self/fd/" + std::to_string(folder_fd_) + "/" + path.substr(slash + 1);
+    }
+  }
+  ~CfitsioName() {
+    if (folder_fd_ >= 0) ::close(folder_fd_);
+  }
+  CfitsioName(const CfitsioName&) = delete;
+  CfitsioName& operator=(const CfitsioName&) = delete;
+  const char* c_str() const { return name_.c_str(); }
+
+ private:
+  std::string name_;
+  int folder_fd_ = -1;
+};
+
 // Creates a new FITS file at temp_path. The name is fresh (WriteAtomically removes any stale
 // file of that name first), so CFITSIO's refusal to overwrite never applies.
 bool CreateFile(const std::string& temp_path, FitsFile* file, int* status) {
-  fits_create_diskfile(file->out(), temp_path.c_str(), status);
+  const CfitsioName name(temp_path);
+  fits_create_diskfile(file->out(), name.c_str(), status);
   return *status == 0;
 }
 
@@ -408,8 +445,9 @@ bool CloseWritten(FitsFile* file, const std::string& path, std::string* error) {
 
 // Opening checks done before CFITSIO sees the file, so that the common mistakes get a plain
 // message: no such file, a directory, an empty file, something that is not FITS. Sets
-// *gzip for gzip-compressed files (CFITSIO reads them, but their size on disk says nothing
-// about the size of the data). Returns the file size in bytes, or -1 if it is not known.
+// *gzip for gzip-compressed files (decompressed by OpenForReading: their size on disk says
+// nothing about the size of the data). Returns the file size in bytes, or -1 if it is not
+// known.
 std::optional<long long> CheckReadable(const std::string& path, bool* gzip, std::string* error) {
   struct stat st;
   if (::stat(path.c_str(), &st) != 0) {
@@ -530,17 +568,26 @@ std::string ExtName(fitsfile* file) {
   return name;
 }
 
+// A file opened for reading: its bytes, the screen's view of its HDUs and CFITSIO's handle.
+// Members are destroyed in reverse order, so CFITSIO lets go before the bytes it may be
+// reading from memory are freed.
+struct OpenedFits {
+  FileBytes bytes;
+  std::vector<HduLayout> hdus;
+  FitsFile file;
+};
+
 // Reads the 2-D image of the current HDU (number `hdu`, 1-based absolute).
-std::optional<FitsImage> ReadCurrentImage(fitsfile* file, const std::string& path, int hdu,
-                                          bool gzip, long long file_size, std::string* error) {
+std::optional<FitsImage> ReadCurrentImage(const OpenedFits& opened, const std::string& path,
+                                          int hdu, std::string* error) {
+  fitsfile* file = opened.file.get();
   int status = 0;
   int naxis = 0;
   if (fits_get_img_dim(file, &naxis, &status)) {
     *error = Corrupt(path, status);
     return std::nullopt;
   }
-  const std::string where = hdu == 1 ? Quoted(path) : Quoted(path) + " HDU " +
-                                                          std::to_string(hdu - 1);
+  const std::string where = HduWhere(path, hdu);
   if (naxis != 2) {
     *error = where + ": image is " + std::to_string(naxis) + "-D, expected 2-D";
     return std::nullopt;
@@ -559,30 +606,33 @@ std::optional<FitsImage> ReadCurrentImage(fitsfile* file, const std::string& pat
              std::to_string(naxes[1]) + ")";
     return std::nullopt;
   }
-  // A bound on what we are willing to allocate (2^31 pixels = 16 GiB of doubles): a corrupt
-  // header must not make us try to allocate terabytes.
-  constexpr LONGLONG kMaxPixels = LONGLONG{1} << 31;
-  if (naxes[0] > INT_MAX || naxes[1] > INT_MAX || naxes[0] > kMaxPixels / naxes[1]) {
-    *error = where + ": image is too large (" + std::to_string(naxes[0]) + " x " +
-             std::to_string(naxes[1]) + ")";
+  // The screen has checked this already; CFITSIO's view of the size is checked again here,
+  // where the memory is about to be allocated.
+  const std::string too_large = CheckImageSize(where, {naxes[0], naxes[1]});
+  if (!too_large.empty() || naxes[0] > INT_MAX || naxes[1] > INT_MAX) {
+    *error = !too_large.empty() ? too_large
+                                : where + ": image is too large (" + std::to_string(naxes[0]) +
+                                      " x " + std::to_string(naxes[1]) + ")";
     return std::nullopt;
   }
   const LONGLONG num_pixels = naxes[0] * naxes[1];
-  // For a plain (not compressed) file the data must fit in the file; checking before
-  // reading gives a clear message and avoids allocating for data that are not there.
-  if (!gzip && !compressed && file_size >= 0) {
-    LONGLONG header_start = 0, data_start = 0, data_end = 0;
-    if (fits_get_hduaddrll(file, &header_start, &data_start, &data_end, &status)) {
-      *error = Corrupt(path, status);
-      return std::nullopt;
-    }
-    const LONGLONG data_bytes = num_pixels * (std::abs(bitpix) / 8);
-    if (data_start + data_bytes > file_size) {
-      *error = Quoted(path) + " is truncated or corrupt (the image needs " +
-               std::to_string(data_start + data_bytes) + " bytes, the file has " +
-               std::to_string(file_size) + ")";
-      return std::nullopt;
-    }
+  if (hdu < 1 || hdu > static_cast<int>(opened.hdus.size()) ||
+      opened.hdus[hdu - 1].tiled != (compressed != 0)) {
+    *error = Quoted(path) + " is truncated or corrupt (CFITSIO and the reader's screen disagree "
+             "about HDU " + std::to_string(hdu - 1) + ")";
+    return std::nullopt;
+  }
+  const HduLayout& layout = opened.hdus[hdu - 1];
+  if (compressed) {
+    // Every tile is checked before CFITSIO decompresses any.
+    if (!CheckTiles(opened.bytes, layout, where, error)) return std::nullopt;
+  } else if (layout.data_start + layout.data_bytes > opened.bytes.size()) {
+    // The data must fit in the file: checking before reading gives a clear message and
+    // avoids allocating for data that are not there.
+    *error = Quoted(path) + " is truncated or corrupt (the image needs " +
+             std::to_string(layout.data_start + layout.data_bytes) + " bytes, the file has " +
+             std::to_string(opened.bytes.size()) + ")";
+    return std::nullopt;
   }
 
   FitsImage result;
@@ -617,14 +667,47 @@ bool ParseHduIndex(const std::string& text, int* index) {
   return true;
 }
 
-// Opens a file for reading after the plain checks of CheckReadable.
-bool OpenForReading(const std::string& path, FitsFile* file, bool* gzip, long long* file_size,
-                    std::string* error) {
-  const std::optional<long long> size = CheckReadable(path, gzip, error);
-  if (!size) return false;
-  *file_size = *size;
+// Opens a file for reading: the plain checks of CheckReadable; a gzip file decompressed
+// here, within the memory ceiling; the screen (ScreenFile) on every HDU; then CFITSIO.
+bool OpenForReading(const std::string& path, OpenedFits* opened, std::string* error) {
+  bool gzip = false;
+  if (!CheckReadable(path, &gzip, error)) return false;
+  if (gzip) {
+    const size_t limit = static_cast<size_t>(MaxImageBytes());
+    // First at most 16 MB: a header claiming a huge image is refused without inflating the
+    // rest (a few KB of gzip can hold a header that claims gigabytes, and a few MB can
+    // inflate to gigabytes).
+    const size_t probe = std::min(limit, size_t{16} << 20);
+    bool complete = false;
+    if (!Gunzip(path, probe, &opened->bytes, &complete, error)) return false;
+    if (!complete && probe < limit) {
+      if (!ScreenFile(opened->bytes, path, &opened->hdus, error)) return false;
+      opened->bytes.Reset();
+      if (!Gunzip(path, limit, &opened->bytes, &complete, error)) return false;
+    }
+    if (!complete) {
+      if (!ScreenFile(opened->bytes, path, &opened->hdus, error)) return false;
+      *error = Quoted(path) + " decompresses to more than " +
+               FormatBytes(static_cast<double>(limit)) + ", the limit (--max_image_mb)";
+      return false;
+    }
+  } else if (!opened->bytes.OpenDisk(path)) {
+    *error = "cannot read " + Quoted(path) + ": " + std::strerror(errno);
+    return false;
+  }
+  if (!ScreenFile(opened->bytes, path, &opened->hdus, error)) return false;
   int status = 0;
-  if (fits_open_diskfile(file->out(), path.c_str(), READONLY, &status)) {
+  if (opened->bytes.in_memory()) {
+    // A neutral name: fits_open_memfile parses it, and "[1]" in a file name would move to
+    // extension 1. Messages name `path`.
+    fits_open_memfile(opened->file.out(), "decompressed.fits", READONLY,
+                      opened->bytes.memory_slot(), opened->bytes.memory_size_slot(), 0, nullptr,
+                      &status);
+  } else {
+    const CfitsioName name(path);
+    fits_open_diskfile(opened->file.out(), name.c_str(), READONLY, &status);
+  }
+  if (status != 0) {
     *error = Corrupt(path, status);
     return false;
   }
@@ -639,10 +722,9 @@ std::optional<FitsImage> ReadFitsImage(const std::string& path, std::string* err
 
 std::optional<FitsImage> ReadFitsImage(const std::string& path, const std::string& hdu_selector,
                                        std::string* error) {
-  FitsFile file;
-  bool gzip = false;
-  long long file_size = -1;
-  if (!OpenForReading(path, &file, &gzip, &file_size, error)) return std::nullopt;
+  OpenedFits opened;
+  if (!OpenForReading(path, &opened, error)) return std::nullopt;
+  const FitsFile& file = opened.file;
   int status = 0;
   int num_hdus = 0;
   if (fits_get_num_hdus(file.get(), &num_hdus, &status)) {
@@ -699,7 +781,7 @@ std::optional<FitsImage> ReadFitsImage(const std::string& path, const std::strin
       *error = Quoted(path) + " HDU " + hdu_selector + " holds no image (NAXIS = 0)";
       return std::nullopt;
     }
-    return ReadCurrentImage(file.get(), path, index + 1, gzip, file_size, error);
+    return ReadCurrentImage(opened, path, index + 1, error);
   }
 
   // The primary HDU, or the first image extension with data when the primary is empty.
@@ -743,15 +825,14 @@ std::optional<FitsImage> ReadFitsImage(const std::string& path, const std::strin
       return std::nullopt;
     }
   }
-  return ReadCurrentImage(file.get(), path, hdu, gzip, file_size, error);
+  return ReadCurrentImage(opened, path, hdu, error);
 }
 
 std::vector<FitsHduInfo> ListFitsImageHdus(const std::string& path, std::string* error) {
   std::vector<FitsHduInfo> out;
-  FitsFile file;
-  bool gzip = false;
-  long long file_size = -1;
-  if (!OpenForReading(path, &file, &gzip, &file_size, error)) return out;
+  OpenedFits opened;
+  if (!OpenForReading(path, &opened, error)) return out;
+  const FitsFile& file = opened.file;
   int status = 0;
   int num_hdus = 0;
   if (fits_get_num_hdus(file.get(), &num_hdus, &status)) {

@@ -10,10 +10,12 @@
 #include <gtest/gtest.h>
 #include <sys/resource.h>
 
+#include <chrono>
 #include <cmath>
 #include <csignal>
 #include <cstring>
 #include <limits>
+#include <random>
 #include <string>
 #include <vector>
 
@@ -718,6 +720,398 @@ TEST(FitsIoAtomicFile, MakeDirectoriesCreatesParents) {
   EXPECT_FALSE(MakeDirectories(dir.File("file/sub"), &error));
   EXPECT_NE(error.find("not a directory"), std::string::npos) << error;
   EXPECT_EQ(error.find('\n'), std::string::npos);
+}
+
+
+// ------------------------------------------------------------------------------------------
+// Untrusted input: the reader's screen (fits_io.h) and the fuzzer's regressions. Each file
+// below once crashed CFITSIO (SIGFPE, or a read past a buffer) or made the reader allocate
+// gigabytes; each must now fail with a one-line reason, in this process (a crash kills the
+// test).
+
+// Restores the memory ceiling when a test is done with it.
+class ScopedMaxImageBytes {
+ public:
+  explicit ScopedMaxImageBytes(long long bytes) : old_(MaxImageBytes()) {
+    SetMaxImageBytes(bytes);
+  }
+  ~ScopedMaxImageBytes() { SetMaxImageBytes(old_); }
+
+ private:
+  long long old_;
+};
+
+// The values of a 64 x 40 test image, and the bytes of it tile-compressed in 16 x 16 tiles
+// (4 x 3 tiles; the top row of tiles is 8 pixels high, so its tiles are cut short).
+constexpr int kTiledNx = 64, kTiledNy = 40, kTile = 16;
+std::vector<double> TiledValues() {
+  std::vector<double> values;
+  for (int i = 0; i < kTiledNx * kTiledNy; ++i) values.push_back((i * 37) % 500 - 100);
+  return values;
+}
+std::string TiledBytes(const ScopedTempDir& dir, int compression) {
+  const std::string path = dir.File("tiled_source.fits");
+  std::string error;
+  EXPECT_TRUE(test_support::WriteTiledFits(path, compression, kTiledNx, kTiledNy, kTile, kTile,
+                                           TiledValues(), &error))
+      << error;
+  return test_support::ReadBytes(path);
+}
+
+// Writes `bytes` as `name` and reads it, expecting a one-line error naming the file; lists
+// its HDUs too (which must not crash either). Returns the reader's error.
+std::string ScreenError(const ScopedTempDir& dir, const std::string& name,
+                        const std::string& bytes) {
+  const std::string path = dir.File(name);
+  EXPECT_TRUE(test_support::WriteBytes(path, bytes));
+  std::string list_error;
+  (void)ListFitsImageHdus(path, &list_error);
+  return ReadError(path);
+}
+
+int64_t MaxRssKb() {
+  struct rusage usage;
+  getrusage(RUSAGE_SELF, &usage);
+  return usage.ru_maxrss;
+}
+
+TEST(FitsIoScreen, TileCompressedImagesReadExactly) {
+  // The screen walks every RICE_1 stream and inflates every GZIP tile before CFITSIO
+  // decodes them: valid files, edge tiles included, must pass untouched.
+  ScopedTempDir dir;
+  for (int compression : {RICE_1, GZIP_1, GZIP_2}) {
+    SCOPED_TRACE("compression " + std::to_string(compression));
+    const std::string path = dir.File("tiled.fits");
+    ASSERT_TRUE(test_support::WriteBytes(path, TiledBytes(dir, compression)));
+    std::string error;
+    const std::optional<FitsImage> image = ReadFitsImage(path, &error);
+    ASSERT_TRUE(image.has_value()) << error;
+    EXPECT_EQ(image->pixels.nx, kTiledNx);
+    EXPECT_EQ(image->pixels.ny, kTiledNy);
+    EXPECT_EQ(image->pixels.data, TiledValues());
+    const std::vector<FitsHduInfo> hdus = ListFitsImageHdus(path, &error);
+    ASSERT_EQ(hdus.size(), 1u) << error;
+    EXPECT_EQ(hdus[0].index, 1);
+  }
+}
+
+TEST(FitsIoScreen, ZeroTileSizeIsRefusedNotACrash) {
+  // CFITSIO divides by ZTILE1 while merely moving to the HDU: fit, trend and diagnose died
+  // of SIGFPE with no message.
+  ScopedTempDir dir;
+  std::string bytes = TiledBytes(dir, RICE_1);
+  ASSERT_TRUE(test_support::ReplaceCard(&bytes, "ZTILE1", test_support::Card("ZTILE1", "0")));
+  const std::string path = dir.File("ztile0.fits");
+  EXPECT_EQ(ScreenError(dir, "ztile0.fits", bytes),
+            "'" + path + "' HDU 1: tile-compressed image: ZTILE1 = 0 is outside 1..ZNAXIS1 (64)");
+  std::string error;
+  EXPECT_TRUE(ListFitsImageHdus(path, &error).empty());
+  EXPECT_NE(error.find("ZTILE1 = 0"), std::string::npos) << error;
+  // By number and by name too (the selectors move through the HDUs with CFITSIO).
+  EXPECT_FALSE(ReadFitsImage(path, "1", &error).has_value());
+  EXPECT_NE(error.find("ZTILE1 = 0"), std::string::npos) << error;
+  EXPECT_FALSE(ReadFitsImage(path, "AMP1", &error).has_value());
+  EXPECT_NE(error.find("ZTILE1 = 0"), std::string::npos) << error;
+}
+
+TEST(FitsIoScreen, TileKeywordsCfitsioWouldMisreadAreRefused) {
+  struct Case {
+    std::string card;   // name of the card to replace
+    std::string name;   // the new card's name and value
+    std::string value;
+    std::string expected;  // in the error
+  };
+  const std::vector<Case> cases = {
+      // CFITSIO reads these as 0 and divides by them.
+      {"ZTILE1", "ZTILE1", "0.5", "ZTILE1 = '0.5' is not an integer"},
+      {"ZTILE1", "ZTILE1", "F", "ZTILE1 = 'F' is not an integer"},
+      {"ZVAL1", "ZVAL1", "0", "RICE_1 block size 0 (ZVAL1) is outside 1..65536"},
+      {"ZNAXIS1", "ZNAXIS1", "0", "ZNAXIS1 = 0 is not positive"},
+      // Tiles larger than the image (CFITSIO sizes its buffers from them), too many axes.
+      {"ZTILE2", "ZTILE2", "99", "ZTILE2 = 99 is outside 1..ZNAXIS2 (40)"},
+      {"ZNAXIS", "ZNAXIS", "7", "ZNAXIS = 7 is outside 1..6"},
+      {"ZBITPIX", "ZBITPIX", "12", "ZBITPIX = 12 is not 8, 16, 32, 64, -32 or -64"},
+      // A tile count that the table's rows do not hold.
+      {"ZTILE2", "ZTILE2", "8", "the table has 12 rows but the image 20 tiles (ZNAXISn / ZTILEn)"},
+      {"ZCMPTYPE", "ZCMPTYPE", "'LZMA_1  '", "unknown compression ZCMPTYPE = 'LZMA_1'"},
+      // The dither offset indexes a table of 10000 random numbers.
+      {"ZNAME1", "ZDITHER0", "-5000000", "ZDITHER0 = -5000000 is outside 1..10000"},
+      // A second ZTILE1 that CFITSIO might find instead of the first.
+      {"ZNAME1", "ZTILE1", "1", "ZTILE1 is given twice with different values"},
+  };
+  ScopedTempDir dir;
+  const std::string original = TiledBytes(dir, RICE_1);
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.name + " = " + c.value);
+    std::string bytes = original;
+    ASSERT_TRUE(test_support::ReplaceCard(&bytes, c.card, test_support::Card(c.name, c.value)));
+    const std::string error = ScreenError(dir, "bad.fits", bytes);
+    EXPECT_NE(error.find(c.expected), std::string::npos) << error;
+  }
+}
+
+TEST(FitsIoScreen, UncheckableCompressionIsRefused) {
+  ScopedTempDir dir;
+  for (const char* type : {"'HCOMPRESS_1'", "'PLIO_1  '", "'BZIP2_1 '", "'NOCOMPRESS'"}) {
+    std::string bytes = TiledBytes(dir, RICE_1);
+    ASSERT_TRUE(test_support::ReplaceCard(&bytes, "ZCMPTYPE", test_support::Card("ZCMPTYPE", type)));
+    const std::string error = ScreenError(dir, "other.fits", bytes);
+    EXPECT_NE(error.find("is not supported (RICE_1, GZIP_1 and GZIP_2 are)"), std::string::npos)
+        << error;
+  }
+}
+
+TEST(FitsIoScreen, TileOutsideTheHeapIsRefused) {
+  ScopedTempDir dir;
+  const std::string original = TiledBytes(dir, RICE_1);
+  const std::optional<test_support::TileBytes> tile = test_support::FindTile(original, 4);
+  ASSERT_TRUE(tile.has_value());
+  for (const std::string& descriptor : {std::string("\x00\x00\x00\x40\x7f\xff\x00\x00", 8),
+                                        std::string("\xff\xff\xff\xf0\x00\x00\x00\x00", 8),
+                                        std::string("\x00\x00\x00\x40\xff\xff\xff\x00", 8)}) {
+    std::string bytes = original;
+    bytes.replace(tile->descriptor, 8, descriptor);
+    const std::string error = ScreenError(dir, "heap.fits", bytes);
+    EXPECT_NE(error.find("tile 5's data"), std::string::npos) << error;
+    EXPECT_NE(error.find("lie outside the heap"), std::string::npos) << error;
+  }
+}
+
+TEST(FitsIoScreen, CorruptRiceStreamIsRefused) {
+  // A RICE_1 block coded with split level 0 (the code byte 0x10 for 16-bit pixels) whose
+  // unary parts are all zero bytes: CFITSIO's decoder runs through zeros without looking at
+  // the end of its buffer (ASan saw it read past it).
+  ScopedTempDir dir;
+  const std::string original = TiledBytes(dir, RICE_1);
+  const std::optional<test_support::TileBytes> tile = test_support::FindTile(original, 1);
+  ASSERT_TRUE(tile.has_value());
+  ASSERT_GT(tile->length, 8u);
+  std::string bytes = original;
+  bytes.replace(tile->stream + 2, tile->length - 2, std::string(tile->length - 2, '\0'));
+  bytes[tile->stream + 2] = '\x10';
+  const std::string path = dir.File("zeros.fits");
+  EXPECT_EQ(ScreenError(dir, "zeros.fits", bytes),
+            "'" + path + "' HDU 1: tile-compressed image: tile 2's RICE_1 stream is corrupt (it "
+            "ends before its 256 pixels)");
+
+  // Deterministic mutations of every tile's stream: an image or a one-line error, never a
+  // crash (the fuzzer does this at scale).
+  std::mt19937 rng(7);
+  for (int round = 0; round < 300; ++round) {
+    std::string mutated = original;
+    const std::optional<test_support::TileBytes> t = test_support::FindTile(mutated, round % 12);
+    ASSERT_TRUE(t.has_value());
+    for (int k = 0; k < 1 + round % 4; ++k) {
+      mutated[t->stream + rng() % t->length] = static_cast<char>(rng() % 256);
+    }
+    const std::string mutated_path = dir.File("mutated.fits");
+    ASSERT_TRUE(test_support::WriteBytes(mutated_path, mutated));
+    std::string error;
+    if (!ReadFitsImage(mutated_path, &error)) ExpectOneLineNaming(error, mutated_path);
+  }
+}
+
+TEST(FitsIoScreen, GzipTileInflatingBeyondItsPixelsIsRefused) {
+  // A GZIP_1 tile may inflate to at most 8 bytes a pixel; CFITSIO would grow its buffer for
+  // as long as the stream goes on (a tile bomb).
+  ScopedTempDir dir;
+  std::string bytes = TiledBytes(dir, GZIP_1);
+  const std::optional<test_support::TileBytes> tile = test_support::FindTile(bytes, 0);
+  ASSERT_TRUE(tile.has_value());
+  const std::string bomb = test_support::Gzip(std::string(16 * 16 * 8 + 4000, '\0'));
+  ASSERT_LE(bomb.size(), tile->length);
+  bytes.replace(tile->stream, bomb.size(), bomb);
+  const char count[4] = {0, 0, static_cast<char>(bomb.size() >> 8),
+                         static_cast<char>(bomb.size() & 0xff)};
+  bytes.replace(tile->descriptor, 4, count, 4);
+  const std::string error = ScreenError(dir, "tilebomb.fits", bytes);
+  EXPECT_NE(error.find("tile 1's gzip stream inflates to more than its 256 pixels"),
+            std::string::npos)
+      << error;
+}
+
+TEST(FitsIoScreen, HugeImageIsRefusedBeforeAllocation) {
+  ScopedTempDir dir;
+  // 46000 x 46000 pixels claimed by a 2880-byte header: 15.8 GB as doubles.
+  const std::string header = test_support::HeaderBlock(
+      {test_support::Card("SIMPLE", "T"), test_support::Card("BITPIX", "16"),
+       test_support::Card("NAXIS", "2"), test_support::Card("NAXIS1", "46000"),
+       test_support::Card("NAXIS2", "46000")});
+  const std::string path = dir.File("huge.fits");
+  EXPECT_EQ(ScreenError(dir, "huge.fits", header + std::string(2880, '\0')),
+            "'" + path + "': the image is 46000 x 46000 (15.8 GB as doubles), above the 2.0 GB "
+            "limit (--max_image_mb)");
+  // In an extension, and with a lower ceiling.
+  ScopedMaxImageBytes ceiling(1LL << 20);
+  RawImageSpec spec = Simple2d(400, 400);
+  spec.in_extension = true;
+  const std::string ext_path = dir.File("ext.fits");
+  std::string error;
+  ASSERT_TRUE(test_support::WriteRawFits(ext_path, spec, &error)) << error;
+  EXPECT_EQ(ReadError(ext_path), "'" + ext_path + "' HDU 1: the image is 400 x 400 (1.2 MB as "
+                                 "doubles), above the 1.0 MB limit (--max_image_mb)");
+}
+
+TEST(FitsIoScreen, GzipMemoryBombFailsFastWithLittleMemory) {
+  ScopedTempDir dir;
+  const std::string header_16k = test_support::HeaderBlock(
+      {test_support::Card("SIMPLE", "T"), test_support::Card("BITPIX", "-64"),
+       test_support::Card("NAXIS", "2"), test_support::Card("NAXIS1", "16000"),
+       test_support::Card("NAXIS2", "16000")});
+  const std::string bomb = test_support::Gzip(header_16k + std::string(2880, '\0'));
+  ASSERT_LT(bomb.size(), 2500u);  // as small as the one that took 2.0 GB and 73 s
+  const std::string path = dir.File("bomb.fits.gz");
+  ASSERT_TRUE(test_support::WriteBytes(path, bomb));
+
+  const int64_t rss_before_kb = MaxRssKb();
+  const auto start = std::chrono::steady_clock::now();
+  {
+    // Under the default ceiling (1.9 GB fits in 2 GB): the data are not there.
+    std::string error;
+    EXPECT_FALSE(ReadFitsImage(path, &error).has_value());
+    EXPECT_EQ(error, "'" + path + "' is truncated or corrupt (the image needs 2048002880 bytes, "
+                     "the file has 5760)");
+    // Under a 1 GB ceiling: refused for its size.
+    ScopedMaxImageBytes ceiling(1LL << 30);
+    EXPECT_EQ(ReadError(path), "'" + path + "': the image is 16000 x 16000 (1.9 GB as doubles), "
+                               "above the 1.0 GB limit (--max_image_mb)");
+    // A trailer claiming 4 GB (CFITSIO allocated what it said) is not believed.
+    const std::string liar = dir.File("liar.fits.gz");
+    ASSERT_TRUE(test_support::WriteBytes(
+        liar, test_support::Gzip(header_16k + std::string(2880, '\0'), 0xfffffff0u)));
+    EXPECT_NE(ReadError(liar).find("is truncated or corrupt"), std::string::npos);
+  }
+  const double seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  EXPECT_LT(seconds, 2.0);
+  EXPECT_LT(MaxRssKb() - rss_before_kb, 64 * 1024);  // KB
+}
+
+TEST(FitsIoScreen, GzipDecompressionStopsAtTheCeiling) {
+  // Real bombs: megabytes of zeros that inflate past a 4 MB ceiling.
+  ScopedTempDir dir;
+  ScopedMaxImageBytes ceiling(4LL << 20);
+  const std::string big_image = dir.File("big_image.fits.gz");
+  const std::string trailing = dir.File("trailing.fits.gz");
+  {
+    // A 1024 x 1024 image of doubles (8 MB as read): refused from its header.
+    ASSERT_TRUE(test_support::WriteBytes(
+        big_image, test_support::Gzip(
+                       test_support::HeaderBlock(
+                           {test_support::Card("SIMPLE", "T"), test_support::Card("BITPIX", "-64"),
+                            test_support::Card("NAXIS", "2"), test_support::Card("NAXIS1", "1024"),
+                            test_support::Card("NAXIS2", "1024")}) +
+                       std::string(1024 * 1024 * 8, '\0'))));
+    // A small image followed by 12 MB of zeros.
+    ASSERT_TRUE(test_support::WriteBytes(
+        trailing, test_support::Gzip(
+                      test_support::HeaderBlock(
+                          {test_support::Card("SIMPLE", "T"), test_support::Card("BITPIX", "8"),
+                           test_support::Card("NAXIS", "2"), test_support::Card("NAXIS1", "10"),
+                           test_support::Card("NAXIS2", "10")}) +
+                      std::string(12 << 20, '\0'))));
+  }
+  const int64_t rss_before_kb = MaxRssKb();
+  const auto start = std::chrono::steady_clock::now();
+  EXPECT_EQ(ReadError(big_image), "'" + big_image + "': the image is 1024 x 1024 (8.0 MB as "
+                                  "doubles), above the 4.0 MB limit (--max_image_mb)");
+  EXPECT_EQ(ReadError(trailing), "'" + trailing + "' decompresses to more than 4.0 MB, the "
+                                 "limit (--max_image_mb)");
+  EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count(), 2.0);
+  EXPECT_LT(MaxRssKb() - rss_before_kb, 64 * 1024);  // KB
+}
+
+TEST(FitsIoScreen, MalformedHeadersAreRefusedWithTheirReason) {
+  ScopedTempDir dir;
+  auto header = [](const std::string& naxis1, const std::string& bitpix) {
+    return test_support::HeaderBlock(
+               {test_support::Card("SIMPLE", "T"), test_support::Card("BITPIX", bitpix),
+                test_support::Card("NAXIS", "2"), test_support::Card("NAXIS1", naxis1),
+                test_support::Card("NAXIS2", "4")}) +
+           std::string(2880, '\0');
+  };
+  EXPECT_NE(ScreenError(dir, "a.fits", header("8.0", "16"))
+                .find(": the header is corrupt (NAXIS1 = '8.0' is not an integer)"),
+            std::string::npos);
+  EXPECT_NE(ScreenError(dir, "b.fits", header("8", "7"))
+                .find(": the header is corrupt (BITPIX = 7 is not 8, 16, 32, 64, -32 or -64)"),
+            std::string::npos);
+  EXPECT_NE(ScreenError(dir, "c.fits", header("-8", "16"))
+                .find(": the header is corrupt (NAXIS1 = -8 is negative)"),
+            std::string::npos);
+  EXPECT_NE(ScreenError(dir, "d.fits", header("999999999999999999", "16"))
+                .find(": the header is corrupt (the data size overflows)"),
+            std::string::npos);
+}
+
+
+// The position of the card named `name` in the header of extension 1 (after the first
+// 2880-byte block, the empty primary header), or npos.
+size_t ExtensionCard(const std::string& bytes, const std::string& name) {
+  std::string padded = name;
+  padded.resize(8, ' ');
+  for (size_t at = 2880; at + 80 <= bytes.size(); at += 80) {
+    if (bytes.compare(at, 8, padded) == 0) return at;
+  }
+  return std::string::npos;
+}
+
+TEST(FitsIoScreen, EndCardAsCfitsioReadsIt) {
+  // Found by the fuzzer: CFITSIO ends a header at any card whose name, read up to a blank or
+  // '=', is END ("END   TFORM1 ...", "END="). The screen took such a card for something
+  // else, never saw the header's end, and let CFITSIO divide by ZTILE1 = 0 (SIGFPE).
+  ScopedTempDir dir;
+  std::string ztile0 = TiledBytes(dir, RICE_1);
+  ASSERT_TRUE(test_support::ReplaceCard(&ztile0, "ZTILE1", test_support::Card("ZTILE1", "0")));
+  for (const std::string& end : {std::string("END   TFORM1  = '1PB(43) '"), std::string("END="),
+                                 std::string("END  ABC")}) {
+    SCOPED_TRACE(end);
+    std::string bytes = ztile0;
+    const size_t at = ExtensionCard(bytes, "END");
+    ASSERT_NE(at, std::string::npos);
+    std::string card = end;
+    card.resize(80, ' ');
+    bytes.replace(at, 80, card);
+    const std::string path = dir.File("end.fits");
+    EXPECT_EQ(ScreenError(dir, "end.fits", bytes),
+              "'" + path + "' HDU 1: tile-compressed image: ZTILE1 = 0 is outside 1..ZNAXIS1 (64)");
+  }
+}
+
+TEST(FitsIoScreen, MandatoryKeywordsMustBeWhereCfitsioReadsThem) {
+  // Found by the fuzzer: CFITSIO reads BITPIX, NAXIS, NAXISn, PCOUNT, GCOUNT and TFIELDS by
+  // position, and sized a calloc from an unset variable (2^54 bytes; AddressSanitizer
+  // aborts) when one was unreadable or out of place - also in a header the file cuts short.
+  ScopedTempDir dir;
+  const std::string original = TiledBytes(dir, RICE_1);
+  const size_t end = ExtensionCard(original, "END");
+  ASSERT_NE(end, std::string::npos);
+  struct Case {
+    std::string card;
+    std::string replacement;
+    std::string expected;
+  };
+  const std::vector<Case> cases = {
+      {"NAXIS1", test_support::Card("NAXIS1", ":"), "(NAXIS1 = ':' is not an integer)"},
+      {"NAXIS", test_support::Card("FOO", "2"), "(card 3 is 'FOO', expected NAXIS)"},
+      {"GCOUNT", std::string(80, '\xff'), "(card 7 is '????????', expected GCOUNT)"},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.card);
+    std::string whole = original;
+    const size_t at = ExtensionCard(whole, c.card);
+    ASSERT_NE(at, std::string::npos);
+    whole.replace(at, 80, c.replacement);
+    // With its END card, and cut short inside the header (no END before the file ends).
+    std::string cut = whole.substr(0, 2 * 2880);
+    ASSERT_LT(end, cut.size());
+    cut.replace(end, 80, std::string(80, ' '));
+    for (const std::string& bytes : {whole, cut}) {
+      const std::string error = ScreenError(dir, "mandatory.fits", bytes);
+      EXPECT_NE(error.find("HDU 1: the header is corrupt " + c.expected), std::string::npos)
+          << error;
+    }
+  }
 }
 
 }  // namespace

@@ -2,7 +2,8 @@
 # One-step set-up on a fresh Debian 12 machine: install what is missing, build, then
 #   bash tools/bootstrap.sh demo   run the main job on the bundled data
 #   bash tools/bootstrap.sh test   run the whole test suite (Release, then address +
-#                                  undefined-behaviour sanitizers)
+#                                  undefined-behaviour sanitizers), then fuzz the FITS
+#                                  input stage for 60 s (README, "Fuzzing")
 # Run as root, or as a user with sudo. Safe to re-run: installs and builds are incremental.
 set -euo pipefail
 
@@ -22,6 +23,8 @@ packages=(build-essential cmake pkg-config libceres-dev libeigen3-dev libgoogle-
           libgflags-dev libcfitsio-dev libgtest-dev nlohmann-json3-dev libbenchmark-dev
           gnuplot-nox python3-numpy python3-scipy python3-astropy
           python3-pytest)
+# clang-14 and its sanitizer and libFuzzer runtimes: the test mode's short fuzzing run.
+if [ "$mode" = test ]; then packages+=(clang-14 libclang-rt-14-dev); fi
 missing=()
 for p in "${packages[@]}"; do
   if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then
@@ -62,3 +65,26 @@ cmake -S . -B build-asan -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCCDPSF_SANITIZE=ON 
 cmake --build build-asan -j"$jobs"
 echo "== tests (sanitizers)"
 (cd build-asan && ctest --output-on-failure -j"$jobs")
+
+# A short fuzzing run of the FITS input stage (fuzz/fits_input_fuzzer.cc) from the committed
+# seeds: a regression in the reader's screen shows up here within seconds. New inputs go to
+# a scratch corpus, removed afterwards; a fixed seed makes the mutations repeatable. A failing
+# input is kept as build-fuzz/crash-* (or leak-, timeout-, oom-).
+echo "== building the fuzzer (clang, libFuzzer + address + undefined) in build-fuzz/"
+# -O1 with line tables only: a quicker build than RelWithDebInfo's -O2 -g, stacks still named.
+CC=clang-14 CXX=clang++-14 cmake -S . -B build-fuzz -DCMAKE_BUILD_TYPE=RelWithDebInfo \
+  -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O1 -gline-tables-only -DNDEBUG" \
+  -DCCDPSF_FUZZ=ON -DCCDPSF_BUILD_TESTS=OFF -DCCDPSF_BUILD_BENCHMARKS=OFF > /dev/null
+cmake --build build-fuzz --target fits_input_fuzzer -j"$jobs"
+echo "== fuzzing the FITS input stage for 60 s"
+scratch="$(mktemp -d)"
+trap 'rm -rf "$scratch"' EXIT
+if ! ./build-fuzz/fits_input_fuzzer "$scratch" fuzz/corpus -dict=fuzz/fits.dict \
+     -seed=1 -max_total_time=60 -timeout=30 -rss_limit_mb=2048 -artifact_prefix=build-fuzz/ \
+     -print_final_stats=1 > build-fuzz/fuzz.log 2>&1; then
+  tail -n 60 build-fuzz/fuzz.log
+  echo "== the fuzzer failed on the input in build-fuzz/ (crash-*, leak-*, timeout-* or oom-*);"
+  echo "   README, \"Fuzzing\", says how to reproduce it and make it a regression test"
+  exit 1
+fi
+grep -E "^#[0-9]+ +DONE|^stat::number_of_executed_units|^stat::peak_rss_mb" build-fuzz/fuzz.log

@@ -46,6 +46,23 @@ struct FitsImage {
   double adc_max = std::numeric_limits<double>::infinity();
 };
 
+// Reading untrusted files. Before CFITSIO reads anything, the reader walks the headers of
+// every HDU itself and refuses, with a one-line reason, what CFITSIO could not survive
+// (tile-compression parameters such as ZTILE1 = 0, on which CFITSIO divides by zero; header
+// values it would read differently) and any image above the memory ceiling below. Before a
+// tile-compressed image is decompressed, every tile must lie inside the table's heap and,
+// for RICE_1, its stream must hold all its pixels; GZIP_1 / GZIP_2 tiles must inflate to at
+// most 8 bytes a pixel. HCOMPRESS_1, PLIO_1, BZIP2_1 and NOCOMPRESS images are refused
+// (CFITSIO's decoders for them cannot be checked so). A gzip file is decompressed into
+// memory, at most the ceiling's size, before its headers are screened.
+//
+// The memory ceiling: the largest image read, as doubles (8 bytes a pixel). An image above
+// it is refused before any allocation: "'f.fits': the image is 16000 x 16000 (1.9 GB as
+// doubles), above the 1.0 GB limit (--max_image_mb)". For every thread; bytes >= 1.
+constexpr long long kDefaultMaxImageBytes = 2LL << 30;  // 2 GiB
+void SetMaxImageBytes(long long bytes);
+long long MaxImageBytes();
+
 // Reads the 2-D image in the primary HDU, or in the first image extension when the primary
 // HDU is empty. Fails with a one-line reason for a missing file, a file that is not FITS, a
 // truncated file, no image HDU, an image that is not 2-D or is empty, or a table where the

@@ -57,6 +57,39 @@ bool WriteTableOnlyFits(const std::string& path, std::string* error);
 bool WriteBytes(const std::string& path, const std::string& bytes);
 std::string ReadBytes(const std::string& path);
 
+// ------------------------------------------------------------------------------------------
+// Byte-level writers for malformed files (the reader's screen and the fuzzer's regressions).
+
+// One 80-character header card: "NAME    = value", the value right-aligned in columns 11-30
+// (where FITS puts numbers and logicals); a string value is given with its quotes.
+std::string Card(const std::string& name, const std::string& value);
+// A header: the cards, the END card, blanks to a whole 2880-byte block.
+std::string HeaderBlock(const std::vector<std::string>& cards);
+// Replaces the whole first card whose name is `name` by `card` (80 characters or fewer).
+// False if no card has that name.
+bool ReplaceCard(std::string* fits, const std::string& name, const std::string& card);
+
+// A gzip member (RFC 1952) holding `data`, deflated (RFC 1951) with the fixed Huffman code:
+// runs of a repeated byte become length-258 back-references, so that zeros shrink ~150:1 (a
+// memory bomb in a few hundred KB) while anything else is stored as literals. Independent
+// of zlib and CFITSIO; `claimed_size` overrides the trailer's ISIZE (it can lie).
+std::string Gzip(const std::string& data, std::optional<uint32_t> claimed_size = std::nullopt);
+
+// A tile-compressed image (empty primary HDU, the image in extension 1), written by CFITSIO:
+// `compression` is CFITSIO's code (RICE_1, GZIP_1, ...), the tiles `tile_nx` x `tile_ny`
+// pixels, the values (integers in the 16-bit range) stored as 16-bit integers.
+bool WriteTiledFits(const std::string& path, int compression, int nx, int ny, int tile_nx,
+                    int tile_ny, const std::vector<double>& values, std::string* error);
+
+// Where tile `row` (0-based) of the tile-compressed image in extension 1 of `fits` lies:
+// byte offset in the file and length of its compressed stream, and of its descriptor.
+struct TileBytes {
+  size_t descriptor = 0;  // offset of the (count, heap offset) pair, two big-endian int32
+  size_t stream = 0;      // offset of the compressed bytes
+  size_t length = 0;      // their number
+};
+std::optional<TileBytes> FindTile(const std::string& fits, long long row);
+
 // A frame with one pixel-integrated circular Gaussian spot, in ADU:
 //   adu = bias_adu + (Poisson(expected electrons) + Normal(0, read_noise_e)) / gain,
 // rounded to whole ADU when `round` is set. expected(x, y) = flux_e * Px * Py with
