@@ -149,8 +149,8 @@ void ReadWavelengthPeakExptime(JsonReader* r, double* wavelength_nm, double* pea
   if (!r->ok()) return;
   if (*wavelength_nm <= 0) {
     r->Fail("'" + r->Path("wavelength_nm") + "' must be > 0");
-  } else if (*peak_e <= 0) {
-    r->Fail("'" + r->Path("peak_e") + "' must be > 0");
+  } else if (!(*peak_e > 0 && *peak_e <= kMaxSimulatedIntensityE)) {
+    r->Fail("'" + r->Path("peak_e") + "' must be > 0 and at most 1e12 e-");
   } else if (*exptime_s < 0) {
     r->Fail("'" + r->Path("exptime_s") + "' must be >= 0");
   }

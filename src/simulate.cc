@@ -90,8 +90,10 @@ bool ParseExposure(const json& j, int index, const SimulationConfig& c, double w
   r.RejectUnknownKeys();
   if (!r.ok()) return false;
   std::ostringstream why;
-  if (e->flux_e < 0) why << r.Path(peak ? "peak_e" : "flux_e") << " must be >= 0";
-  else if (e->x_px < c.prescan_x - 0.5 || e->x_px > c.FrameNx() - 0.5 || e->y_px < -0.5 ||
+  if (!(e->flux_e >= 0 && e->flux_e <= kMaxSimulatedIntensityE)) {
+    why << r.Path(peak ? "peak_e" : "flux_e") << " = " << e->flux_e << " is outside 0 to "
+        << kMaxSimulatedIntensityE << " e-";
+  } else if (e->x_px < c.prescan_x - 0.5 || e->x_px > c.FrameNx() - 0.5 || e->y_px < -0.5 ||
            e->y_px > c.ny - 0.5) {
     why << "spot of exposures[" << index << "] at (" << e->x_px << ", " << e->y_px
         << ") is outside the image area";

@@ -10,9 +10,14 @@
 // itself (~10 %) while a wrong move (e.g. a missing z^(dim-1) factor, which biases variances
 // by tens of per cent) still fails by a wide margin.
 #include "ccdpsf/fit/ensemble_sampler.h"
+#include "ccdpsf/fit/sampler_checkpoint.h"
+
+#include <unistd.h>
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
+#include <filesystem>
 #include <functional>
 #include <limits>
 #include <optional>
@@ -257,6 +262,63 @@ TEST(EnsembleSampler, SameSeedIsBitIdenticalForAnyThreadCount) {
   std::string error;
   ASSERT_TRUE(RunEnsembleSampler(PerThread(g, 2), 2, initial, options, &other, &error));
   EXPECT_FALSE(other.chain == runs[0].chain);
+}
+
+// A run that stops after a checkpoint (as if killed) and is run again continues from it and
+// ends with exactly the chain, log densities, acceptance and diagnostics of a run never
+// interrupted; a checkpoint of another run (other seed) or a damaged one is not used.
+TEST(EnsembleSampler, ResumesFromACheckpointToTheSameChain) {
+  const Gaussian g = Correlated2d();
+  const std::vector<double> initial = InitialBall(g, 10, 1.0, 4);
+  SamplerOptions options = QuietOptions(21);
+  options.max_steps = 450;
+  options.check_fraction = 0;  // checks at 100, 200, 300, 400 and 450
+  options.target_ess = 1e9;    // never converged: every check is passed through
+  std::string error;
+  SamplerResult whole;
+  ASSERT_TRUE(RunEnsembleSampler(PerThread(g, 2), 2, initial, options, &whole, &error)) << error;
+
+  const std::string path = ::testing::TempDir() + "/ccdpsf_checkpoint_" +
+                           std::to_string(static_cast<long>(::getpid())) + ".bin";
+  std::remove(path.c_str());
+  options.checkpoint_path = path;
+  options.checkpoint_seconds = 0;
+  // With a checkpoint at every check, a run leaves that of step 400 (none is written at the
+  // final step): what a run killed between steps 400 and 450 leaves.
+  SamplerResult first;
+  ASSERT_TRUE(RunEnsembleSampler(PerThread(g, 2), 2, initial, options, &first, &error)) << error;
+  EXPECT_EQ(first.resumed_from_step, 0);
+  EXPECT_TRUE(first.chain == whole.chain);  // checkpointing changes nothing
+  SamplerCheckpoint saved;
+  ASSERT_TRUE(ReadSamplerCheckpoint(path, &saved, &error)) << error;
+  EXPECT_EQ(saved.steps, 400);
+
+  SamplerResult resumed;
+  options.num_threads = 1;  // the threads are not part of a run's identity
+  ASSERT_TRUE(RunEnsembleSampler(PerThread(g, 1), 2, initial, options, &resumed, &error)) << error;
+  EXPECT_EQ(resumed.resumed_from_step, 400);
+  EXPECT_TRUE(resumed.chain == whole.chain);
+  EXPECT_TRUE(resumed.log_prob == whole.log_prob);
+  EXPECT_TRUE(resumed.acceptance_fraction == whole.acceptance_fraction);
+  EXPECT_TRUE(resumed.tau == whole.tau);
+  EXPECT_EQ(resumed.burn_in, whole.burn_in);
+  EXPECT_EQ(resumed.stop_reason, whole.stop_reason);
+
+  // Another seed: the checkpoint is not this run's.
+  options.seed = 22;
+  SamplerResult other;
+  ASSERT_TRUE(RunEnsembleSampler(PerThread(g, 1), 2, initial, options, &other, &error)) << error;
+  EXPECT_EQ(other.resumed_from_step, 0);
+  // A damaged checkpoint (cut short) is not used either.
+  options.seed = 21;
+  ASSERT_TRUE(ReadSamplerCheckpoint(path, &saved, &error)) << error;  // seed 22's, step 400
+  std::filesystem::resize_file(path, std::filesystem::file_size(path) / 2);
+  EXPECT_FALSE(ReadSamplerCheckpoint(path, &saved, &error));
+  SamplerResult after_damage;
+  ASSERT_TRUE(RunEnsembleSampler(PerThread(g, 1), 2, initial, options, &after_damage, &error));
+  EXPECT_EQ(after_damage.resumed_from_step, 0);
+  EXPECT_TRUE(after_damage.chain == whole.chain);
+  std::remove(path.c_str());
 }
 
 TEST(EnsembleSampler, LogProbIsTheDensityOfTheChain) {

@@ -34,12 +34,56 @@ int Fail(const std::string& message) {
   return 1;
 }
 
+int Usage(const std::string& message) {
+  std::fprintf(stderr, "ccdpsf: error: %s\n", message.c_str());
+  return kExitUsage;
+}
+
 bool FlagGiven(const char* name) {
   gflags::CommandLineFlagInfo info;
   return gflags::GetCommandLineFlagInfo(name, &info) && !info.is_default;
 }
 
 namespace {
+
+// Checks the flags in argv[first..argc) before gflags parses them: gflags ends the process
+// with exit code 1 on an unknown flag or a value it cannot parse, where a usage error must
+// exit with 2. Empty if every flag is known and its value parses; else a one-line reason.
+std::string FlagSyntaxError(int first, int argc, char** argv, const char* command) {
+  for (int i = first; i < argc; ++i) {
+    std::string arg = argv[i];
+    if (arg == "--") break;  // positional arguments only after it
+    if (arg.size() < 2 || arg[0] != '-') continue;
+    arg.erase(0, arg[1] == '-' ? 2 : 1);
+    const size_t eq = arg.find('=');
+    const std::string name = arg.substr(0, eq);
+    gflags::CommandLineFlagInfo info;
+    if (!gflags::GetCommandLineFlagInfo(name.c_str(), &info)) {
+      // --nofoo for a boolean foo.
+      if (eq == std::string::npos && name.rfind("no", 0) == 0 &&
+          gflags::GetCommandLineFlagInfo(name.substr(2).c_str(), &info) && info.type == "bool") {
+        continue;
+      }
+      return "unknown option --" + name + " for '" + command + "'; 'ccdpsf help " + command +
+             "' lists its options";
+    }
+    std::string value;
+    if (eq != std::string::npos) {
+      value = arg.substr(eq + 1);
+    } else if (info.type == "bool") {
+      continue;
+    } else if (i + 1 < argc) {
+      value = argv[++i];  // "--name value"
+    } else {
+      return "--" + name + " needs a value";
+    }
+    // Parsed as gflags will parse it (the value is set again, identically, by the parse).
+    if (gflags::SetCommandLineOption(name.c_str(), value.c_str()).empty()) {
+      return "--" + name + "=" + value + " is not a valid " + info.type + " value";
+    }
+  }
+  return "";
+}
 
 void PrintCommandHelp(const Command& c) {
   std::printf("%s\n\n  %s\n\nOptions:\n", c.synopsis, c.summary);
@@ -71,7 +115,7 @@ int main(int argc, char** argv) {
   FLAGS_minloglevel = 1;  // warnings and above
   if (argc < 2) {
     std::fprintf(stderr, "usage: ccdpsf <command> [options]; 'ccdpsf help' lists commands\n");
-    return 2;
+    return ccdpsf::tools::kExitUsage;
   }
   const std::string name = argv[1];
   if (name == "help" || name == "--help" || name == "-h") {
@@ -97,7 +141,7 @@ int main(int argc, char** argv) {
   if (command == nullptr) {
     std::fprintf(stderr, "ccdpsf: error: unknown command '%s'; 'ccdpsf help' lists commands\n",
                  name.c_str());
-    return 2;
+    return ccdpsf::tools::kExitUsage;
   }
   for (int i = 2; i < argc; ++i) {
     if (std::strcmp(argv[i], "--help") == 0 || std::strcmp(argv[i], "-h") == 0 ||
@@ -106,6 +150,8 @@ int main(int argc, char** argv) {
       return 0;
     }
   }
+  const std::string syntax = ccdpsf::tools::FlagSyntaxError(2, argc, argv, command->name);
+  if (!syntax.empty()) return ccdpsf::tools::Usage(syntax);
   // gflags sees the arguments after the command name; positional arguments remain.
   int sub_argc = argc - 1;
   char** sub_argv = argv + 1;
@@ -119,9 +165,8 @@ int main(int argc, char** argv) {
     bool allowed = false;
     for (const char* f : command->flags) allowed |= info.name == f;
     if (!allowed) {
-      std::fprintf(stderr, "ccdpsf: error: --%s does not apply to '%s'\n", info.name.c_str(),
-                   command->name);
-      return 2;
+      return ccdpsf::tools::Usage("--" + info.name + " does not apply to '" + command->name +
+                                  "'");
     }
   }
   std::vector<std::string> args(sub_argv + 1, sub_argv + sub_argc);

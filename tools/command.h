@@ -36,6 +36,11 @@ bool ResolveFitConfig(fit::FitConfig* config, std::string* error);
 // Prints "ccdpsf: error: <message>" on stderr and returns exit code 1.
 int Fail(const std::string& message);
 
+// Exit code of a usage error: an unknown option, a value that does not parse, a missing
+// --out or input. Usage() prints "ccdpsf: error: <message>" on stderr and returns it.
+constexpr int kExitUsage = 2;
+int Usage(const std::string& message);
+
 // Exit code of a completed run whose verdict is suspect or invalid under --strict.
 constexpr int kExitStrict = 3;
 
@@ -47,6 +52,11 @@ bool InputFlags(GivenMetadata* given, KeywordMap* keywords, std::string* error);
 // `files` may be empty with --manifest. *manifest receives the manifest if one was given.
 bool ResolveInputs(const std::vector<std::string>& files, const CalibrationOptions& config,
                    std::vector<InputFile>* inputs, Manifest* manifest, std::string* error);
+
+// What a run reads: `args` and the files named by --config, --manifest, --keywords,
+// --bad_pixel_mask and --requirements where given. An output folder must not hold any of
+// them (it is replaced as a whole: output_folder.h).
+std::vector<std::string> RunInputs(const std::vector<std::string>& args);
 
 // True when --name was given on the command line.
 bool FlagGiven(const char* name);

@@ -8,6 +8,7 @@
 #include "ccdpsf/exposure_set.h"
 #include "ccdpsf/fit/fit_quality.h"
 #include "ccdpsf/fit/fit_config.h"
+#include "ccdpsf/output_folder.h"
 #include "ccdpsf/provenance.h"
 #include "command.h"
 #include "gflags/gflags.h"
@@ -53,9 +54,9 @@ bool ParseKinds(const std::string& text, std::vector<model::EffectKind>* kinds,
 }
 
 int RunDiagnose(const std::vector<std::string>& files) {
-  if (FLAGS_out.empty()) return Fail("diagnose needs --out=DIR");
+  if (FLAGS_out.empty()) return Usage("diagnose needs --out=DIR");
   if (files.empty() && !FlagGiven("manifest")) {
-    return Fail("diagnose needs at least one FITS file (or --manifest)");
+    return Usage("diagnose needs at least one FITS file (or --manifest)");
   }
   fit::FitConfig config;
   std::string error;
@@ -124,6 +125,10 @@ int RunDiagnose(const std::vector<std::string>& files) {
   std::vector<InputFile> inputs;
   Manifest manifest;
   if (!ResolveInputs(files, config.calibration, &inputs, &manifest, &error)) return Fail(error);
+  std::vector<std::string> input_paths;
+  for (const InputFile& input : inputs) input_paths.push_back(input.path);
+  OutputFolder out;
+  if (!out.Begin(FLAGS_out, RunInputs(input_paths), {}, &error)) return Fail(error);
   ExposureSet set;
   ExposureSetOptions set_options;
   set_options.allow_mixed_wavelengths = FLAGS_mixed_wavelengths;
@@ -208,7 +213,9 @@ int RunDiagnose(const std::vector<std::string>& files) {
                         {"seed", FLAGS_seed},
                         {"software", SoftwareVersions()}};
   std::vector<std::string> warnings;
-  if (!diagnose::WriteDiagnoseReport(FLAGS_out, *base, result, options, run, &warnings, &error)) {
+  if (!diagnose::WriteDiagnoseReport(out.partial(), *base, result, options, run, &warnings,
+                                     &error) ||
+      !out.Commit({}, &error)) {
     return Fail(error);
   }
   for (const std::string& w : warnings) std::fprintf(stderr, "ccdpsf: warning: %s\n", w.c_str());

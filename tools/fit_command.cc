@@ -4,12 +4,14 @@
 #include <cstdio>
 #include <filesystem>
 
+#include "ccdpsf/atomic_file.h"
 #include "ccdpsf/exposure.h"
 #include "ccdpsf/exposure_set.h"
 #include "ccdpsf/fit/fit_exposures.h"
 #include "ccdpsf/fit/fit.h"
 #include "ccdpsf/fit/fit_config.h"
 #include "ccdpsf/fit/fit_report.h"
+#include "ccdpsf/output_folder.h"
 #include "ccdpsf/provenance.h"
 #include "command.h"
 #include "gflags/gflags.h"
@@ -46,6 +48,11 @@ DEFINE_bool(mixed_wavelengths, false,
 DEFINE_bool(strict, false,
             "Exit with code 3 when a completed fit's verdict is suspect or invalid (for "
             "pipelines); without it a completed run exits 0 whatever the verdict");
+DEFINE_bool(resume, false,
+            "fit, trend: continue a run that was killed, into the same --out with the same "
+            "inputs and options (fit: each MCMC from its last checkpoint, ending with the chain "
+            "of an uninterrupted run; trend: the groups already finished are kept)");
+DEFINE_double(checkpoint_s, 30, "fit: seconds between MCMC checkpoints (for --resume)");
 DEFINE_bool(outliers, true,
             "Mask pixels the fitted model cannot explain (cosmic rays, hot pixels) and refit");
 
@@ -89,9 +96,8 @@ bool ResolveFitConfig(fit::FitConfig* c, std::string* error) {
   } else if (FlagGiven("flux")) {
     c->flux_given = false;
   }
-  if (c->fit.num_walkers < 0 || c->fit.mcmc.max_steps < 1 || c->fit.mcmc.num_threads < 1 ||
-      !(c->fit.mcmc.target_ess >= 0)) {
-    *error = "--walkers >= 0, --max_steps >= 1, --threads >= 1 and --target_ess >= 0 required";
+  if (!fit::CheckMcmcSettings(c->fit.num_walkers, c->fit.mcmc.max_steps, c->fit.mcmc.num_threads,
+                              c->fit.mcmc.target_ess, "--", error)) {
     return false;
   }
   if (c->model.model.sampling == model::Sampling::kPixelCentre &&
@@ -106,22 +112,30 @@ namespace {
 
 namespace fs = std::filesystem;
 
-// One fit (single exposure or joint set) into out_dir. Returns the exit code.
-int FitInto(const std::string& out_dir, const std::vector<Exposure>& exposures,
-            const Quality& set_quality, const fit::FitConfig& config,
-            const std::vector<std::string>& files, bool* flagged) {
+// One fit (single exposure or joint set) written into `dir`, which becomes `shown` (the
+// folder named in messages) when the run's output folder is committed. Returns the exit code.
+int FitInto(const std::string& dir, const std::string& shown, const std::string& checkpoint,
+            const std::vector<Exposure>& exposures, const Quality& set_quality,
+            const fit::FitConfig& config, const std::vector<std::string>& files, bool* flagged) {
   fit::ExposuresFitOptions options;
   options.config = config;
-  options.config.fit.mcmc.progress_label = out_dir;
+  options.config.fit.mcmc.progress_label = shown;
+  // The MCMC's checkpoint, kept in the run's partial folder (dropped at the commit).
+  options.config.fit.mcmc.checkpoint_path = checkpoint;
+  options.config.fit.mcmc.checkpoint_seconds = FLAGS_checkpoint_s;
   options.flux_given = config.flux_given;
   options.outliers.enabled = FLAGS_outliers;
   fit::ExposuresFit fitted;
   std::string error;
   if (!fit::FitExposures(exposures, set_quality, options, &fitted, &error)) {
-    return Fail(out_dir + ": " + error);
+    return Fail(shown + ": " + error);
   }
   for (const std::string& note : fitted.notes) {
     std::fprintf(stderr, "ccdpsf: note: %s\n", note.c_str());
+  }
+  if (fitted.result.have_mcmc && fitted.result.chain.resumed_from_step > 0) {
+    std::fprintf(stderr, "ccdpsf: note: %s: the MCMC resumed from its checkpoint at step %d\n",
+                 shown.c_str(), fitted.result.chain.resumed_from_step);
   }
   nlohmann::json run = {{"command", "fit"},
                         {"files", files},
@@ -129,14 +143,14 @@ int FitInto(const std::string& out_dir, const std::vector<Exposure>& exposures,
                         {"seed", config.fit.mcmc.seed},
                         {"software", SoftwareVersions()}};
   std::vector<std::string> warnings;
-  if (!fit::WriteFitReport(out_dir, fitted, run, &warnings, &error)) return Fail(error);
+  if (!fit::WriteFitReport(dir, fitted, run, &warnings, &error)) return Fail(error);
   for (const std::string& w : warnings) std::fprintf(stderr, "ccdpsf: warning: %s\n", w.c_str());
   const fit::FitResult& result = fitted.result;
   std::printf("%s: chi2/dof %.4g, %s; verdict %s; results in %s/fit.json (report.md, plots)\n",
               files.size() == 1 ? files[0].c_str() : "joint fit", result.map.chi2 / result.map.dof,
               result.have_mcmc ? (result.chain.converged ? "MCMC converged" : "MCMC NOT converged")
                                : "no MCMC",
-              fitted.quality.OneLine().c_str(), out_dir.c_str());
+              fitted.quality.OneLine().c_str(), shown.c_str());
   if (fitted.quality.Worst() != Severity::kNote) *flagged = true;
   return 0;
 }
@@ -174,14 +188,14 @@ std::vector<std::string> SeparateFolders(const std::vector<std::string>& files) 
 }
 
 int RunFit(const std::vector<std::string>& files) {
-  if (FLAGS_out.empty()) return Fail("fit needs --out=DIR");
+  if (FLAGS_out.empty()) return Usage("fit needs --out=DIR");
   fit::FitConfig config;
   std::string error;
   if (!ResolveFitConfig(&config, &error)) return Fail(error);
   std::vector<InputFile> inputs;
   Manifest manifest;
   if (files.empty() && !FlagGiven("manifest")) {
-    return Fail("fit needs at least one FITS file (or --manifest)");
+    return Usage("fit needs at least one FITS file (or --manifest)");
   }
   if (!ResolveInputs(files, config.calibration, &inputs, &manifest, &error)) return Fail(error);
   std::vector<std::string> paths;
@@ -224,31 +238,49 @@ int RunFit(const std::vector<std::string>& files) {
       }
     }
   }
+  // MCMC checkpoints live in the partial folder's "checkpoints" until the commit; a
+  // --resume run keeps those a killed run left there.
+  const std::string kCheckpoints = "checkpoints";
+  if (FLAGS_checkpoint_s < 0) return Fail("--checkpoint_s must be >= 0");
+  OutputFolder out;
+  if (!out.Begin(FLAGS_out, RunInputs(paths), FLAGS_resume ? std::vector<std::string>{kCheckpoints}
+                                                           : std::vector<std::string>{},
+                 &error)) {
+    return Fail(error);
+  }
+  const std::string checkpoints = out.partial() + "/" + kCheckpoints;
+  if (!MakeDirectories(checkpoints, &error)) return Fail(error);
   bool flagged = false;
   int status = 0;
   if (joint || inputs.size() == 1) {
-    status = FitInto(FLAGS_out, exposures, set.quality, config, paths, &flagged);
+    status = FitInto(out.partial(), FLAGS_out, checkpoints + "/fit.bin", exposures, set.quality,
+                     config, paths, &flagged);
   } else {
     // Separate fits: one folder per file.
     const std::vector<std::string> names = SeparateFolders(paths);
     nlohmann::json summary = nlohmann::json::array();
     for (size_t i = 0; i < inputs.size(); ++i) {
       const std::string dir = FLAGS_out + "/" + names[i];
+      const std::string staged = out.partial() + "/" + names[i];
       // The set checks' findings about this exposure (compression against the others).
       Quality own;
       for (const Finding& f : set.quality.findings) {
         if (f.exposure == static_cast<int>(i)) own.Add(f.code, f.severity, f.message);
       }
-      const int s = FitInto(dir, {exposures[i]}, own, config, {paths[i]}, &flagged);
+      const int s = FitInto(staged, dir, checkpoints + "/" + names[i] + ".bin", {exposures[i]},
+                            own, config, {paths[i]}, &flagged);
       summary.push_back({{"file", paths[i]}, {"folder", dir}, {"ok", s == 0}});
       if (s != 0) status = s;
     }
     std::string werr;
-    if (!WriteRunRecord(FLAGS_out, "fit", {{"files", paths}, {"folders", summary}},
+    if (!WriteRunRecord(out.partial(), "fit", {{"files", paths}, {"folders", summary}},
                         config.fit.mcmc.seed, &werr)) {
       return Fail(werr);
     }
   }
+  // A run that wrote nothing (its one fit failed) leaves the earlier results in place.
+  if (!IsCcdpsfOutput(out.partial())) return status;
+  if (!out.Commit({kCheckpoints}, &error)) return Fail(error);
   if (status == 0 && flagged && FLAGS_strict) return kExitStrict;
   return status;
 }
@@ -269,7 +301,12 @@ Command FitCommand() {
   return {"fit",
           "ccdpsf fit --out=DIR [--joint] [--config=FIT.json] [options] FILE.fits...",
           "Fit the spot model: MAP (Ceres), Laplace covariance, MCMC credible intervals.",
-          FitFlagNames(),
+          [] {
+            std::vector<const char*> names = FitFlagNames();
+            names.push_back("resume");
+            names.push_back("checkpoint_s");
+            return names;
+          }(),
           RunFit};
 }
 

@@ -7,6 +7,8 @@
 #include <vector>
 
 #include "ccdpsf/atomic_file.h"
+#include "ccdpsf/output_folder.h"
+#include "ccdpsf/fits_io.h"
 #include "ccdpsf/manifest.h"
 #include "ccdpsf/photon_transfer.h"
 #include "ccdpsf/provenance.h"
@@ -18,6 +20,7 @@ DECLARE_double(bias_adu);
 DECLARE_double(saturation_adu);
 DECLARE_string(manifest);
 DECLARE_string(out);
+DECLARE_int32(max_image_mb);  // the reader's memory ceiling (input_flags.cc)
 DEFINE_string(gain_method, "auto",
               "gain: auto (pairs when two frames share an exposure time, else single_frame), "
               "pairs or single_frame");
@@ -173,20 +176,25 @@ void PrintSummary(const PhotonTransferResult& r) {
 
 int RunGain(const std::vector<std::string>& args) {
   if (args.empty() && !FlagGiven("manifest")) {
-    return Fail("gain needs FITS files (or --manifest)");
+    return Usage("gain needs FITS files (or --manifest)");
   }
+  if (FLAGS_max_image_mb < 1) return Fail("--max_image_mb must be at least 1");
+  SetMaxImageBytes(static_cast<long long>(FLAGS_max_image_mb) << 20);
   std::vector<std::string> files;
   PhotonTransferOptions options;
   std::string error;
   if (!ResolveGainInputs(args, &files, &options, &error)) return Fail(error);
+  OutputFolder out;
+  if (!FLAGS_out.empty() && !out.Begin(FLAGS_out, RunInputs(files), {}, &error)) {
+    return Fail(error);
+  }
   PhotonTransferResult result;
   if (!EstimatePhotonTransferFromFiles(files, options, &result, &error)) return Fail(error);
   PrintSummary(result);
   if (FLAGS_out.empty()) return 0;
-  if (!MakeDirectories(FLAGS_out, &error)) return Fail(error);
   nlohmann::json json = PhotonTransferJson(result);
-  if (!WriteTextFileAtomically(FLAGS_out + "/gain.json", json.dump(2) + "\n", &error) ||
-      !WriteTextFileAtomically(FLAGS_out + "/gain.csv", PhotonTransferCsv(result), &error)) {
+  if (!WriteTextFileAtomically(out.partial() + "/gain.json", json.dump(2) + "\n", &error) ||
+      !WriteTextFileAtomically(out.partial() + "/gain.csv", PhotonTransferCsv(result), &error)) {
     return Fail(error);
   }
   const nlohmann::json run_options = {
@@ -199,7 +207,10 @@ int RunGain(const std::vector<std::string>& args) {
       {"gain_method", FLAGS_gain_method},
       {"out", FLAGS_out}};
   // Nothing random is drawn: the seed recorded is 0.
-  if (!WriteRunRecord(FLAGS_out, "gain", run_options, 0, &error)) return Fail(error);
+  if (!WriteRunRecord(out.partial(), "gain", run_options, 0, &error) ||
+      !out.Commit({}, &error)) {
+    return Fail(error);
+  }
   std::printf("wrote %s/gain.json and %s/gain.csv\n", FLAGS_out.c_str(), FLAGS_out.c_str());
   return 0;
 }
@@ -209,10 +220,11 @@ int RunGain(const std::vector<std::string>& args) {
 Command GainCommand() {
   return {"gain",
           "ccdpsf gain [--exptime_s=S] [--manifest=FILE] [--bias_adu=B] [--saturation_adu=S] "
-          "[--gain_method=auto|pairs|single_frame] [--out=DIR] FILE.fits...",
+          "[--gain_method=auto|pairs|single_frame] [--max_image_mb=MB] [--out=DIR] FILE.fits...",
           "Estimate the gain [e-/ADU] and read noise [e-] by photon transfer, from frame pairs "
           "at equal exposure times or from single frames.",
-          {"exptime_s", "manifest", "bias_adu", "saturation_adu", "gain_method", "out"},
+          {"exptime_s", "manifest", "bias_adu", "saturation_adu", "gain_method", "max_image_mb",
+           "out"},
           RunGain};
 }
 

@@ -1,7 +1,9 @@
 // The flags that say what a file's header lacks, shared by fit, diagnose and trend: one
-// per metadata quantity (metadata.h), the keyword map, the manifest and the stamp size.
+// per metadata quantity (metadata.h), the keyword map, the manifest and the stamp size; and
+// the reader's memory ceiling (also read by gain).
 #include <cmath>
 
+#include "ccdpsf/fits_io.h"
 #include "ccdpsf/manifest.h"
 #include "ccdpsf/metadata.h"
 #include "command.h"
@@ -40,6 +42,9 @@ DEFINE_string(manifest, "",
               "CSV or JSON file with one row per FITS file giving what its header lacks "
               "(columns: file, setting, and any quantity above)");
 DEFINE_int32(stamp_size, 21, "Stamp side [px]");
+DEFINE_int32(max_image_mb, static_cast<int>(ccdpsf::kDefaultMaxImageBytes >> 20),
+             "Largest image to read [MB = 2^20 bytes], as doubles (8 bytes a pixel); larger "
+             "images, and gzip files decompressing to more, are refused before reading");
 
 namespace ccdpsf::tools {
 
@@ -48,11 +53,16 @@ const std::vector<const char*>& InputFlagNames() {
       "gain_e_per_adu", "read_noise_e",  "bias_adu",     "bias_section",      "data_section",
       "saturation_adu", "pixel_um",      "wavelength_nm", "exptime_s",        "focus_position_um",
       "spot_x_px",      "spot_y_px",     "search_region", "hdu",              "bad_pixel_mask",
-      "keywords",       "manifest",      "stamp_size"};
+      "keywords",       "manifest",      "stamp_size",    "max_image_mb"};
   return names;
 }
 
 bool InputFlags(GivenMetadata* given, KeywordMap* keywords, std::string* error) {
+  if (FLAGS_max_image_mb < 1) {
+    *error = "--max_image_mb must be at least 1";
+    return false;
+  }
+  SetMaxImageBytes(static_cast<long long>(FLAGS_max_image_mb) << 20);
   struct NumberFlag {
     const char* name;
     double value;
@@ -113,6 +123,15 @@ bool ResolveInputs(const std::vector<std::string>& files, const CalibrationOptio
     }
   }
   return true;
+}
+
+std::vector<std::string> RunInputs(const std::vector<std::string>& args) {
+  std::vector<std::string> inputs = args;
+  for (const char* flag : {"config", "manifest", "keywords", "bad_pixel_mask", "requirements"}) {
+    std::string value;
+    if (gflags::GetCommandLineOption(flag, &value) && !value.empty()) inputs.push_back(value);
+  }
+  return inputs;
 }
 
 }  // namespace ccdpsf::tools

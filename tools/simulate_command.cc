@@ -5,6 +5,7 @@
 #include <sstream>
 
 #include "ccdpsf/campaign_simulation.h"
+#include "ccdpsf/output_folder.h"
 #include "ccdpsf/provenance.h"
 #include "ccdpsf/simulate.h"
 #include "command.h"
@@ -27,21 +28,24 @@ int RunCampaignSimulation() {
   std::string error;
   auto config = LoadCampaignConfig(FLAGS_config, &error);
   if (!config) return Fail(error);
+  OutputFolder out;
+  if (!out.Begin(FLAGS_out, RunInputs({}), {}, &error)) return Fail(error);
   CampaignResult result;
-  if (!RunCampaign(*config, FLAGS_out, FLAGS_noiseless, &result, &error)) return Fail(error);
-  if (!WriteRunRecord(FLAGS_out, "simulate", RunOptions(), config->seed, &error)) {
+  if (!RunCampaign(*config, out.partial(), FLAGS_noiseless, &result, &error) ||
+      !WriteRunRecord(out.partial(), "simulate", RunOptions(), config->seed, &error) ||
+      !out.Commit({}, &error)) {
     return Fail(error);
   }
-  std::printf("simulated a campaign of %d groups, %d %s into %s (manifest: %s)\n", result.groups,
-              result.exposures, FLAGS_noiseless ? "noiseless models" : "exposures",
-              FLAGS_out.c_str(), result.manifest_path.c_str());
+  std::printf("simulated a campaign of %d groups, %d %s into %s (manifest: %s/manifest.json)\n",
+              result.groups, result.exposures, FLAGS_noiseless ? "noiseless models" : "exposures",
+              FLAGS_out.c_str(), FLAGS_out.c_str());
   return 0;
 }
 
 int RunSimulate(const std::vector<std::string>& args) {
-  if (!args.empty()) return Fail("simulate takes no file arguments (got '" + args[0] + "')");
-  if (FLAGS_config.empty()) return Fail("simulate needs --config=SIM.json");
-  if (FLAGS_out.empty()) return Fail("simulate needs --out=DIR");
+  if (!args.empty()) return Usage("simulate takes no file arguments (got '" + args[0] + "')");
+  if (FLAGS_config.empty()) return Usage("simulate needs --config=SIM.json");
+  if (FLAGS_out.empty()) return Usage("simulate needs --out=DIR");
   {
     std::ifstream in(FLAGS_config);
     if (!in) return Fail("cannot read simulation config '" + FLAGS_config + "'");
@@ -52,14 +56,17 @@ int RunSimulate(const std::vector<std::string>& args) {
   std::string error;
   auto config = LoadSimulationConfig(FLAGS_config, &error);
   if (!config) return Fail(error);
+  OutputFolder out;
+  if (!out.Begin(FLAGS_out, RunInputs({}), {}, &error)) return Fail(error);
   SimulationResult result;
-  if (!RunSimulation(*config, FLAGS_out, FLAGS_noiseless, &result, &error)) return Fail(error);
-  if (!WriteRunRecord(FLAGS_out, "simulate", RunOptions(), config->seed, &error)) {
+  if (!RunSimulation(*config, out.partial(), FLAGS_noiseless, &result, &error) ||
+      !WriteRunRecord(out.partial(), "simulate", RunOptions(), config->seed, &error) ||
+      !out.Commit({}, &error)) {
     return Fail(error);
   }
-  std::printf("simulated %zu %s into %s (truth: %s)\n", result.files.size(),
+  std::printf("simulated %zu %s into %s (truth: %s/truth.json)\n", result.files.size(),
               FLAGS_noiseless ? "noiseless models" : "exposures", FLAGS_out.c_str(),
-              result.truth_path.c_str());
+              FLAGS_out.c_str());
   return 0;
 }
 

@@ -4,6 +4,8 @@
 #include <fstream>
 #include <sstream>
 
+#include "ccdpsf/atomic_file.h"
+#include "ccdpsf/output_folder.h"
 #include "ccdpsf/provenance.h"
 #include "ccdpsf/trend/campaign.h"
 #include "ccdpsf/trend/group_fit.h"
@@ -17,6 +19,7 @@ DECLARE_uint64(seed);
 DECLARE_int32(threads);
 DECLARE_bool(strict);
 DECLARE_string(manifest);
+DECLARE_bool(resume);
 DEFINE_string(requirements, "",
               "trend: JSON list of requirements (default: the Euclid VIS ones: FWHM <= 10.8 um "
               "and e <= 0.156 at 800 nm and I0, alpha of FWHM(lambda) <= -0.2)");
@@ -29,8 +32,30 @@ namespace {
 
 constexpr double kTrendTargetEss = 400;
 
+// What decides a trend's numbers, for the keys of its stored groups (group_store.h): the
+// inputs and every option given, but not those that change only where or how fast it runs.
+std::string RunSignature(const std::vector<std::string>& inputs) {
+  nlohmann::json signature = {{"inputs", inputs}};
+  std::vector<gflags::CommandLineFlagInfo> flags;
+  gflags::GetAllFlags(&flags);
+  for (const auto& f : flags) {
+    if (f.is_default || f.name == "out" || f.name == "resume" || f.name == "threads") continue;
+    signature["flags"][f.name] = f.current_value;
+  }
+  // The files --config, --manifest, --keywords and --requirements name, by content.
+  for (const char* flag : {"config", "manifest", "keywords", "requirements"}) {
+    std::string path;
+    if (!gflags::GetCommandLineOption(flag, &path) || path.empty()) continue;
+    std::ifstream in(path);
+    std::stringstream text;
+    text << in.rdbuf();
+    signature["files"][flag] = text.str();
+  }
+  return signature.dump();
+}
+
 int RunTrend(const std::vector<std::string>& inputs) {
-  if (FLAGS_out.empty()) return Fail("trend needs --out=DIR");
+  if (FLAGS_out.empty()) return Usage("trend needs --out=DIR");
   std::string error;
   trend::GroupFitOptions fit_options;
   // A campaign's relations need a few hundred independent draws per setting (the MC error of
@@ -42,7 +67,6 @@ int RunTrend(const std::vector<std::string>& inputs) {
   fit_options.flux_given = fit_options.config.flux_given;
   fit_options.parallel_groups = FlagGiven("threads") ? FLAGS_threads
                                                      : fit_options.config.fit.mcmc.num_threads;
-  if (FLAGS_group_reports) fit_options.reports_dir = FLAGS_out + "/groups";
 
   trend::TrendOptions trend_options;
   trend_options.reference_intensity_e = FLAGS_reference_intensity_e;
@@ -62,10 +86,26 @@ int RunTrend(const std::vector<std::string>& inputs) {
   if (!InputFlags(&campaign.flags, &campaign.config.keywords, &error)) return Fail(error);
   if (FlagGiven("manifest")) campaign.manifest = FLAGS_manifest;
   if (inputs.empty() && campaign.manifest.empty()) {
-    return Fail("trend needs a campaign: a manifest, a campaign folder, or FITS files / folders");
+    return Usage("trend needs a campaign: a manifest, a campaign folder, or FITS files / folders");
   }
   std::vector<trend::CampaignGroup> groups;
   if (!trend::LoadCampaign(inputs, campaign, &groups, &error)) return Fail(error);
+  std::vector<std::string> read = inputs;
+  for (const trend::CampaignGroup& g : groups) read.insert(read.end(), g.files.begin(), g.files.end());
+  // Finished groups are kept in the partial folder's "store" (and their reports in
+  // "groups") until the commit; a --resume run reuses those of a killed run.
+  const std::string kStore = "store", kGroups = "groups";
+  OutputFolder out;
+  if (!out.Begin(FLAGS_out, RunInputs(read),
+                 FLAGS_resume ? std::vector<std::string>{kStore, kGroups}
+                              : std::vector<std::string>{},
+                 &error)) {
+    return Fail(error);
+  }
+  if (FLAGS_group_reports) fit_options.reports_dir = out.partial() + "/" + kGroups;
+  fit_options.store_dir = out.partial() + "/" + kStore;
+  if (!MakeDirectories(fit_options.store_dir, &error)) return Fail(error);
+  fit_options.run_signature = RunSignature(inputs);
   int exposures = 0;
   for (const auto& g : groups) exposures += static_cast<int>(g.files.size());
   std::fprintf(stderr, "ccdpsf trend: %zu groups, %d exposures, %d in parallel\n", groups.size(),
@@ -73,10 +113,11 @@ int RunTrend(const std::vector<std::string>& inputs) {
   std::vector<trend::GroupResult> results = trend::FitGroups(
       groups, fit_options, [](const trend::GroupResult& r, int done, int total) {
         if (r.ok) {
-          std::fprintf(stderr, "[%d/%d] %s: %d exposures, chi2/dof %.3f, %s, verdict %s, %.1f s\n",
+          std::fprintf(stderr, "[%d/%d] %s: %d exposures, chi2/dof %.3f, %s, verdict %s, %.1f s%s\n",
                        done, total, r.group.name.c_str(), r.exposures, r.chi2_per_dof,
                        r.converged ? "MCMC converged" : "MCMC NOT converged",
-                       r.quality.Verdict().c_str(), r.seconds);
+                       r.quality.Verdict().c_str(), r.seconds,
+                       r.resumed ? " (kept from the interrupted run)" : "");
           for (const std::string& n : r.notes) std::fprintf(stderr, "    note: %s\n", n.c_str());
           for (const std::string& w : r.warnings) {
             std::fprintf(stderr, "    warning: %s\n", w.c_str());
@@ -106,7 +147,8 @@ int RunTrend(const std::vector<std::string>& inputs) {
                         {"seed", fit_options.seed},
                         {"software", SoftwareVersions()}};
   std::vector<std::string> warnings;
-  if (!trend::WriteTrendReport(FLAGS_out, trend_result, run, &warnings, &error)) {
+  if (!trend::WriteTrendReport(out.partial(), trend_result, run, &warnings, &error) ||
+      !out.Commit({kStore}, &error)) {
     return Fail(error);
   }
   for (const std::string& w : warnings) std::fprintf(stderr, "ccdpsf: warning: %s\n", w.c_str());
@@ -135,7 +177,7 @@ std::vector<const char*> TrendFlagNames() {
                                     "likelihood", "seed",        "walkers",    "max_steps",
                                     "target_ess", "threads",     "mcmc",       "flux",
                                     "strict",     "requirements", "reference_intensity_e",
-                                    "group_reports"};
+                                    "group_reports", "resume"};
   for (const char* n : InputFlagNames()) names.push_back(n);
   return names;
 }

@@ -49,6 +49,11 @@
 
 namespace ccdpsf {
 
+// The largest spot intensity (flux_e or peak_e) a simulation takes [e-]: a million times a
+// CCD pixel's full well, far beyond any lab exposure; above it the electron counts leave the
+// range the photon-noise draw is exact in, and the exposure would silently come out empty.
+constexpr double kMaxSimulatedIntensityE = 1e12;
+
 struct SimulatedExposure {
   // Total electrons of the continuous image (integrated sampling) or the peak meta-parameter
   // m [e-] (pixel_centre sampling; given as "peak_e" in the JSON).

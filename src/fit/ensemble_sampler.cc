@@ -18,6 +18,7 @@
 #include "Eigen/Core"
 #include "Eigen/SVD"
 #include "ccdpsf/fit/autocorrelation.h"
+#include "ccdpsf/fit/sampler_checkpoint.h"
 #include "ccdpsf/random.h"
 #include "glog/logging.h"
 
@@ -227,6 +228,44 @@ class EnsembleSampler {
     log_prob->insert(log_prob->end(), log_prob_.begin(), log_prob_.end());
   }
 
+  // The walkers' state into / from a checkpoint. Import is false if the checkpoint's sizes
+  // do not match this sampler or an engine's text does not parse.
+  void Export(SamplerCheckpoint* c) const {
+    c->positions = positions_;
+    c->log_prob = log_prob_;
+    c->accepted = accepted_;
+    c->conditional_acceptance = conditional_acceptance_;
+    c->aux = aux_;
+    c->engines.clear();
+    for (const std::mt19937_64& e : engines_) {
+      std::ostringstream text;
+      text << e;
+      c->engines.push_back(text.str());
+    }
+  }
+  bool Import(const SamplerCheckpoint& c, int64_t steps) {
+    if (c.positions.size() != positions_.size() || c.log_prob.size() != log_prob_.size() ||
+        c.accepted.size() != accepted_.size() || c.aux.size() != aux_.size() ||
+        c.conditional_acceptance.size() != conditional_acceptance_.size() ||
+        c.engines.size() != engines_.size()) {
+      return false;
+    }
+    std::vector<std::mt19937_64> engines(engines_.size());
+    for (size_t w = 0; w < engines.size(); ++w) {
+      std::istringstream text(c.engines[w]);
+      text >> engines[w];
+      if (text.fail()) return false;
+    }
+    positions_ = c.positions;
+    log_prob_ = c.log_prob;
+    accepted_ = c.accepted;
+    conditional_acceptance_ = c.conditional_acceptance;
+    aux_ = c.aux;
+    engines_ = std::move(engines);
+    step_ = steps;
+    return true;
+  }
+
   const std::vector<int64_t>& accepted() const { return accepted_; }
   // Sum over steps of each walker's conditional-update acceptance fraction.
   const std::vector<double>& conditional_acceptance() const { return conditional_acceptance_; }
@@ -433,6 +472,29 @@ int NextCheck(int steps, const SamplerOptions& options) {
   return static_cast<int>(std::min<int64_t>(next, options.max_steps));
 }
 
+// FNV-1a over what determines a run's chain: the dimensions, the options that steer the
+// steps and the checks, the seed and the initial positions (not the threads: the chain does
+// not depend on them).
+uint64_t RunFingerprint(const BlockedTarget& target, int dim, const std::vector<double>& initial,
+                        const SamplerOptions& o) {
+  uint64_t h = 1469598103934665603ULL;
+  auto mix = [&h](const void* data, size_t n) {
+    const unsigned char* p = static_cast<const unsigned char*>(data);
+    for (size_t i = 0; i < n; ++i) {
+      h ^= p[i];
+      h *= 1099511628211ULL;
+    }
+  };
+  const int64_t ints[] = {dim, target.stretch_dim, target.aux_dim, target.conditional_every,
+                          o.max_steps, o.check_interval, static_cast<int64_t>(o.seed)};
+  const double reals[] = {o.check_fraction, o.target_ess, o.min_tau_multiple, o.burn_in_taus,
+                          o.stretch_a};
+  mix(ints, sizeof(ints));
+  mix(reals, sizeof(reals));
+  mix(initial.data(), initial.size() * sizeof(double));
+  return h;
+}
+
 }  // namespace
 
 bool SamplerOptions::IsValid(std::string* error) const {
@@ -532,6 +594,20 @@ bool RunEnsembleSampler(const BlockedTarget& target, int dim, const std::vector<
              std::to_string(2 * stretch_dim + 2) + ", got " + std::to_string(num_walkers);
     return false;
   }
+  // The chain keeps every step of every walker (a position and a log density): refused
+  // before sampling when its largest size would not fit in memory comfortably.
+  constexpr double kMaxChainBytes = 4.0 * (1LL << 30);
+  const double chain_bytes = static_cast<double>(num_walkers) * options.max_steps * (dim + 1) *
+                             sizeof(double);
+  if (chain_bytes > kMaxChainBytes) {
+    char text[240];
+    std::snprintf(text, sizeof(text),
+                  "the MCMC chain could reach %.1f GB (%d walkers x %d steps x %d values), above "
+                  "the 4 GB limit: lower --max_steps or --walkers",
+                  chain_bytes / (1LL << 30), num_walkers, options.max_steps, dim + 1);
+    *error = text;
+    return false;
+  }
   for (double v : initial) {
     if (!std::isfinite(v)) {
       *error = "ensemble sampler: initial positions must be finite";
@@ -561,16 +637,57 @@ bool RunEnsembleSampler(const BlockedTarget& target, int dim, const std::vector<
   bool have_check = false;
   int steps = 0;
   int next_check = std::min(options.check_interval, options.max_steps);
+  const uint64_t fingerprint = RunFingerprint(target, dim, initial, options);
+  if (!options.checkpoint_path.empty()) {
+    SamplerCheckpoint saved;
+    std::string ignored;
+    // A checkpoint is taken right after a check: redoing that check (deterministic) restores
+    // the diagnostics the loop carries.
+    if (ReadSamplerCheckpoint(options.checkpoint_path, &saved, &ignored) &&
+        saved.fingerprint == fingerprint && saved.steps >= 1 &&
+        saved.steps < options.max_steps &&
+        saved.chain.size() == static_cast<size_t>(saved.steps) * state_size &&
+        saved.chain_log_prob.size() == static_cast<size_t>(saved.steps) * num_walkers &&
+        sampler.Import(saved, saved.steps)) {
+      out.chain = std::move(saved.chain);
+      out.log_prob = std::move(saved.chain_log_prob);
+      steps = saved.steps;
+      next_check = saved.next_check;
+      diag = Check(out.chain, num_walkers, dim, steps, saved.previous_max_tau, options, &team);
+      have_check = true;
+      out.resumed_from_step = steps;
+    }
+  }
+  auto last_checkpoint = std::chrono::steady_clock::now();
   while (steps < options.max_steps) {
     sampler.Step(&out.chain, &out.log_prob);
     ++steps;
     bool stop = steps == options.max_steps;
     if (steps == next_check) {
-      diag = Check(out.chain, num_walkers, dim, steps, have_check ? diag.max_tau : kInf, options,
-                   &team);
+      const double previous_max_tau = have_check ? diag.max_tau : kInf;
+      diag = Check(out.chain, num_walkers, dim, steps, previous_max_tau, options, &team);
       have_check = true;
       stop = stop || diag.converged;
       next_check = NextCheck(steps, options);
+      const auto now = std::chrono::steady_clock::now();
+      if (!stop && !options.checkpoint_path.empty() &&
+          std::chrono::duration<double>(now - last_checkpoint).count() >=
+              options.checkpoint_seconds) {
+        SamplerCheckpoint c;
+        c.fingerprint = fingerprint;
+        c.steps = steps;
+        c.next_check = next_check;
+        c.previous_max_tau = previous_max_tau;
+        sampler.Export(&c);
+        c.chain = out.chain;
+        c.chain_log_prob = out.log_prob;
+        std::string write_error;
+        // A checkpoint that cannot be written costs the resume, not the run.
+        if (!WriteSamplerCheckpoint(options.checkpoint_path, c, &write_error)) {
+          LOG(WARNING) << write_error;
+        }
+        last_checkpoint = now;
+      }
     }
     if (options.progress) {
       int64_t total = 0;

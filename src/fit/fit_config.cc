@@ -177,10 +177,11 @@ bool ParseFitConfig(const std::string& text, FitConfig* c, std::string* error) {
     m.Integer("position_update_every", &every);
     m.RejectUnknownKeys();
     if (!m.ok()) return false;
-    if (walkers < 0 || steps < 1 || seed < 0 || threads < 1 || every < 1) {
-      *error =
-          "mcmc: walkers >= 0, max_steps >= 1, seed >= 0, threads >= 1 and "
-          "position_update_every >= 1 are required";
+    if (!CheckMcmcSettings(walkers, steps, threads, c->fit.mcmc.target_ess, "mcmc.", error)) {
+      return false;
+    }
+    if (seed < 0 || every < 1) {
+      *error = "mcmc: seed >= 0 and position_update_every >= 1 are required";
       return false;
     }
     c->fit.target.position_update_every = static_cast<int>(every);
@@ -298,6 +299,28 @@ json FitConfigJson(const FitConfig& c) {
             {"threads", c.fit.mcmc.num_threads}}},
           {"calibration", CalibrationJson(c.calibration)},
           {"keywords", c.calibration.keywords.ToJson()}};
+}
+
+bool CheckMcmcSettings(long long walkers, long long max_steps, long long threads,
+                       double target_ess, const std::string& prefix, std::string* error) {
+  auto outside = [&](const char* name, const std::string& value, const std::string& range) {
+    *error = prefix + name + " = " + value + " is outside " + range;
+    return false;
+  };
+  if (walkers < 0 || walkers > kMaxWalkers) {
+    return outside("walkers", std::to_string(walkers),
+                   "0 (automatic) to " + std::to_string(kMaxWalkers));
+  }
+  if (max_steps < 1 || max_steps > kMaxSteps) {
+    return outside("max_steps", std::to_string(max_steps), "1 to " + std::to_string(kMaxSteps));
+  }
+  if (threads < 1 || threads > kMaxThreads) {
+    return outside("threads", std::to_string(threads), "1 to " + std::to_string(kMaxThreads));
+  }
+  if (!(target_ess >= 0 && target_ess <= static_cast<double>(kMaxSteps))) {
+    return outside("target_ess", std::to_string(target_ess), "0 to " + std::to_string(kMaxSteps));
+  }
+  return true;
 }
 
 }  // namespace ccdpsf::fit

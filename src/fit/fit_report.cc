@@ -9,6 +9,7 @@
 #include "ccdpsf/plot.h"
 #include "ccdpsf/provenance.h"
 #include "ccdpsf/staged_output.h"
+#include "internal/text.h"
 
 namespace ccdpsf::fit {
 namespace {
@@ -199,7 +200,8 @@ bool WriteFitReport(const std::string& out_dir, const ExposuresFit& fit, const j
     }
     const std::string kk = std::to_string(k);
     FitsHeader h = {{"EXPOSURE", static_cast<long long>(k), "exposure index"},
-                    {"SOURCE", s.info.source, "input file"},
+                    {"SOURCE", internal::PercentEncoded(s.info.source),
+                     "input file (bytes outside ASCII as %XX)"},
                     {"LTV1", static_cast<double>(-s.origin_x), "stamp to frame: x = i - LTV1"},
                     {"LTV2", static_cast<double>(-s.origin_y), "stamp to frame: y = j - LTV2"}};
     hdus.push_back({"DATA_" + kk, p.data, h});

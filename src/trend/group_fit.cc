@@ -4,6 +4,7 @@
 #include <cmath>
 #include <atomic>
 #include <chrono>
+#include <filesystem>
 #include <mutex>
 #include <numeric>
 #include <thread>
@@ -14,6 +15,7 @@
 #include "ccdpsf/fit/fit_report.h"
 #include "ccdpsf/provenance.h"
 #include "ccdpsf/random.h"
+#include "ccdpsf/trend/group_store.h"
 
 namespace ccdpsf::trend {
 namespace {
@@ -153,7 +155,24 @@ std::vector<GroupResult> FitGroups(const std::vector<CampaignGroup>& groups,
       const int i = next.fetch_add(1);
       if (i >= total) return;
       const int g = order[i];
-      GroupResult r = FitOne(groups[g], g, options);
+      GroupResult r;
+      std::string stored;
+      if (!options.store_dir.empty()) {
+        stored = options.store_dir + "/" + GroupStoreName(options.run_signature, groups[g], g);
+        r.group = groups[g];
+        r.resumed = LoadGroupResult(stored, &r);
+      }
+      if (!r.resumed) {
+        // A report folder left by an interrupted fit of this group goes first.
+        if (!options.reports_dir.empty()) {
+          std::error_code ec;
+          std::filesystem::remove_all(options.reports_dir + "/" + groups[g].name, ec);
+        }
+        r = FitOne(groups[g], g, options);
+        std::string error;
+        // A group that cannot be stored is only refitted by a resumed run.
+        if (!stored.empty() && !SaveGroupResult(stored, r, &error)) r.warnings.push_back(error);
+      }
       std::lock_guard<std::mutex> lock(mutex);
       results[g] = std::move(r);
       ++done;

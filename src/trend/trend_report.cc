@@ -24,7 +24,9 @@ json SummaryJson(const fit::Summary& s) {
           {"hi997", Number(s.hi997)}};
 }
 
-json GroupJson(const GroupResult& g) {
+// `out_dir`: the trend's folder; a group's report folder is recorded relative to it, so the
+// record stays right when the folder is moved (or committed from its partial folder).
+json GroupJson(const GroupResult& g, const std::string& out_dir) {
   json j = {{"name", g.group.name},
             {"wavelength_nm", Number(g.group.wavelength_nm)},
             {"nominal_peak_e", g.group.nominal_peak_e ? json(*g.group.nominal_peak_e) : json()},
@@ -39,7 +41,11 @@ json GroupJson(const GroupResult& g) {
             {"mcmc_converged", g.converged},
             {"chi2_per_dof", Number(g.chi2_per_dof)},
             {"seconds", g.seconds},
-            {"report", g.report_dir.empty() ? json() : json(g.report_dir)}};
+            {"report", g.report_dir.empty()
+                           ? json()
+                           : json(std::filesystem::path(g.report_dir)
+                                      .lexically_relative(out_dir)
+                                      .string())}};
   if (g.ok) {
     j["peak_e"] = SummaryJson(g.peak_e);
     json m = json::object();
@@ -188,7 +194,7 @@ double LimitOf(const TrendResult& r, const std::string& metric) {
 
 }  // namespace
 
-json TrendJson(const TrendResult& r) {
+json TrendJson(const TrendResult& r, const std::string& out_dir) {
   json j;
   j["relations"] = json::object();
   for (const auto& [name, fit] : r.relations) j["relations"][name] = ToJson(fit);
@@ -211,7 +217,7 @@ json TrendJson(const TrendResult& r) {
   j["groups"] = json::array();
   int failed = 0;
   for (const GroupResult& g : r.groups) {
-    j["groups"].push_back(GroupJson(g));
+    j["groups"].push_back(GroupJson(g, out_dir));
     failed += g.ok ? 0 : 1;
   }
   j["failed_groups"] = failed;
@@ -423,7 +429,7 @@ bool WriteTrendReport(const std::string& out_dir, const TrendResult& r,
         "their gnuplot scripts (.gp) and data (.dat), run.json (options, seed, versions).\n";
   if (!WriteTextFileAtomically(out.Path("report.md"), md.str(), error)) return false;
   if (!WriteTextFileAtomically(out.Path("run.json"), run_record.dump(2) + "\n", error)) return false;
-  if (!WriteTextFileAtomically(out.Path("trend.json"), TrendJson(r).dump(2) + "\n", error)) {
+  if (!WriteTextFileAtomically(out.Path("trend.json"), TrendJson(r, out_dir).dump(2) + "\n", error)) {
     return false;
   }
   return out.Commit({"trend.json"}, error);

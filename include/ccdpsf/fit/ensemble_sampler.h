@@ -77,6 +77,14 @@ struct SamplerOptions {
   bool progress = true;
   // Prefix of the progress line (e.g. which fit this is).
   std::string progress_label;
+  // Checkpointing (sampler_checkpoint.h). When set, the run's state is written to this file
+  // at a convergence check once at least checkpoint_seconds have passed since the last
+  // write (0: at every check); and a run that finds there a checkpoint of itself (the same
+  // options, seed, dimensions and initial positions) continues from it, ending with exactly
+  // the chain of an uninterrupted run. A checkpoint of another run is ignored (and
+  // replaced). The file is left in place at the end: the caller removes it.
+  std::string checkpoint_path;
+  double checkpoint_seconds = 30;
 
   // False, with a one-line reason, when a field is out of range.
   bool IsValid(std::string* error) const;
@@ -147,6 +155,7 @@ struct SamplerResult {
   // Why the run stopped: which criteria were met, or which failed at max_steps.
   std::string stop_reason;
   double seconds = 0.0;  // wall-clock duration of the run [s]
+  int resumed_from_step = 0;  // the checkpoint's step when the run resumed from one, else 0
 };
 
 // Runs the sampler. initial holds num_walkers x dim starting positions, row-major, with

@@ -48,6 +48,17 @@ struct FitConfig {
 bool ParseFitConfig(const std::string& json_text, FitConfig* config, std::string* error);
 bool LoadFitConfig(const std::string& path, FitConfig* config, std::string* error);
 
+// The ranges of the MCMC's settings, whether they come from FIT.json or from flags:
+// walkers 0 (automatic) to kMaxWalkers, max_steps 1 to kMaxSteps, threads 1 to kMaxThreads,
+// target_ess 0 to kMaxSteps. (The chain's memory, walkers x steps x parameters, is checked
+// by the sampler, which knows the parameters.) False with a one-line reason naming the
+// setting as `prefix` + name ("--walkers", "mcmc.walkers").
+constexpr long long kMaxWalkers = 100000;
+constexpr long long kMaxSteps = 100000000;
+constexpr long long kMaxThreads = 1024;
+bool CheckMcmcSettings(long long walkers, long long max_steps, long long threads,
+                       double target_ess, const std::string& prefix, std::string* error);
+
 // The resolved configuration as JSON (for run.json; FIT.json reads it back).
 nlohmann::json FitConfigJson(const FitConfig& config);
 // The "calibration" object: the quantities given, and stamp_size.

@@ -31,6 +31,11 @@ struct GroupFitOptions {
   int draws = 2000;
   // Where each group's full fit report goes (out_dir/<group name>/); empty: none.
   std::string reports_dir;
+  // Where finished groups are kept (group_store.h), and the run's signature that their keys
+  // include; empty: not kept. A group kept there by an earlier run with the same signature,
+  // group and files is taken from it instead of being fitted again.
+  std::string store_dir;
+  std::string run_signature;
 };
 
 struct GroupResult {
@@ -56,6 +61,8 @@ struct GroupResult {
   // at the prior's lower bound (within 1e-6 of the range), or, in pixel_centre sampling, the
   // posterior's 0.135th percentile is within 10 % of (median - bound) of the bound.
   std::vector<std::string> unbounded_below;
+  // Taken from the store of an interrupted run (not fitted again) - for messages only.
+  bool resumed = false;
 };
 
 // Called after each group finishes (from the worker thread, serialised by a lock): its

@@ -20,7 +20,9 @@
 
 namespace ccdpsf::trend {
 
-nlohmann::json TrendJson(const TrendResult& result);
+// The trend.json of `result`, for a trend folder `out_dir` (group report folders are
+// recorded relative to it).
+nlohmann::json TrendJson(const TrendResult& result, const std::string& out_dir);
 
 // Writes the files above into out_dir (staged; trend.json last); run_record goes to
 // run.json. Plot failures (no gnuplot) are warnings, not errors.

@@ -1,0 +1,141 @@
+// The binary on what users get wrong or what their file systems hold: exit codes as the
+// README documents them, limits refused with a message, any path the OS accepts.
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <string>
+
+#include "ccdpsf/fits_io.h"
+#include "gtest/gtest.h"
+#include "nlohmann/json.hpp"
+#include "support/run_ccdpsf.h"
+
+namespace ccdpsf {
+namespace {
+
+namespace fs = std::filesystem;
+using testing_support::RunCcdpsf;
+using testing_support::RunResult;
+
+std::string Fresh(const std::string& name) {
+  const std::string dir = ::testing::TempDir() + "/ccdpsf_reliability_" +
+                          std::to_string(static_cast<long>(::getpid())) + "_" + name;
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  return dir;
+}
+
+int Lines(const std::string& s) {
+  int n = 0;
+  for (char c : s) n += c == '\n';
+  return n;
+}
+
+class CliReliability : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    sim_ = new std::string(Fresh("sim") + "/sim");
+    const RunResult r = RunCcdpsf("simulate --config=" + std::string(CCDPSF_TESTDATA) +
+                                  "/demo_simulation.json --out=" + *sim_);
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+  }
+  static void TearDownTestSuite() { delete sim_; }
+  static std::string* sim_;
+};
+std::string* CliReliability::sim_ = nullptr;
+
+// README: 1 for bad input, 2 for usage errors; each with one line on stderr.
+TEST_F(CliReliability, ExitCodesAreAsDocumented) {
+  const std::string dir = Fresh("codes");
+  const std::string file = *sim_ + "/exposure_000.fits";
+  struct Case {
+    std::string args;
+    int code;
+    std::string message;
+  };
+  const std::vector<Case> cases = {
+      {"", 2, "usage"},
+      {"frobnicate", 2, "unknown command"},
+      {"fit --bogus=1 " + file, 2, "unknown option --bogus"},
+      {"fit --walkers=abc --out=" + dir + "/a " + file, 2, "--walkers=abc is not a valid"},
+      {"fit --nomcmc --out", 2, "--out needs a value"},
+      {"fit --nomcmc " + file, 2, "needs --out"},
+      {"fit --out=" + dir + "/b", 2, "at least one FITS file"},
+      {"fit --noiseless --out=" + dir + "/c " + file, 2, "does not apply"},
+      {"simulate --out=" + dir + "/d", 2, "needs --config"},
+      {"trend --out=" + dir + "/e", 2, "needs a campaign"},
+      {"diagnose " + file, 2, "needs --out"},
+      {"gain", 2, "needs FITS files"},
+      {"fit --out=" + dir + "/f " + dir + "/missing.fits", 1, "missing.fits"},
+      {"fit --out=" + dir + "/g --walkers=100001 " + file, 1, "--walkers = 100001 is outside"},
+      {"fit --out=" + dir + "/h --threads=2000 " + file, 1, "--threads = 2000 is outside"},
+      {"fit --out=" + dir + "/i --max_steps=0 " + file, 1, "--max_steps = 0 is outside"},
+      {"fit --nomcmc --out=" + *sim_ + " " + file, 1, "holds the input"},
+  };
+  for (const Case& c : cases) {
+    const RunResult r = RunCcdpsf(c.args);
+    EXPECT_EQ(r.exit_code, c.code) << c.args << "\n" << r.output;
+    EXPECT_NE(r.output.find(c.message), std::string::npos) << c.args << "\n" << r.output;
+    EXPECT_EQ(Lines(r.output), 1) << c.args << "\n" << r.output;
+  }
+  // Nothing was written for any of them.
+  for (const char* sub : {"a", "b", "c", "d", "e", "f", "g", "h", "i"}) {
+    EXPECT_FALSE(fs::exists(dir + "/" + sub)) << sub;
+  }
+}
+
+// A chain too large for memory is refused with the numbers, not attempted.
+TEST_F(CliReliability, AChainBeyondMemoryIsRefused) {
+  const std::string dir = Fresh("chain");
+  const RunResult r = RunCcdpsf("fit --walkers=50000 --max_steps=10000000 --out=" + dir +
+                                "/out " + *sim_ + "/exposure_000.fits");
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  EXPECT_NE(r.output.find("the MCMC chain could reach"), std::string::npos) << r.output;
+  EXPECT_FALSE(fs::exists(dir + "/out"));
+}
+
+// simulate with an intensity beyond any lab exposure: refused (it used to write a 0 ADU spot).
+TEST_F(CliReliability, AnAbsurdSimulatedIntensityIsRefused) {
+  const std::string dir = Fresh("flux");
+  std::ifstream in(std::string(CCDPSF_TESTDATA) + "/demo_simulation.json");
+  nlohmann::json config = nlohmann::json::parse(in);
+  config["exposures"][0]["flux_e"] = 1e20;
+  std::ofstream(dir + "/sim.json") << config.dump();
+  const RunResult r = RunCcdpsf("simulate --config=" + dir + "/sim.json --out=" + dir + "/out");
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  EXPECT_NE(r.output.find("flux_e = 1e+20 is outside"), std::string::npos) << r.output;
+  EXPECT_FALSE(fs::exists(dir + "/out"));
+}
+
+// Non-ASCII names and paths longer than CFITSIO's 1025-byte name buffers, end to end.
+TEST_F(CliReliability, AnyPathTheOsAcceptsWorks) {
+  const std::string root = Fresh("paths");
+  std::string long_folder = root;
+  for (int i = 0; i < 14; ++i) long_folder += "/" + std::string(240, 'd');  // > 3000 bytes
+  const std::vector<std::string> folders = {root + "/\xc3\xa9t\xc3\xa9 r\xc3\xa9sultats",
+                                            long_folder};
+  for (const std::string& folder : folders) {
+    SCOPED_TRACE(folder.size());
+    fs::create_directories(folder);
+    const std::string file = folder + "/\xc3\x9f pot.fits";
+    fs::copy_file(*sim_ + "/exposure_000.fits", file);
+    const std::string out = folder + "/r\xc3\xa9sultat";
+    const RunResult r = RunCcdpsf("fit --max_steps=200 --target_ess=20 --out='" + out + "' '" +
+                                  file + "'");
+    ASSERT_EQ(r.exit_code, 0) << r.output.substr(0, 400);
+    for (const char* name : {"fit.json", "residuals.fits", "chain.fits", "report.md"}) {
+      EXPECT_TRUE(fs::exists(out + "/" + name)) << name;
+    }
+    // The header records the path in ASCII, percent-encoded, so it can be recovered.
+    std::string error;
+    const auto residuals = ReadFitsImage(out + "/residuals.fits", "1", &error);
+    ASSERT_TRUE(residuals.has_value()) << error;
+    const auto source = FindString(residuals->header, "SOURCE");
+    ASSERT_TRUE(source.has_value());
+    EXPECT_NE(source->find("%C3%9F pot.fits"), std::string::npos) << *source;
+  }
+}
+
+}  // namespace
+}  // namespace ccdpsf
