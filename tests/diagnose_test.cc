@@ -235,6 +235,27 @@ TEST(Diagnose, FindsHalo) {
               {{"halo.fraction", 0.03}, {"halo.sigma_px", 2.5}});
 }
 
+// A halo in a set at several intensities is still a halo: its share of the light is the
+// same at every intensity, so the check that sets aside a "halo" that grows with signal
+// (SignalIndependenceContradiction in diagnose.cc, for a spot that broadens with signal)
+// must leave it named.
+TEST(Diagnose, FindsHaloAcrossIntensities) {
+  SimulationConfig c = Paper();
+  const double flux[] = {4.0e5, 1.6e5, 6.4e4};
+  for (int k = 0; k < 3; ++k) c.exposures[k].flux_e = flux[k];
+  c.effects.halo = model::HaloParams{0.03, 2.5};
+  const Outcome o = Diagnose(testing_support::SimulateStamps(c, 14));
+  ExpectFound(o, {EffectKind::kHalo}, {{"halo.fraction", 0.03}, {"halo.sigma_px", 2.5}});
+  // (A background standing in for the halo's light does grow with the signal, and is set
+  // aside for it; the halo itself is not.)
+  for (const RoundResult& round : o.result.rounds) {
+    for (const CandidateResult& cand : round.candidates) {
+      if (cand.name != "halo") continue;
+      EXPECT_EQ(cand.reason.find("contradicted"), std::string::npos) << cand.reason;
+    }
+  }
+}
+
 TEST(Diagnose, EffectModelReproducesTheSimulatorAcrossIntensities) {
   // The fitted model of a set at several intensities (a flux per exposure) with every image
   // effect, evaluated at the simulator's truth, must be the simulator's expected electrons:

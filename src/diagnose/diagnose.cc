@@ -410,6 +410,81 @@ TestedAlternative TestAlternative(const EffectModel& current, const EffectFitRes
   return t;
 }
 
+// A halo is a fixed share of the light and a background a fixed level: neither changes with
+// the spot's signal. In a set at several intensities, each exposure's residual (data minus
+// the model without the effect, other parameters as fitted) is projected on the effect's
+// own image there: the amplitude a_k (1 for the fitted strength) must not trend with the
+// signal. A broadening that grows with signal (brighter-fatter) is read as a halo or a
+// pedestal that is ~0 at the faintest exposure and well above 1 at the brightest. The check
+// contradicts the effect when the weighted slope of a_k against the collected signal is
+// more than 4 sd from 0 and a_k changes by more than half the fitted strength across the
+// set. Returns one line when contradicted, else empty (also when the check does not apply).
+std::string SignalIndependenceContradiction(const EffectModel& m, const EffectFitResult& fit,
+                                            EffectKind kind) {
+  if (kind != EffectKind::kHalo && kind != EffectKind::kBackground) return "";
+  if (!IsMultiIntensity(m.base().stamps())) return "";
+  const std::vector<int> idx = m.EffectIndices(kind);
+  if (idx.empty()) return "";
+  const int n = m.num_exposures();
+  EffectEvaluator ev(m);
+  std::vector<double> without = fit.p;
+  without[idx[0]] = 0.0;  // the halo's fraction, the background's pedestal
+  std::vector<double> signal(n), amplitude(n), amplitude_sd(n), with_e, without_e;
+  for (int k = 0; k < n; ++k) {
+    const Stamp& st = m.base().stamps()[k];
+    if (!ev.Render(fit.p.data(), k, &with_e, nullptr) ||
+        !ev.Render(without.data(), k, &without_e, nullptr)) {
+      return "";
+    }
+    double hr = 0, hh = 0, s = 0;
+    for (size_t q = 0; q < st.valid.size(); ++q) {
+      if (!st.valid[q]) continue;
+      const double h = with_e[q] - without_e[q];
+      const double v = std::max(with_e[q], 0.0) + st.read_noise_e * st.read_noise_e;
+      hr += h * (st.electrons.data[q] - without_e[q]) / v;
+      hh += h * h / v;
+      s += st.electrons.data[q];
+    }
+    if (!(hh > 0)) return "";
+    amplitude[k] = hr / hh;
+    amplitude_sd[k] = 1.0 / std::sqrt(hh);
+    signal[k] = s;
+  }
+  // Weighted least squares a_k = c0 + c1 (S_k - mean S) / S_max.
+  const double s_max = *std::max_element(signal.begin(), signal.end());
+  double w_sum = 0, ws = 0;
+  for (int k = 0; k < n; ++k) {
+    const double w = 1.0 / (amplitude_sd[k] * amplitude_sd[k]);
+    w_sum += w;
+    ws += w * signal[k] / s_max;
+  }
+  const double mean_s = ws / w_sum;
+  double sxx = 0, sxy = 0;
+  for (int k = 0; k < n; ++k) {
+    const double w = 1.0 / (amplitude_sd[k] * amplitude_sd[k]);
+    const double x = signal[k] / s_max - mean_s;
+    sxx += w * x * x;
+    sxy += w * x * amplitude[k];
+  }
+  if (!(sxx > 0)) return "";
+  const double slope = sxy / sxx, slope_sd = 1.0 / std::sqrt(sxx);
+  const int lo = static_cast<int>(std::min_element(signal.begin(), signal.end()) - signal.begin());
+  const int hi = static_cast<int>(std::max_element(signal.begin(), signal.end()) - signal.begin());
+  const double change = slope * (signal[hi] - signal[lo]) / s_max;
+  if (!(std::abs(slope) > 4.0 * slope_sd && std::abs(change) > 0.5)) return "";
+  char buf[360];
+  std::snprintf(buf, sizeof(buf),
+                "contradicted by its change with signal: %s fixed %s, but what it fits is %.2f "
+                "+- %.2f of the fitted strength at the faintest exposure and %.2f +- %.2f at the "
+                "brightest (slope %.1f sd from 0): a spot that broadens with signal "
+                "(brighter-fatter?) rather than a %s",
+                kind == EffectKind::kHalo ? "a halo is a" : "a background is a",
+                kind == EffectKind::kHalo ? "share of the light" : "level",
+                amplitude[lo], amplitude_sd[lo], amplitude[hi], amplitude_sd[hi],
+                std::abs(slope) / slope_sd, kind == EffectKind::kHalo ? "halo" : "background");
+  return buf;
+}
+
 // A nonlinearity loses signal where the charge is high: the stamp's electrons fall short of
 // the light that arrived by L_k = 1 - sum NL(m) / sum m (m the charge image before it). With
 // the intensity set by the exposure time (times spanning >= 1.25x), the light per second
@@ -586,6 +661,14 @@ void Judge(const EffectModel& final_model, const EffectFitResult& final_fit,
           reasons.push_back(buf);
         }
       }
+    }
+    // (d) on strong evidence.
+    for (const CandidateResult& c : round.candidates) {
+      if (c.name != a.name || !(c.delta_bic > kStrongDeltaBic)) continue;
+      char buf[160];
+      std::snprintf(buf, sizeof(buf), "weak evidence: delta BIC %.1f (strong needs < %.0f)",
+                    c.delta_bic, kStrongDeltaBic);
+      reasons.push_back(buf);
     }
     if (!round.rivals.empty()) {
       a.status = Attribution::Status::kAmbiguous;
@@ -885,16 +968,20 @@ bool RunDiagnosis(const fit::FitModel& base, const DiagnoseOptions& options,
     }
     r.p_threshold = options.alpha / std::max(1, r.num_tested);
     for (CandidateResult& c : r.candidates) c.significant = Significant(c, r.p_threshold);
-    // A significant nonlinearity must also lose the signal it implies (NonlinearityContradiction).
+    // A significant nonlinearity must also lose the signal it implies
+    // (NonlinearityContradiction); a halo or a background must not change with the signal
+    // (SignalIndependenceContradiction).
     for (CandidateResult& c : r.candidates) {
-      if (!c.significant || c.alternative || c.kind != EffectKind::kNonlinearity) continue;
+      if (!c.significant || c.alternative) continue;
       for (const Tested& t : tested) {
-        if (t.candidate.kind != EffectKind::kNonlinearity || !t.model) continue;
-        const std::string why = NonlinearityContradiction(*t.model, t.fit);
+        if (t.candidate.kind != c.kind || t.candidate.alternative || !t.model) continue;
+        const std::string why = c.kind == EffectKind::kNonlinearity
+                                    ? NonlinearityContradiction(*t.model, t.fit)
+                                    : SignalIndependenceContradiction(*t.model, t.fit, c.kind);
         if (why.empty()) continue;
         c.significant = false;
         c.reason = why;
-        progress("round " + std::to_string(round) + ": nonlinearity " + why);
+        progress("round " + std::to_string(round) + ": " + c.name + " " + why);
       }
     }
     const CandidateResult* winner = nullptr;

@@ -35,7 +35,10 @@
 //      must also lose the signal it implies where exposure times set the intensity: the
 //      light per second must fall at high signal as its compression says (brighter-fatter,
 //      which moves charge but keeps it, does not); if the data contradict that by more than
-//      3 sd it is set aside, with the reason.
+//      3 sd it is set aside, with the reason. Likewise a halo (a fixed share of the light)
+//      or a background (a fixed level) whose fitted strength trends with the signal across
+//      a multi-intensity set (> 4 sd, and by more than half its strength): that is a spot
+//      broadening with signal.
 //   3. If one is adopted, M + it (already fitted) becomes the next round's model. After a
 //      pillbox, whose renders cost 50 times a Gaussian's, the next round only reports the
 //      statistics (predictive simulations without refits) and says how to go on.
@@ -47,7 +50,8 @@
 // (signatures.h; chi2_per_dof is in every signature) is back within noise (p >= 0.01) in the
 // final model, (b) none of A's parameters sits at a prior bound, and (c) for brighter_fatter
 // with a width trend measured (width_trend.h), the slope of the total width it implies agrees
-// with the trend's within 3 sd. Otherwise A is PARTIAL (it helped without explaining), with
+// with the trend's within 3 sd, and (d) it was adopted on strong evidence (delta BIC below
+// kStrongDeltaBic = -6). Otherwise A is PARTIAL (it helped without explaining), with
 // the reason; with rivals it is AMBIGUOUS, with the data that would separate them. The data
 // are EXPLAINED when the final model has no flagged statistic and nothing is partial;
 // otherwise the flagged statistics say where the misfit is. Only candidates that explain are

@@ -19,6 +19,12 @@ constexpr double kWithinNoiseP = 0.01;
 // Runner-ups significant within this delta BIC of the winner make its name ambiguous: less
 // than "strong" evidence between them on the scale of Kass & Raftery (1995).
 constexpr double kAmbiguousDeltaBic = 6.0;
+// An adopted candidate explains only on at least "strong" evidence on the same scale: one
+// adopted with delta BIC above -6 helped the likelihood a little and is partial. (Seen on
+// brighter-fatter series from an independent simulator: after brighter_fatter, a halo or a
+// background adopted at delta BIC -0.7 to -3 mopped up the shape the catalogue's linear
+// width growth misses.)
+constexpr double kStrongDeltaBic = -6.0;
 
 // The statistics `name` (a catalogue effect or a model alternative) moves; empty for an
 // unknown name.
