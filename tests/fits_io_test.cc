@@ -10,7 +10,6 @@
 #include <gtest/gtest.h>
 #include <sys/resource.h>
 
-#include <chrono>
 #include <cmath>
 #include <csignal>
 #include <cstring>
@@ -964,7 +963,6 @@ TEST(FitsIoScreen, GzipMemoryBombFailsFastWithLittleMemory) {
   ASSERT_TRUE(test_support::WriteBytes(path, bomb));
 
   const int64_t rss_before_kb = MaxRssKb();
-  const auto start = std::chrono::steady_clock::now();
   {
     // Under the default ceiling (1.9 GB fits in 2 GB): the data are not there.
     std::string error;
@@ -981,9 +979,8 @@ TEST(FitsIoScreen, GzipMemoryBombFailsFastWithLittleMemory) {
         liar, test_support::Gzip(header_16k + std::string(2880, '\0'), 0xfffffff0u)));
     EXPECT_NE(ReadError(liar).find("is truncated or corrupt"), std::string::npos);
   }
-  const double seconds =
-      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  EXPECT_LT(seconds, 2.0);
+  // The memory it took is the test (not the time: speed is for benchmarks): nothing near the
+  // 2 GB the claimed image would need, so nothing was allocated from the header's word.
   EXPECT_LT(MaxRssKb() - rss_before_kb, 64 * 1024);  // KB
 }
 
@@ -1012,13 +1009,11 @@ TEST(FitsIoScreen, GzipDecompressionStopsAtTheCeiling) {
                       std::string(12 << 20, '\0'))));
   }
   const int64_t rss_before_kb = MaxRssKb();
-  const auto start = std::chrono::steady_clock::now();
   EXPECT_EQ(ReadError(big_image), "'" + big_image + "': the image is 1024 x 1024 (8.0 MB as "
                                   "doubles), above the 4.0 MB limit (--max_image_mb)");
   EXPECT_EQ(ReadError(trailing), "'" + trailing + "' decompresses to more than 4.0 MB, the "
                                  "limit (--max_image_mb)");
-  EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count(), 2.0);
-  EXPECT_LT(MaxRssKb() - rss_before_kb, 64 * 1024);  // KB
+  EXPECT_LT(MaxRssKb() - rss_before_kb, 64 * 1024);  // KB: the ceiling held
 }
 
 TEST(FitsIoScreen, MalformedHeadersAreRefusedWithTheirReason) {
