@@ -61,7 +61,8 @@ OutputFolder::~OutputFolder() {
 bool OutputFolder::Begin(const std::string& out_dir, const std::vector<std::string>& inputs,
                          const std::vector<std::string>& resumable, std::string* error) {
   std::error_code ec;
-  const fs::path out = fs::path(out_dir).lexically_normal();
+  fs::path out = fs::path(out_dir).lexically_normal();
+  if (out.filename().empty() && out.has_parent_path()) out = out.parent_path();  // "out/"
   if (out.empty() || out.filename().empty() || out.filename() == "." ||
       out.filename() == "..") {
     // "--out=." or "--out=dir/..": the folder has no name of its own to put a partial

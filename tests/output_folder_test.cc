@@ -110,9 +110,10 @@ TEST(OutputFolder, RefusesFoldersItMayNotReplace) {
   }
   // New and empty folders are fine.
   fs::create_directories(root + "/empty");
-  for (const std::string& good : {root + "/new/deeper", root + "/empty"}) {
+  for (const std::string& good : {root + "/new/deeper", root + "/empty", root + "/slash/"}) {
     OutputFolder folder;
     EXPECT_TRUE(folder.Begin(good, {}, {}, &error)) << error;
+    EXPECT_EQ(folder.partial().find("/."), folder.partial().rfind("/.")) << folder.partial();
   }
 }
 

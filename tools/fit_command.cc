@@ -253,14 +253,14 @@ int RunFit(const std::vector<std::string>& files) {
   bool flagged = false;
   int status = 0;
   if (joint || inputs.size() == 1) {
-    status = FitInto(out.partial(), FLAGS_out, checkpoints + "/fit.bin", exposures, set.quality,
+    status = FitInto(out.partial(), out.out_dir(), checkpoints + "/fit.bin", exposures, set.quality,
                      config, paths, &flagged);
   } else {
     // Separate fits: one folder per file.
     const std::vector<std::string> names = SeparateFolders(paths);
     nlohmann::json summary = nlohmann::json::array();
     for (size_t i = 0; i < inputs.size(); ++i) {
-      const std::string dir = FLAGS_out + "/" + names[i];
+      const std::string dir = out.out_dir() + "/" + names[i];
       const std::string staged = out.partial() + "/" + names[i];
       // The set checks' findings about this exposure (compression against the others).
       Quality own;
