@@ -984,6 +984,25 @@ bool RunDiagnosis(const fit::FitModel& base, const DiagnoseOptions& options,
         progress("round " + std::to_string(round) + ": " + c.name + " " + why);
       }
     }
+    // After a first adoption, a further candidate needs strong evidence: one that only
+    // nudges the likelihood (delta BIC above kStrongDeltaBic) could never explain (Judge's
+    // rule (d)) and mostly mops up the shape the adopted effect misses - a halo after a
+    // brighter_fatter that is not the data's - at the cost of a round of refits.
+    if (!result->rounds.empty() && std::any_of(result->rounds.begin(), result->rounds.end(),
+                                               [](const RoundResult& done) {
+                                                 return !done.adopted.empty();
+                                               })) {
+      for (CandidateResult& c : r.candidates) {
+        if (!c.significant || !(c.delta_bic > kStrongDeltaBic)) continue;
+        c.significant = false;
+        char buf[160];
+        std::snprintf(buf, sizeof(buf),
+                      "weak evidence after an adoption: delta BIC %.1f (strong needs < %.0f)",
+                      c.delta_bic, kStrongDeltaBic);
+        c.reason = buf;
+        progress("round " + std::to_string(round) + ": " + c.name + " not adopted, " + buf);
+      }
+    }
     const CandidateResult* winner = nullptr;
     for (const CandidateResult& c : r.candidates) {
       if (c.significant && (winner == nullptr || c.delta_bic < winner->delta_bic)) winner = &c;
@@ -994,7 +1013,10 @@ bool RunDiagnosis(const fit::FitModel& base, const DiagnoseOptions& options,
                       : "nothing more to add: nothing passes p < " +
                             FormatNumber(r.p_threshold) + " (alpha " +
                             FormatNumber(options.alpha) + " / " + std::to_string(r.num_tested) +
-                            " tested) with delta BIC < 0";
+                            " tested) with delta BIC < " +
+                            (result->rounds.empty() ? std::string("0")
+                                                    : FormatNumber(kStrongDeltaBic) +
+                                                          " (after an adoption)");
       progress("round " + std::to_string(round) + ": " + r.verdict);
       result->rounds.push_back(std::move(r));
       break;
