@@ -38,7 +38,9 @@
 //      3 sd it is set aside, with the reason. Likewise a halo (a fixed share of the light)
 //      or a background (a fixed level) whose fitted strength trends with the signal across
 //      a multi-intensity set (> 4 sd, and by more than half its strength): that is a spot
-//      broadening with signal.
+//      broadening with signal. After a first adoption, a further candidate needs strong
+//      evidence (delta BIC < kStrongDeltaBic = -6): a weaker one could not explain (rule (d)
+//      below) and mostly absorbs the shape the adopted effect misses.
 //   3. If one is adopted, M + it (already fitted) becomes the next round's model. After a
 //      pillbox, whose renders cost 50 times a Gaussian's, the next round only reports the
 //      statistics (predictive simulations without refits) and says how to go on.
