@@ -15,16 +15,10 @@ namespace ccdpsf {
 namespace {
 
 namespace fs = std::filesystem;
+using testing_support::DemoSet;
+using testing_support::FreshDir;
 using testing_support::RunCcdpsf;
 using testing_support::RunResult;
-
-std::string Fresh(const std::string& name) {
-  const std::string dir = ::testing::TempDir() + "/ccdpsf_reliability_" +
-                          std::to_string(static_cast<long>(::getpid())) + "_" + name;
-  fs::remove_all(dir);
-  fs::create_directories(dir);
-  return dir;
-}
 
 int Lines(const std::string& s) {
   int n = 0;
@@ -32,23 +26,11 @@ int Lines(const std::string& s) {
   return n;
 }
 
-class CliReliability : public ::testing::Test {
- protected:
-  static void SetUpTestSuite() {
-    sim_ = new std::string(Fresh("sim") + "/sim");
-    const RunResult r = RunCcdpsf("simulate --config=" + std::string(CCDPSF_TESTDATA) +
-                                  "/demo_simulation.json --out=" + *sim_);
-    ASSERT_EQ(r.exit_code, 0) << r.output;
-  }
-  static void TearDownTestSuite() { delete sim_; }
-  static std::string* sim_;
-};
-std::string* CliReliability::sim_ = nullptr;
 
 // README: 1 for bad input, 2 for usage errors; each with one line on stderr.
-TEST_F(CliReliability, ExitCodesAreAsDocumented) {
-  const std::string dir = Fresh("codes");
-  const std::string file = *sim_ + "/exposure_000.fits";
+TEST(CliReliability, ExitCodesAreAsDocumented) {
+  const std::string dir = FreshDir("reliability", "codes");
+  const std::string file = DemoSet() + "/exposure_000.fits";
   struct Case {
     std::string args;
     int code;
@@ -71,7 +53,7 @@ TEST_F(CliReliability, ExitCodesAreAsDocumented) {
       {"fit --out=" + dir + "/g --walkers=100001 " + file, 1, "--walkers = 100001 is outside"},
       {"fit --out=" + dir + "/h --threads=2000 " + file, 1, "--threads = 2000 is outside"},
       {"fit --out=" + dir + "/i --max_steps=0 " + file, 1, "--max_steps = 0 is outside"},
-      {"fit --nomcmc --out=" + *sim_ + " " + file, 1, "holds the input"},
+      {"fit --nomcmc --out=" + DemoSet() + " " + file, 1, "holds the input"},
   };
   for (const Case& c : cases) {
     const RunResult r = RunCcdpsf(c.args);
@@ -86,18 +68,18 @@ TEST_F(CliReliability, ExitCodesAreAsDocumented) {
 }
 
 // A chain too large for memory is refused with the numbers, not attempted.
-TEST_F(CliReliability, AChainBeyondMemoryIsRefused) {
-  const std::string dir = Fresh("chain");
+TEST(CliReliability, AChainBeyondMemoryIsRefused) {
+  const std::string dir = FreshDir("reliability", "chain");
   const RunResult r = RunCcdpsf("fit --walkers=50000 --max_steps=10000000 --out=" + dir +
-                                "/out " + *sim_ + "/exposure_000.fits");
+                                "/out " + DemoSet() + "/exposure_000.fits");
   EXPECT_EQ(r.exit_code, 1) << r.output;
   EXPECT_NE(r.output.find("the MCMC chain could reach"), std::string::npos) << r.output;
   EXPECT_FALSE(fs::exists(dir + "/out"));
 }
 
 // simulate with an intensity beyond any lab exposure: refused (it used to write a 0 ADU spot).
-TEST_F(CliReliability, AnAbsurdSimulatedIntensityIsRefused) {
-  const std::string dir = Fresh("flux");
+TEST(CliReliability, AnAbsurdSimulatedIntensityIsRefused) {
+  const std::string dir = FreshDir("reliability", "flux");
   std::ifstream in(std::string(CCDPSF_TESTDATA) + "/demo_simulation.json");
   nlohmann::json config = nlohmann::json::parse(in);
   config["exposures"][0]["flux_e"] = 1e20;
@@ -109,8 +91,8 @@ TEST_F(CliReliability, AnAbsurdSimulatedIntensityIsRefused) {
 }
 
 // Non-ASCII names and paths longer than CFITSIO's 1025-byte name buffers, end to end.
-TEST_F(CliReliability, AnyPathTheOsAcceptsWorks) {
-  const std::string root = Fresh("paths");
+TEST(CliReliability, AnyPathTheOsAcceptsWorks) {
+  const std::string root = FreshDir("reliability", "paths");
   std::string long_folder = root;
   for (int i = 0; i < 14; ++i) long_folder += "/" + std::string(240, 'd');  // > 3000 bytes
   const std::vector<std::string> folders = {root + "/\xc3\xa9t\xc3\xa9 r\xc3\xa9sultats",
@@ -119,7 +101,7 @@ TEST_F(CliReliability, AnyPathTheOsAcceptsWorks) {
     SCOPED_TRACE(folder.size());
     fs::create_directories(folder);
     const std::string file = folder + "/\xc3\x9f pot.fits";
-    fs::copy_file(*sim_ + "/exposure_000.fits", file);
+    fs::copy_file(DemoSet() + "/exposure_000.fits", file);
     const std::string out = folder + "/r\xc3\xa9sultat";
     const RunResult r = RunCcdpsf("fit --max_steps=200 --target_ess=20 --out='" + out + "' '" +
                                   file + "'");

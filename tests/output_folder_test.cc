@@ -18,16 +18,10 @@ namespace ccdpsf {
 namespace {
 
 namespace fs = std::filesystem;
+using testing_support::DemoSet;
+using testing_support::FreshDir;
 using testing_support::RunCcdpsf;
 using testing_support::RunResult;
-
-std::string Fresh(const std::string& name) {
-  const std::string dir = ::testing::TempDir() + "/ccdpsf_outdir_" +
-                          std::to_string(static_cast<long>(::getpid())) + "_" + name;
-  fs::remove_all(dir);
-  fs::create_directories(dir);
-  return dir;
-}
 
 void Touch(const std::string& path, const std::string& text = "x") {
   std::ofstream(path) << text;
@@ -39,7 +33,7 @@ void RunRecord(const std::string& dir) {
 }
 
 TEST(OutputFolder, ReplacesAnEarlierRunAsAWhole) {
-  const std::string root = Fresh("replace");
+  const std::string root = FreshDir("outdir", "replace");
   const std::string out = root + "/out";
   fs::create_directories(out);
   RunRecord(out);
@@ -61,7 +55,7 @@ TEST(OutputFolder, ReplacesAnEarlierRunAsAWhole) {
 }
 
 TEST(OutputFolder, AFailedRunLeavesTheEarlierResultsAndNoPartialFolder) {
-  const std::string root = Fresh("failed");
+  const std::string root = FreshDir("outdir", "failed");
   const std::string out = root + "/out";
   fs::create_directories(out);
   RunRecord(out);
@@ -82,7 +76,7 @@ TEST(OutputFolder, AFailedRunLeavesTheEarlierResultsAndNoPartialFolder) {
 }
 
 TEST(OutputFolder, RefusesFoldersItMayNotReplace) {
-  const std::string root = Fresh("refuse");
+  const std::string root = FreshDir("outdir", "refuse");
   std::string error;
   // A folder with someone else's files.
   fs::create_directories(root + "/data");
@@ -118,7 +112,7 @@ TEST(OutputFolder, RefusesFoldersItMayNotReplace) {
 }
 
 TEST(OutputFolder, AKilledRunsPartialFolderIsTakenOverAndASecondWriterRefused) {
-  const std::string root = Fresh("partial");
+  const std::string root = FreshDir("outdir", "partial");
   const std::string out = root + "/out";
   std::string error;
   std::string partial;
@@ -149,22 +143,10 @@ TEST(OutputFolder, AKilledRunsPartialFolderIsTakenOverAndASecondWriterRefused) {
 }
 
 // The binary, end to end: the defects of issue 15 that concern output folders.
-class OutputFolderCli : public ::testing::Test {
- protected:
-  static void SetUpTestSuite() {
-    sim_ = new std::string(Fresh("sim") + "/sim");
-    const RunResult r = RunCcdpsf("simulate --config=" + std::string(CCDPSF_TESTDATA) +
-                                  "/demo_simulation.json --out=" + *sim_);
-    ASSERT_EQ(r.exit_code, 0) << r.output;
-  }
-  static void TearDownTestSuite() { delete sim_; }
-  static std::string* sim_;
-};
-std::string* OutputFolderCli::sim_ = nullptr;
 
-TEST_F(OutputFolderCli, ANoMcmcRerunLeavesNoChainOfTheEarlierRun) {
-  const std::string out = Fresh("rerun") + "/fit";
-  const std::string file = *sim_ + "/exposure_000.fits";
+TEST(OutputFolderCli, ANoMcmcRerunLeavesNoChainOfTheEarlierRun) {
+  const std::string out = FreshDir("outdir", "rerun") + "/fit";
+  const std::string file = DemoSet() + "/exposure_000.fits";
   RunResult r = RunCcdpsf("fit --max_steps=300 --target_ess=30 --seed=2 --out=" + out + " " + file);
   ASSERT_EQ(r.exit_code, 0) << r.output;
   ASSERT_TRUE(fs::exists(out + "/chain.fits"));
@@ -175,12 +157,12 @@ TEST_F(OutputFolderCli, ANoMcmcRerunLeavesNoChainOfTheEarlierRun) {
   EXPECT_FALSE(fs::exists(out + "/corner.png"));
 }
 
-TEST_F(OutputFolderCli, FilesOfTheSameNameFromTwoFoldersDoNotCollide) {
-  const std::string root = Fresh("collide");
+TEST(OutputFolderCli, FilesOfTheSameNameFromTwoFoldersDoNotCollide) {
+  const std::string root = FreshDir("outdir", "collide");
   fs::create_directories(root + "/a");
   fs::create_directories(root + "/b");
-  fs::copy_file(*sim_ + "/exposure_000.fits", root + "/a/exposure_000.fits");
-  fs::copy_file(*sim_ + "/exposure_001.fits", root + "/b/exposure_000.fits");
+  fs::copy_file(DemoSet() + "/exposure_000.fits", root + "/a/exposure_000.fits");
+  fs::copy_file(DemoSet() + "/exposure_001.fits", root + "/b/exposure_000.fits");
   const RunResult r = RunCcdpsf("fit --nomcmc --out=" + root + "/out " + root +
                                 "/a/exposure_000.fits " + root + "/b/exposure_000.fits");
   ASSERT_EQ(r.exit_code, 0) << r.output;
@@ -196,13 +178,13 @@ TEST_F(OutputFolderCli, FilesOfTheSameNameFromTwoFoldersDoNotCollide) {
   }
 }
 
-TEST_F(OutputFolderCli, AnOutputFolderHoldingTheInputsIsRefused) {
-  const std::string file = *sim_ + "/exposure_000.fits";
-  const RunResult r = RunCcdpsf("fit --nomcmc --out=" + *sim_ + " " + file);
+TEST(OutputFolderCli, AnOutputFolderHoldingTheInputsIsRefused) {
+  const std::string file = DemoSet() + "/exposure_000.fits";
+  const RunResult r = RunCcdpsf("fit --nomcmc --out=" + DemoSet() + " " + file);
   EXPECT_EQ(r.exit_code, 1) << r.output;
   EXPECT_NE(r.output.find("holds the input"), std::string::npos) << r.output;
   EXPECT_TRUE(fs::exists(file));
-  EXPECT_TRUE(fs::exists(*sim_ + "/truth.json"));
+  EXPECT_TRUE(fs::exists(DemoSet() + "/truth.json"));
 }
 
 }  // namespace

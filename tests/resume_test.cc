@@ -22,16 +22,10 @@ namespace ccdpsf {
 namespace {
 
 namespace fs = std::filesystem;
+using testing_support::DemoSet;
+using testing_support::FreshDir;
 using testing_support::RunCcdpsf;
 using testing_support::RunResult;
-
-std::string Fresh(const std::string& name) {
-  const std::string dir = ::testing::TempDir() + "/ccdpsf_resume_" +
-                          std::to_string(static_cast<long>(::getpid())) + "_" + name;
-  fs::remove_all(dir);
-  fs::create_directories(dir);
-  return dir;
-}
 
 std::string Bytes(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
@@ -63,15 +57,11 @@ bool RunAndKill(const std::string& args, const std::function<bool()>& ready) {
 
 TEST(Resume, AKilledFitResumesToTheChainOfAnUninterruptedRun) {
   CCDPSF_RELEASE_ONLY();  // four 3000-step fits; the sampler's own resume test runs everywhere
-  const std::string dir = Fresh("fit");
-  ASSERT_EQ(RunCcdpsf("simulate --config=" + std::string(CCDPSF_TESTDATA) +
-                      "/demo_simulation.json --out=" + dir + "/sim")
-                .exit_code,
-            0);
+  const std::string dir = FreshDir("resume", "fit");
   // Never converged (target_ess far out of reach), so every run takes all 3000 steps, with a
   // checkpoint at each convergence check.
   const std::string options = "--walkers=32 --max_steps=3000 --target_ess=1e6 --seed=5 "
-                              "--checkpoint_s=0 " + dir + "/sim/exposure_000.fits ";
+                              "--checkpoint_s=0 " + DemoSet() + "/exposure_000.fits ";
   ASSERT_EQ(RunCcdpsf("fit --out=" + dir + "/whole " + options).exit_code, 0);
 
   const std::string checkpoint = dir + "/.killed.ccdpsf-partial/checkpoints/fit.bin";
@@ -108,7 +98,7 @@ nlohmann::json WithoutSeconds(nlohmann::json j) {
 
 TEST(Resume, AKilledTrendKeepsItsFinishedGroups) {
   CCDPSF_RELEASE_ONLY();  // three trend runs of a 7-group campaign: ~1 min in Release
-  const std::string dir = Fresh("trend");
+  const std::string dir = FreshDir("resume", "trend");
   ASSERT_EQ(RunCcdpsf("simulate --config=" + std::string(CCDPSF_TESTDATA) +
                       "/campaign_paper_small.json --out=" + dir + "/data")
                 .exit_code,

@@ -2,7 +2,12 @@
 
 #include <sys/wait.h>
 
+#include <unistd.h>
+
 #include <cstdio>
+#include <filesystem>
+
+#include "gtest/gtest.h"
 
 namespace ccdpsf::testing_support {
 
@@ -23,6 +28,25 @@ int RunCcdpsf(const std::string& args, std::string* output) {
   RunResult r = RunCcdpsf(args);
   *output = std::move(r.output);
   return r.exit_code;
+}
+
+std::string FreshDir(const std::string& suite, const std::string& name) {
+  const std::string dir = ::testing::TempDir() + "/ccdpsf_" + suite + "_" +
+                          std::to_string(static_cast<long>(::getpid())) + "_" + name;
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  return dir;
+}
+
+const std::string& DemoSet() {
+  static const std::string dir = [] {
+    const std::string d = FreshDir("demo", "set") + "/sim";
+    const RunResult r = RunCcdpsf("simulate --config=" + std::string(CCDPSF_TESTDATA) +
+                                  "/demo_simulation.json --out=" + d);
+    EXPECT_EQ(r.exit_code, 0) << r.output;
+    return d;
+  }();
+  return dir;
 }
 
 }  // namespace ccdpsf::testing_support

@@ -17,6 +17,14 @@ RunResult RunCcdpsf(const std::string& args);
 // The same, returning the exit code and replacing *output with what was printed.
 int RunCcdpsf(const std::string& args, std::string* output);
 
+// A new, empty folder private to this test process (ctest runs tests in parallel processes):
+// <test temp dir>/ccdpsf_<suite>_<pid>_<name>.
+std::string FreshDir(const std::string& suite, const std::string& name);
+
+// The folder of testdata/demo_simulation.json's five exposures (exposure_000.fits ...),
+// simulated by the binary once per process.
+const std::string& DemoSet();
+
 }  // namespace ccdpsf::testing_support
 
 #endif  // CCDPSF_TESTS_SUPPORT_RUN_CCDPSF_H_
