@@ -27,17 +27,7 @@ namespace {
 
 namespace fs = std::filesystem;
 using nlohmann::json;
-
-int Shell(const std::string& command, std::string* output) {
-  FILE* pipe = popen((command + " 2>&1").c_str(), "r");
-  if (pipe == nullptr) return -1;
-  char buffer[4096];
-  size_t n;
-  output->clear();
-  while ((n = fread(buffer, 1, sizeof(buffer), pipe)) > 0) output->append(buffer, n);
-  const int status = pclose(pipe);
-  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-}
+using testing_support::Shell;
 
 std::string Fresh(const std::string& name) {
   const std::string dir = ::testing::TempDir() + "/ccdpsf_refdiag_" +

@@ -35,6 +35,7 @@ namespace fs = std::filesystem;
 using nlohmann::json;
 using testing_support::RunCcdpsf;
 using testing_support::RunResult;
+using testing_support::Shell;
 
 const double kTruthX = std::hypot(0.291, 0.41);
 const double kTruthY = std::hypot(0.335, 0.41);
@@ -45,18 +46,6 @@ std::string Fresh(const std::string& name) {
   fs::remove_all(dir);
   fs::create_directories(dir);
   return dir;
-}
-
-// Runs a shell command, returning its exit code; *output gets stdout and stderr.
-int Shell(const std::string& command, std::string* output) {
-  FILE* pipe = popen((command + " 2>&1").c_str(), "r");
-  if (pipe == nullptr) return -1;
-  char buffer[4096];
-  size_t n;
-  output->clear();
-  while ((n = fread(buffer, 1, sizeof(buffer), pipe)) > 0) output->append(buffer, n);
-  const int status = pclose(pipe);
-  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
 }
 
 // The defect script needs Debian's python3-numpy and python3-astropy.

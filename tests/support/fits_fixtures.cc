@@ -55,6 +55,18 @@ std::string StatusText(int status) {
   return "cfitsio status " + std::to_string(status) + ": " + text;
 }
 
+// Closes `file` (if open) and reports the first CFITSIO error of the write or the close.
+bool Close(fitsfile* file, int status, std::string* error) {
+  int close_status = 0;
+  if (file != nullptr) fits_close_file(file, &close_status);
+  if (status == 0) status = close_status;
+  if (status != 0) {
+    *error = StatusText(status);
+    return false;
+  }
+  return true;
+}
+
 void WriteKeys(fitsfile* file, const FitsHeader& keys, int* status) {
   for (const FitsKey& key : keys) {
     if (const double* v = std::get_if<double>(&key.value)) {
@@ -97,14 +109,7 @@ bool WriteRawFits(const std::string& path, const RawImageSpec& spec, std::string
     std::vector<double> raw = spec.raw;
     fits_write_img(file, TDOUBLE, 1, static_cast<LONGLONG>(raw.size()), raw.data(), &status);
   }
-  int close_status = 0;
-  if (file != nullptr) fits_close_file(file, &close_status);
-  if (status == 0) status = close_status;
-  if (status != 0) {
-    *error = StatusText(status);
-    return false;
-  }
-  return true;
+  return Close(file, status, error);
 }
 
 bool WriteTableOnlyFits(const std::string& path, std::string* error) {
@@ -122,14 +127,7 @@ bool WriteTableOnlyFits(const std::string& path, std::string* error) {
   fits_create_tbl(file, BINARY_TBL, 3, 1, ttype, tform, tunit, "SPOTS", &status);
   double values[3] = {1.0, 2.0, 3.0};
   fits_write_col(file, TDOUBLE, 1, 1, 1, 3, values, &status);
-  int close_status = 0;
-  if (file != nullptr) fits_close_file(file, &close_status);
-  if (status == 0) status = close_status;
-  if (status != 0) {
-    *error = StatusText(status);
-    return false;
-  }
-  return true;
+  return Close(file, status, error);
 }
 
 bool WriteBytes(const std::string& path, const std::string& bytes) {
@@ -281,14 +279,7 @@ bool WriteTiledFits(const std::string& path, int compression, int nx, int ny, in
   // As shorts: CFITSIO compresses only values of the image's own type.
   std::vector<short> copy(values.begin(), values.end());
   fits_write_img(file, TSHORT, 1, static_cast<LONGLONG>(copy.size()), copy.data(), &status);
-  int close_status = 0;
-  if (file != nullptr) fits_close_file(file, &close_status);
-  if (status == 0) status = close_status;
-  if (status != 0) {
-    *error = StatusText(status);
-    return false;
-  }
-  return true;
+  return Close(file, status, error);
 }
 
 namespace {

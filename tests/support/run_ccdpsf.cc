@@ -11,16 +11,20 @@
 
 namespace ccdpsf::testing_support {
 
-RunResult RunCcdpsf(const std::string& args) {
-  const std::string command = std::string(CCDPSF_BINARY) + " " + args + " 2>&1";
-  RunResult r;
-  FILE* pipe = popen(command.c_str(), "r");
-  if (pipe == nullptr) return r;
+int Shell(const std::string& command, std::string* output) {
+  FILE* pipe = popen((command + " 2>&1").c_str(), "r");
+  if (pipe == nullptr) return -1;
   char buffer[4096];
   size_t n;
-  while ((n = fread(buffer, 1, sizeof(buffer), pipe)) > 0) r.output.append(buffer, n);
+  output->clear();
+  while ((n = fread(buffer, 1, sizeof(buffer), pipe)) > 0) output->append(buffer, n);
   const int status = pclose(pipe);
-  r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+}
+
+RunResult RunCcdpsf(const std::string& args) {
+  RunResult r;
+  r.exit_code = Shell(std::string(CCDPSF_BINARY) + " " + args, &r.output);
   return r;
 }
 

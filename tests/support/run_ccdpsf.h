@@ -11,6 +11,10 @@ struct RunResult {
   std::string output;  // stdout and stderr together
 };
 
+// Runs a shell command; returns its exit code (-1 if it could not run or did not exit
+// normally), *output gets stdout and stderr.
+int Shell(const std::string& command, std::string* output);
+
 // `ccdpsf ARGS` through the shell, stderr merged into stdout.
 RunResult RunCcdpsf(const std::string& args);
 
