@@ -949,8 +949,10 @@ bool WriteFitsImagesF64(const std::string& path, const FitsHeader& primary_heade
 
 bool WriteFitsTable(const std::string& path, const FitsHeader& primary_header,
                     const std::string& extname, const std::vector<FitsColumn>& columns,
-                    std::string* error) {
-  if (!ValidateHeader(path, primary_header, error)) return false;
+                    const FitsHeader& table_header, std::string* error) {
+  if (!ValidateHeader(path, primary_header, error) || !ValidateHeader(path, table_header, error)) {
+    return false;
+  }
   if (columns.empty()) {
     *error = "cannot write " + Quoted(path) + ": table has no columns";
     return false;
@@ -961,6 +963,14 @@ bool WriteFitsTable(const std::string& path, const FitsHeader& primary_header,
     if (column.name.empty()) {
       *error = "cannot write " + Quoted(path) + ": a table column has no name";
       return false;
+    }
+    // TTYPEn of letters, digits and underscores (column_units.h has FitsColumnName).
+    for (char c : column.name) {
+      if (!(std::isalnum(static_cast<unsigned char>(c)) || c == '_')) {
+        *error = "cannot write " + Quoted(path) + ": column name '" + column.name +
+                 "' holds a character other than letters, digits and '_'";
+        return false;
+      }
     }
     // FITS column names are compared without case by most readers (astropy, TOPCAT).
     if (!seen.insert(ToUpper(column.name)).second) {
@@ -1011,6 +1021,11 @@ bool WriteFitsTable(const std::string& path, const FitsHeader& primary_header,
                             static_cast<int>(columns.size()), ttype.data(), tform.data(),
                             tunit.data(), extname.empty() ? nullptr : extname.c_str(), &status)) {
           *write_error = WriteError(path, "cannot create table", status);
+          return false;
+        }
+        std::string failed_key;
+        if (!WriteHeader(file.get(), table_header, &status, &failed_key)) {
+          *write_error = WriteError(path, "cannot write keyword " + failed_key, status);
           return false;
         }
         for (size_t i = 0; i < columns.size() && num_rows > 0; ++i) {

@@ -116,10 +116,13 @@ struct FitsColumn {
 };
 
 // Writes an empty primary HDU carrying primary_header and one BINTABLE extension named
-// extname with the given columns (readable by astropy.table.Table.read and TOPCAT).
+// extname with the given columns (readable by astropy.table.Table.read and TOPCAT) and
+// table_header's keywords (Table.read keeps those of the table's HDU, not the primary's).
+// Column names must be letters, digits and '_' (FitsColumnName in column_units.h makes them);
+// a column's unit becomes its TUNITn.
 bool WriteFitsTable(const std::string& path, const FitsHeader& primary_header,
                     const std::string& extname, const std::vector<FitsColumn>& columns,
-                    std::string* error);
+                    const FitsHeader& table_header, std::string* error);
 
 }  // namespace ccdpsf
 

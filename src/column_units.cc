@@ -1,0 +1,40 @@
+#include "ccdpsf/column_units.h"
+
+#include <cctype>
+#include <utility>
+
+namespace ccdpsf {
+
+std::string UnitOfName(const std::string& name) {
+  // An exposure index after a dot or a final underscore (x_px.3, x_px_3, flux_ratio_2) is not
+  // part of the unit.
+  std::string base = name.substr(0, name.find('.'));
+  const std::size_t last = base.find_last_of('_');
+  if (last != std::string::npos && last + 1 < base.size() &&
+      base.find_first_not_of("0123456789", last + 1) == std::string::npos) {
+    base.resize(last);
+  }
+  // Longest suffixes first: _e_per_adu before _adu, _px_per_um before _um, _px2 before _px.
+  static const std::pair<const char*, const char*> kSuffixes[] = {
+      {"_e_per_adu", "electron/adu"}, {"_px_per_um", "pix/um"}, {"_arcsec2", "arcsec2"},
+      {"_adu2", "adu2"},              {"_adu", "adu"},          {"_px2", "pix2"},
+      {"_um2", "um2"},                {"_px", "pix"},           {"_um", "um"},
+      {"_nm", "nm"},                  {"_e", "electron"},       {"_s", "s"}};
+  for (const auto& [suffix, unit] : kSuffixes) {
+    const std::string s = suffix;
+    if (base.size() > s.size() && base.compare(base.size() - s.size(), s.size(), s) == 0) {
+      return unit;
+    }
+  }
+  return "";
+}
+
+std::string FitsColumnName(const std::string& name) {
+  std::string out = name;
+  for (char& c : out) {
+    if (!(std::isalnum(static_cast<unsigned char>(c)) || c == '_')) c = '_';
+  }
+  return out;
+}
+
+}  // namespace ccdpsf
