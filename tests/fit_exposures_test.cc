@@ -60,7 +60,7 @@ TEST(FluxModes, PerExposureJointLogLikelihoodIsTheSumOfSingles) {
   options.flux = FluxMode::kPerExposure;
   auto joint = MustCreate(stamps, options);
   ASSERT_EQ(joint->dim(), kNumShared + 6 + 2);
-  EXPECT_EQ(joint->names()[joint->RatioIndex(1)], "flux_ratio.1");
+  EXPECT_EQ(joint->names()[joint->RatioIndex(1)], "flux_ratio_1");
   EXPECT_EQ(joint->RatioIndex(0), -1);
   const SimulationConfig c = PaperConfig(model::Sampling::kIntegrated, 3, 11);
   std::vector<double> theta = ThetaFor(*joint, c, 4.0e5);

@@ -59,7 +59,7 @@ TEST(ThroughFocus, ParameterLayoutAndPriors) {
   EXPECT_EQ(model->NumSharedParams(), kNumShared + 1);
   EXPECT_EQ(model->names()[kDefocusPx], "defocus_rate_px_per_um");
   EXPECT_EQ(model->names()[model->FocusIndex()], "best_focus_um");
-  EXPECT_EQ(model->names()[FitModel::XIndex(4)], "x_px.4");
+  EXPECT_EQ(model->names()[FitModel::XIndex(4)], "x_px_4");
   // Best focus inside the scanned range; the rate reaches the defocus prior's top (1.5 px)
   // half the range (400 um) away from best focus.
   EXPECT_EQ(model->lower()[model->FocusIndex()], -400.0);

@@ -18,7 +18,7 @@
 // of the new data.
 //
 // Text (titles, labels, parameter names) is printed literally: gnuplot's "enhanced" markup is
-// off, so x_px.0 shows as typed.
+// off, so x_px_0 shows as typed.
 #ifndef CCDPSF_PLOT_H_
 #define CCDPSF_PLOT_H_
 

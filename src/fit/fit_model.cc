@@ -225,8 +225,8 @@ std::unique_ptr<FitModel> FitModel::Create(std::vector<Stamp> stamps,
   // The 2015 model divides by sigma_f: keep it away from zero.
   if (peak) m->lower_[kDefocusPx] = std::max(m->lower_[kDefocusPx], 0.02);
   for (int k = 0; k < m->num_exposures(); ++k) {
-    m->names_.push_back("x_px." + std::to_string(k));
-    m->names_.push_back("y_px." + std::to_string(k));
+    m->names_.push_back("x_px_" + std::to_string(k));
+    m->names_.push_back("y_px_" + std::to_string(k));
     m->lower_.push_back(m->centroid_x_[k] - pr.position_halfwidth_px);
     m->upper_.push_back(m->centroid_x_[k] + pr.position_halfwidth_px);
     m->lower_.push_back(m->centroid_y_[k] - pr.position_halfwidth_px);
@@ -247,11 +247,11 @@ std::unique_ptr<FitModel> FitModel::Create(std::vector<Stamp> stamps,
     m->upper_.push_back(z_max);
   }
   if (options.flux == FluxMode::kPerExposure) {
-    // flux_ratio.k: exposure k's flux over exposure 0's, within the flux prior's factors of
+    // flux_ratio_k: exposure k's flux over exposure 0's, within the flux prior's factors of
     // the ratio of their summed signals.
     for (int k = 1; k < m->num_exposures(); ++k) {
       const double ratio = m->signal_per_stamp_e_[k] / m->signal_per_stamp_e_[0];
-      m->names_.push_back("flux_ratio." + std::to_string(k));
+      m->names_.push_back("flux_ratio_" + std::to_string(k));
       m->lower_.push_back(pr.flux_lower_fraction * ratio);
       m->upper_.push_back(pr.flux_upper_fraction * ratio);
     }

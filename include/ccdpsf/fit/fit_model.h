@@ -8,7 +8,7 @@
 //   2 defocus_sigma_px   Gaussian defocus sigma, or defocus_radius_px (pillbox) [px]  shared
 //   3 ccd_sigma_x_px     CCD kernel [px]                                     shared
 //   4 ccd_sigma_y_px                                                         shared
-//   5 + 2K, 6 + 2K       x_px.K, y_px.K: spot centre of exposure K, frame coordinates [px]
+//   5 + 2K, 6 + 2K       x_px_K, y_px_K: spot centre of exposure K, frame coordinates [px]
 // (the paper's joint fit: CCD widths, intensity and defocus shared, one position per
 // exposure). Priors are flat within [lower, upper] for every parameter.
 //
@@ -75,7 +75,7 @@ struct PriorRanges {
 
 // How the exposures of a joint fit share the light (flux_e):
 //   kShared          one flux for every exposure (the paper's joint fit: one setting)
-//   kPerExposure     exposure K's flux is flux_e x flux_ratio.K (K >= 1; flux_e is exposure
+//   kPerExposure     exposure K's flux is flux_e x flux_ratio_K (K >= 1; flux_e is exposure
 //                    0's), the ratios fitted: for exposures whose lamp or shutter differ
 //   kExptimeScaled   exposure K's flux is flux_e x t_K / t_0 from the exposure times
 //                    (EXPTIME): one rate, for a clean shutter and a stable lamp
@@ -121,17 +121,17 @@ class FitModel {
   // Valid pixels that are not censored: the ones that count as degrees of freedom.
   int NumMeasuredPixels() const;
 
-  // Index of x_px.K and y_px.K in theta.
+  // Index of x_px_K and y_px_K in theta.
   static int XIndex(int k) { return kNumShared + 2 * k; }
   static int YIndex(int k) { return kNumShared + 2 * k + 1; }
 
   // Parameters after the positions ("trailing"), shared by every exposure: best_focus_um in
-  // focus mode, then flux_ratio.1 .. flux_ratio.(K-1) with per-exposure fluxes.
+  // focus mode, then flux_ratio_1 .. flux_ratio_(K-1) with per-exposure fluxes.
   // Through-focus mode: whether theta carries best_focus_um, and its index (-1 when not in
   // focus mode).
   bool through_focus() const { return options_.through_focus; }
   int FocusIndex() const { return through_focus() ? kNumShared + 2 * num_exposures() : -1; }
-  // Per-exposure fluxes: the index of flux_ratio.k (k >= 1), -1 otherwise.
+  // Per-exposure fluxes: the index of flux_ratio_k (k >= 1), -1 otherwise.
   bool per_exposure_flux() const { return options_.flux == FluxMode::kPerExposure; }
   int RatioIndex(int k) const {
     return per_exposure_flux() && k > 0
@@ -142,7 +142,7 @@ class FitModel {
   double FluxScale(const double* theta, int k) const;
   // The fixed part of it (t_k / t_0 when exposure-time scaled, else 1).
   double FixedFluxScale(int k) const { return fixed_flux_scale_[k]; }
-  // A starting value of flux_ratio.k: the ratio of the stamps' summed signals.
+  // A starting value of flux_ratio_k: the ratio of the stamps' summed signals.
   double StartFluxRatio(int k) const { return signal_per_stamp_e_[k] / signal_per_stamp_e_[0]; }
   // Shared parameters in theta: kNumShared, then the trailing ones; their indices in theta
   // order (0..4, then FocusIndex(), then the ratios).

@@ -5,7 +5,7 @@
 //   the shared parameters in sampling coordinates (sampling_coordinates.h: the CCD widths
 //   replaced by the total widths t_x, t_y), without the defocus when it is integrated out
 //   (defocus_marginal.h: `integrated` sampling with a Gaussian defocus, where the data cannot
-//   tell the defocus from the CCD widths), then x_px.K, y_px.K per exposure.
+//   tell the defocus from the CCD widths), then x_px_K, y_px_K per exposure.
 //   Through-focus fits (fit_model.h): the shared parameters in theta coordinates (identity
 //   sampling coordinates, no marginalisation: the defocus differs per exposure and the CCD
 //   widths are identified), then best_focus_um, then the positions.
