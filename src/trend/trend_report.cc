@@ -81,12 +81,19 @@ std::string Interval(const fit::Summary& s, int precision = 4) {
   return "n/a";
 }
 
-// A relation's points as CSV: label, abscissa, median, lo68, hi68, sd, normalised residual,
-// used (1: a fitted point; 0: a gap), and a bound-only gap's 95 % upper limit.
-std::string RelationCsv(const RelationFit& fit) {
+// A relation's points as CSV, units in the column names: the group, the abscissa
+// (wavelength_nm for a relation with wavelength, peak_e for one with intensity), the metric's
+// median, 68 % bounds and sd (named after the metric, e.g. fwhm_um_lo68), the normalised
+// residual, used (1: a fitted point; 0: a gap), and a bound-only gap's 95 % upper limit.
+std::string RelationCsv(const std::string& relation_name, const RelationFit& fit) {
+  const bool wavelength = fit.kind == RelationKind::kPowerLaw;
+  const std::string suffix = RelationName("", fit.kind);
+  const std::string metric = relation_name.substr(0, relation_name.size() - suffix.size());
   std::ostringstream csv;
   csv.precision(10);
-  csv << "group,abscissa,median,lo68,hi68,sd,normalized_residual,used,upper_limit_95\n";
+  csv << "group," << (wavelength ? "wavelength_nm" : "peak_e") << "," << metric << ","
+      << metric << "_lo68," << metric << "_hi68," << metric << "_sd,normalized_residual,used,"
+      << metric << "_upper_limit_95\n";
   for (const PointSummary& p : fit.points) {
     csv << p.label << "," << p.abscissa << "," << p.value.median << "," << p.value.lo68 << ","
         << p.value.hi68 << "," << p.value.sd << "," << p.normalized_residual << ",1,\n";
@@ -259,7 +266,9 @@ bool WriteTrendReport(const std::string& out_dir, const TrendResult& r,
   }
   if (!WriteTextFileAtomically(out.Path("groups.csv"), groups_csv.str(), error)) return false;
   for (const auto& [name, fit] : r.relations) {
-    if (!WriteTextFileAtomically(out.Path(name + ".csv"), RelationCsv(fit), error)) return false;
+    if (!WriteTextFileAtomically(out.Path(name + ".csv"), RelationCsv(name, fit), error)) {
+      return false;
+    }
   }
 
   // Plots like the paper's figures.

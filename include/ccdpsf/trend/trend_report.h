@@ -5,7 +5,9 @@
 //                     group's status and metrics, notes. Written last: its presence means the
 //                     folder is complete.
 //   groups.csv        one row per group: setting, status, intensity, metrics with intervals
-//   <relation>.csv    the points of each relation as fitted (for TOPCAT / astropy)
+//   <relation>.csv    the points of each relation as fitted (for TOPCAT / astropy): group,
+//                     wavelength_nm or peak_e, the metric's median, _lo68, _hi68, _sd,
+//                     normalized_residual, used, _upper_limit_95 (units in the names)
 //   *_vs_wavelength.png, *_vs_intensity.png (+ .gp scripts and .dat data): the paper's
 //                     figures, requirement limits in red
 //   report.md         a readable report linking all of the above and each group's fit report
