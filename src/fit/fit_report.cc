@@ -5,6 +5,7 @@
 #include <sstream>
 
 #include "ccdpsf/atomic_file.h"
+#include "ccdpsf/column_units.h"
 #include "ccdpsf/fits_io.h"
 #include "ccdpsf/plot.h"
 #include "ccdpsf/provenance.h"
@@ -97,6 +98,23 @@ json FitJson(const ExposuresFit& fit) {
                         {"upper", model.upper()[i]}});
   }
   j["identifiability"] = {{"null_directions", nulls}, {"at_bound", at_bound}};
+  // The Laplace covariance of the parameters the data constrain (theta units, the names'
+  // units; the others lie along identifiability.null_directions and have no entry).
+  {
+    json names = json::array(), matrix = json::array();
+    std::vector<int> kept;
+    for (int i = 0; i < model.dim(); ++i) {
+      if (r.laplace.constrained[i]) kept.push_back(i);
+    }
+    const bool have = r.laplace.covariance.size() == static_cast<size_t>(model.dim()) * model.dim();
+    for (int a : kept) {
+      names.push_back(r.names[a]);
+      json row = json::array();
+      for (int b : kept) row.push_back(have ? Num(r.laplace.covariance[a * model.dim() + b]) : json(nullptr));
+      matrix.push_back(row);
+    }
+    j["covariance"] = {{"names", names}, {"matrix", matrix}};
+  }
   if (r.have_mcmc) {
     const SamplerResult& c = r.chain;
     json tau = json::object(), ess = json::object();
@@ -226,9 +244,22 @@ bool WriteFitReport(const std::string& out_dir, const ExposuresFit& fit, const j
   if (r.have_mcmc) {
     const SamplerResult& c = r.chain;
     const size_t states = static_cast<size_t>(c.num_steps) * c.num_walkers;
+    // Every state of the chain (burn-in included, flagged by BURNIN), with the derived
+    // quantities of each draw beside the parameters: FWHM, e, R^2 ... need no propagation by
+    // the reader. peak_e needs a render per draw and is left out (fit.json summarises it).
+    const std::vector<std::string>& derived_names = DerivedNames();
+    std::vector<size_t> derived_kept;
+    for (size_t j = 0; j < derived_names.size(); ++j) {
+      if (derived_names[j] != "peak_e") derived_kept.push_back(j);
+    }
     std::vector<FitsColumn> cols = {{"walker", "", {}, true}, {"step", "", {}, true},
                                     {"log_prob", "", {}, false}};
-    for (int i = 0; i < dim; ++i) cols.push_back({r.names[i], "", {}, false});
+    for (int i = 0; i < dim; ++i) {
+      cols.push_back({FitsColumnName(r.names[i]), UnitOfName(r.names[i]), {}, false});
+    }
+    for (size_t j : derived_kept) {
+      cols.push_back({FitsColumnName(derived_names[j]), UnitOfName(derived_names[j]), {}, false});
+    }
     for (auto& col : cols) col.values.reserve(states);
     for (int step = 0; step < c.num_steps; ++step) {
       for (int w = 0; w < c.num_walkers; ++w) {
@@ -236,13 +267,25 @@ bool WriteFitReport(const std::string& out_dir, const ExposuresFit& fit, const j
         cols[0].values.push_back(w);
         cols[1].values.push_back(step);
         cols[2].values.push_back(c.log_prob[s]);
-        for (int i = 0; i < dim; ++i) cols[3 + i].values.push_back(c.chain[s * dim + i]);
+        const double* theta = &c.chain[s * dim];
+        for (int i = 0; i < dim; ++i) cols[3 + i].values.push_back(theta[i]);
+        const std::vector<double> d = DerivedAt(model, theta);
+        for (size_t k = 0; k < derived_kept.size(); ++k) {
+          cols[3 + dim + k].values.push_back(d[derived_kept[k]]);
+        }
       }
     }
+    // In the table's own header, where astropy's Table.read and TOPCAT look; also in the
+    // primary header for readers that look there.
     FitsHeader ch = {{"BURNIN", static_cast<long long>(c.burn_in), "steps to discard"},
                      {"WALKERS", static_cast<long long>(c.num_walkers), "ensemble size"},
+                     {"NSTEPS", static_cast<long long>(c.num_steps), "steps per walker"},
+                     {"NPARAM", static_cast<long long>(dim),
+                      "fitted parameters: the columns after log_prob"},
+                     {"NDERIVED", static_cast<long long>(derived_kept.size()),
+                      "derived quantities: the columns after them"},
                      {"CONVERGD", c.converged, "sampler convergence criteria met"}};
-    if (!WriteFitsTable(out.Path("chain.fits"), ch, "CHAIN", cols, error)) return false;
+    if (!WriteFitsTable(out.Path("chain.fits"), ch, "CHAIN", cols, ch, error)) return false;
 
     // The corner plot shows the shared parameters (best_focus_um included in a through-focus
     // fit) and the first exposure's position: in a joint fit of many exposures a panel for

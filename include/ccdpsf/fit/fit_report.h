@@ -1,14 +1,17 @@
 // What `ccdpsf fit` leaves in its output folder:
 //   fit.json        "quality" (the verdict and its reasons, quality.h), parameters, derived
-//                   metrics, identifiability, MCMC diagnostics, fit statistics, the
+//                   metrics, identifiability, "covariance" (the Laplace covariance of the
+//                   constrained parameters: names, matrix), MCMC diagnostics, fit statistics, the
 //                   MAP-vs-MCMC comparison, the choices made from the data ("notes"), masked
 //                   outliers, and the exposures with every metadata value and its source,
 //                   the spot candidates, masks and censoring (written last: its presence
 //                   means the folder is complete)
 //   residuals.fits  per exposure four image extensions DATA_K, MODEL_K, RESID_K, NRESID_K
 //                   [e-, e-, e-, sigma]; masked pixels are NaN
-//   chain.fits      binary table CHAIN: walker, step, log_prob, one column per parameter
-//                   (post burn-in marked by the BURNIN keyword)
+//   chain.fits      binary table CHAIN: walker, step, log_prob, one column per parameter,
+//                   then the derived metrics of each draw but peak_e; units in TUNITn;
+//                   keywords BURNIN (steps to discard), WALKERS, NSTEPS, NPARAM, NDERIVED,
+//                   CONVERGD in the table's header (and the primary's)
 //   corner.png / residuals.png (+ their .gp scripts and .dat data, for restyling)
 //   report.md       a readable summary linking the plots
 #ifndef CCDPSF_FIT_FIT_REPORT_H_
