@@ -12,6 +12,7 @@ import check_references  # noqa: E402
 # Assembled, so that this file does not itself trip rule 1 in the repository.
 DESIGN_NOTES = "DESIGN" + ".md"
 SHARED_FOLDER = ".." + "/shared"
+MISSING_PAGE = "docs/" + "metric.md"  # a page that does not exist
 
 
 def make_tree(tmp_path, files):
@@ -65,9 +66,9 @@ def test_a_link_to_a_missing_section_is_caught(tmp_path):
 
 def test_a_mention_of_a_missing_docs_page_is_caught(tmp_path):
     files = dict(CLEAN)
-    files["src/d.cc"] = "// see docs/metric.md\n"
+    files["src/d.cc"] = f"// see {MISSING_PAGE}\n"
     problems = check_references.check(make_tree(tmp_path, files))
-    assert problems == ["src/d.cc:1: names 'docs/metric.md', which does not exist"]
+    assert problems == [f"src/d.cc:1: names '{MISSING_PAGE}', which does not exist"]
 
 
 def test_code_examples_are_not_links(tmp_path):
