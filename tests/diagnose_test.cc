@@ -403,7 +403,7 @@ TEST(Diagnose, FindsTwoEffects) {
 
 TEST(Diagnose, FindsDefocusInPixelCentreSampling) {
   // In the 2015 discretisation (pixel_centre) the sampled defocus and CCD Gaussians do not
-  // combine into one Gaussian (DESIGN.md pitfall 2), so a baseline without the defocus misses
+  // combine into one Gaussian (docs/trust.md, single focus), so a baseline with no defocus misses
   // something the widths cannot absorb, and "defocus" is named. The paper's defocus, 0.41 px.
   SimulationConfig c = testing_support::PaperConfig(model::Sampling::kPixelCentre, 3, 21);
   DiagnoseOptions options = TestOptions();

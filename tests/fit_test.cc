@@ -31,7 +31,7 @@ constexpr auto IndexOf = testing_support::DerivedIndex;
 
 double TotalSigma(double defocus, double ccd) { return std::hypot(defocus, ccd); }
 
-// DESIGN.md pitfall 3: the joint log-likelihood is the sum of the single ones, at any theta.
+// docs/conventions.md, Noise model: the joint log-likelihood is the singles' sum, at any theta.
 TEST(Fit, JointLogLikelihoodIsTheSumOfSingles) {
   const SimulationConfig c = PaperConfig(model::Sampling::kIntegrated, 3, 1);
   const std::vector<Stamp> stamps = SimulateStamps(c, 2);
@@ -148,7 +148,7 @@ TEST(Fit, RecoversIdentifiedQuantitiesAndJointIsTighter) {
   }
 }
 
-// DESIGN.md pitfall 1: with a Gaussian defocus and integrated sampling, the split between
+// docs/trust.md, single focus: with a Gaussian defocus and integrated sampling, the split between
 // defocus and CCD widths is not identified: the fit must say so and give no Laplace sd for
 // them or for any metric built from the CCD widths alone.
 TEST(Fit, ReportsTheDefocusDegeneracyHonestly) {
@@ -430,7 +430,7 @@ TEST(Fit, BlockedSamplerAgreesWithPlainEnsemble) {
   }
 }
 
-// DESIGN.md pitfall 4: a prior that excludes the truth pins the MAP to its bound; that must
+// docs/trust.md, Identifiability: a prior excluding the truth pins the MAP to its bound; that must
 // be flagged (Ceres' covariance, and a Laplace approximation, ignore bounds).
 TEST(Fit, FlagsParametersAtABound) {
   const SimulationConfig c = PaperConfig(model::Sampling::kIntegrated, 1, 19);

@@ -1,6 +1,6 @@
 // Lab frames end to end: simulated exposures with ordinary lab defects added by a separate,
 // simple script (tests/support/lab_defects.py: numpy and astropy, no ccdpsf code), and the
-// real bench frames of ../shared/realdata when they are present.
+// real bench frames in the folder CCDPSF_REALDATA names, when it is set.
 //
 // The rule each defect is held to (issue "Real laboratory frames"): either the truth is
 // recovered within its interval, or the verdict is not "ok" and names the cause. Where the
@@ -264,11 +264,11 @@ TEST_F(LabDefects, MultiExtensionSegmentWithItsOwnOverscan) {
 }
 
 // ---------------------------------------------------------------------------------------
-// The real bench frames (not in the repository; README of ../shared/realdata).
+// The real bench frames (not in the repository: CCDPSF_REALDATA names their folder's parent).
 
 std::string RealData() {
   const char* env = std::getenv("CCDPSF_REALDATA");
-  const std::string root = env != nullptr ? env : std::string(CCDPSF_SOURCE_DIR) + "/../shared/realdata";
+  const std::string root = env != nullptr ? env : std::string("(CCDPSF_REALDATA not set)");
   return root + "/lpnhe_intensity";
 }
 

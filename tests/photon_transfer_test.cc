@@ -450,7 +450,7 @@ TEST(PhotonTransferTest, CsvHasUnitsAndOneRowPerBin) {
 }
 
 // ---------------------------------------------------------------------------------------
-// The real bench frames (not in the repository; README of ../shared/realdata): an 8-bit
+// The real bench frames (not in the repository; CCDPSF_REALDATA names them): an 8-bit
 // camera with its black level clipped at 0 and one frame per exposure time, so the single-
 // frame estimator on the pupil's smooth background. No truth is known: the test checks
 // that an estimate comes only from levels clear of the clip, with the clipping said.
@@ -458,7 +458,7 @@ TEST(PhotonTransferTest, CsvHasUnitsAndOneRowPerBin) {
 std::string RealData() {
   const char* env = std::getenv("CCDPSF_REALDATA");
   const std::string root =
-      env != nullptr ? env : std::string(CCDPSF_SOURCE_DIR) + "/../shared/realdata";
+      env != nullptr ? env : std::string("(CCDPSF_REALDATA not set)");
   return root + "/lpnhe_intensity";
 }
 

@@ -125,7 +125,7 @@ TEST(PixelCentreSampling, ValuesDoNotDependOnJacobianRequest) {
   }
 }
 
-// The 2015 recipe written out directly (DESIGN.md pitfall 2), with the two extensions of
+// The 2015 recipe written out directly (docs/conventions.md, Sampling), with the two extensions of
 // pixel_centre_renderer.cc: F centred at (x + dx, y + dy), and sigma_f = 0 meaning no F
 // step. Full 2-D 'same' convolutions (not the renderer's separable 1-D passes) and J1 from
 // the standard library (std::cyl_bessel_j, not the renderer's table): independent code.

@@ -1,6 +1,6 @@
 // Through-focus fits (fit_model.h): a series of exposures at stage positions z_k whose
 // Gaussian defocus grows as rate |z_k - z0| while the CCD kernel stays fixed identifies the
-// CCD widths, which a single focus position cannot (DESIGN.md pitfall 1).
+// CCD widths, which a single focus position cannot (docs/trust.md, single focus).
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -105,7 +105,7 @@ TEST(ThroughFocus, ExposureCostPassesGradientChecker) {
   }
 }
 
-// DESIGN.md pitfall 3 in focus mode: the joint log-likelihood equals the sum of the single
+// docs/conventions.md, Noise model (focus mode): the joint log-likelihood is the sum of the single
 // exposures' ones, each single fitted with its own defocus rate |z_k - z0|.
 TEST(ThroughFocus, JointLogLikelihoodIsTheSumOfSingles) {
   const SimulationConfig c =
@@ -187,7 +187,7 @@ TEST(ThroughFocus, IdentifiesTheCcdWidths) {
   for (double cost : r.map.start_costs) EXPECT_NEAR(cost, r.map.start_costs[0], 1e-3);
 
   // One focus position: each exposure fitted alone. Every such fit reports the null
-  // direction of DESIGN.md pitfall 1 (involving the defocus); where its MAP defocus is
+  // direction of docs/trust.md (single focus) (involving the defocus); where its MAP defocus is
   // inside the prior the CCD widths get no Laplace sd. Where the MAP defocus sits at 0 (seen
   // here for the exposures nearest best focus) the null direction there is the defocus
   // alone (the ridge sigma_f^2 + sigma_x^2 = const meets sigma_f = 0 at right angles); the

@@ -246,7 +246,7 @@ TEST(Trend, SettingsWithACcdWidthAtItsBoundAreBoundOnly) {
             3 * half);
 }
 
-// Integrated sampling (DESIGN.md pitfall 1): every CCD-only posterior is prior-wide along the
+// Integrated sampling (docs/trust.md, single focus): each CCD-only posterior is prior-wide on the
 // defocus ridge (here uniform on [1.5, 14] um, the CCD share of a 14 um total width), and no
 // group has a width at its bound (the ridge's MAP end is at zero defocus; group_fit.cc). The
 // CCD-only relations are then fitted, with intervals as wide as the posteriors, and flagged

@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Writes testdata/pixel_centre_reference.json: the `pixel_centre` model of the authors' 2015
-Python code, as DESIGN.md pitfall 2 describes it, evaluated with numpy/scipy on a few stamps.
+code, as docs/conventions.md (Sampling) describes it, computed with numpy/scipy on a few stamps.
 
 This is a literal transcription of that description, kept deliberately naive (no
 normalisation, scipy.signal.convolve2d with mode='same' and its zero padding) so that the C++
@@ -62,7 +62,7 @@ def pixel_centre_model(n, m, x, y, r, sigma_f, sigma_x, sigma_y):
 
 
 def check_same_mode_convention(n):
-    """convolve2d(..., mode='same') treats kernel index (c, c) as zero shift (DESIGN.md)."""
+    """convolve2d(..., mode='same'): kernel index (c, c) is zero shift (docs/conventions.md)."""
     c = int(n / 2 - 0.5)
     rng = np.random.default_rng(1)
     image = rng.random((n, n))
@@ -115,7 +115,7 @@ def main():
     # One model row per line keeps the file readable and diffs small.
     lines = ['{',
              '  "description": %s,' % json.dumps(
-                 'pixel_centre model of the 2015 Python code (DESIGN.md pitfall 2); '
+                 'pixel_centre model of the 2015 Python code (docs/conventions.md, Sampling); '
                  'model[y][x] is the value at stamp pixel (x, y); parameters m [e-], '
                  'x, y [px, stamp indices], r, sigma_f, sigma_x, sigma_y [px]'),
              '  "generator": "tools/make_pixel_centre_reference.py",',

@@ -34,7 +34,7 @@
 //   }}
 //
 // Intensity. Each group's intensity parameter (flux_e in integrated sampling, the 2015 peak
-// meta-parameter m in pixel_centre sampling; DESIGN.md pitfall 2) is chosen so that the
+// meta-parameter m in pixel_centre sampling; docs/conventions.md, Sampling) is chosen so that the
 // noiseless model of a spot centred exactly on the centre pixel has its maximum pixel equal
 // to the nominal peak_e. It is fixed within a group (a stable lab source): exposures differ
 // only by their position jitter, so their own peak pixels differ slightly from peak_e. A

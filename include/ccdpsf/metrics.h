@@ -1,4 +1,4 @@
-// PSF metrics (DESIGN.md section 1; paper section 4.1), with units in the names.
+// PSF metrics (docs/metrics.md; paper section 4.1), with units in the names.
 //
 //   FWHM   = 2 sqrt(2 ln 2 sigma_x sigma_y)   (geometric mean of the axes) [um]
 //   FWHM_x = 2 sqrt(2 ln 2) sigma_x, FWHM_y likewise                        [um]

@@ -20,7 +20,7 @@
 // "defocus_offset" in pixel_centre sampling centres the 2015 F kernel away from the Airy
 // (model/effects.h). "effects": {} is the same as no "effects".
 //
-// The configuration is the JSON of DESIGN.md section 2. Extensions beyond it:
+// The configuration is in docs/formats.md (Simulation config). Extensions beyond it:
 //   "image": {"prescan_x": N}   N bias-only columns at the left of the frame (written as
 //                               BIASSEC) so readers can be tested on realistic frames; spot
 //                               positions are in frame coordinates, prescan included.

@@ -93,7 +93,7 @@ std::string NotIdentifiable(const fit::FitModel& base, const ModelSpec& spec, Ef
       if (mo.sampling == model::Sampling::kIntegrated &&
           mo.defocus == model::DefocusKind::kGaussian) {
         return "a Gaussian defocus convolved with the Gaussian CCD kernel is one Gaussian: only "
-               "sigma_f^2 + sigma_ccd^2 is identified (DESIGN.md pitfall 1)";
+               "sigma_f^2 + sigma_ccd^2 is identified (docs/trust.md, single focus)";
       }
       return "";
     case EffectKind::kBrighterFatter:

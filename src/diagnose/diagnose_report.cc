@@ -128,8 +128,8 @@ json EffectParameters(const DiagnoseResult& result) {
       }
     }
     if (kind == model::EffectKind::kBrighterFatter && last.spec.defocus) {
-      // With a Gaussian defocus only sigma_f^2 + sigma_ccd^2 is identified (DESIGN.md pitfall
-      // 1), and with it the slope of the TOTAL width: d sigma_tot / dI = slope sigma_ccd /
+      // With a Gaussian defocus only sigma_f^2 + sigma_ccd^2 is identified (docs/trust.md,
+      // single focus), and so is the slope of the TOTAL width: d sigma_tot / dI = slope sigma_ccd /
       // sigma_tot at zero signal (sd scaled from the slope's: the split's own uncertainty is
       // not in it). Reported beside the CCD-width slopes.
       auto index = [&](const std::string& n) {

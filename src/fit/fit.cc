@@ -92,7 +92,7 @@ bool RunFit(const FitModel& model, const FitOptions& options, FitResult* result,
   result->laplace =
       ComputeLaplace(model, theta_map, evaluator->FisherInformation(theta_map.data()));
 
-  // DESIGN.md pitfall 1 holds exactly in this model, whatever the local curvature says: at a
+  // The split of docs/trust.md (single focus) is exact here, whatever the curvature says: at a
   // MAP with zero defocus the model depends on the defocus only through its square, so the
   // Fisher matrix sees the defocus alone as free and would give the CCD widths a small sd,
   // although they trade against the defocus along the whole ridge. Their sds (and those of

@@ -7,7 +7,7 @@
 //   M(a, b) = Integral S(p - c) kx(xa - px) ky(yb - py) dp.
 //
 // With a Gaussian defocus both Gaussians merge, sX^2 = sigma_f^2 + sigma_x^2 (the origin of
-// DESIGN.md pitfall 1); with a pillbox, sX = sigma_x and S carries the disc.
+// docs/trust.md, single focus); with a pillbox, sX = sigma_x and S carries the disc.
 //
 // The integral is evaluated with the uniform (trapezoidal) rule on nodes p = c + (i hX, j hY),
 // done as two one-dimensional passes because K is separable:

@@ -1,5 +1,5 @@
 // `pixel_centre` sampling: the discretisation of the authors' 2015 Python code, exactly
-// (DESIGN.md pitfall 2), so that results can be compared with the paper's.
+// (docs/conventions.md, Sampling), so that results can be compared with the paper's.
 #ifndef CCDPSF_INTERNAL_PIXEL_CENTRE_RENDERER_H_
 #define CCDPSF_INTERNAL_PIXEL_CENTRE_RENDERER_H_
 

@@ -44,7 +44,7 @@ EffectParameterInfo Param(const std::string& name, const std::string& unit, doub
 // follows (priors are a flat range a few times wider than the plausible values, containing 0
 // wherever "no effect" is a value of the parameter):
 //
-// defocus: sigma 0.41 px, the paper's simulated value (DESIGN.md's example config).
+// defocus: sigma 0.41 px, the paper's simulated value (docs/formats.md, Simulation config).
 // brighter_fatter: paper section 4.3, 800 nm: FWHM = 6.61 um + 1.14e-5 um/e- x I, for both
 //   axes (slopes agree within errors). In pixels of 12 um and with FWHM = 2.3548 sigma:
 //   1.14e-5 / 12 / 2.3548 = 4.03e-7 px per e-, so sigma grows by 0.064 px at I = 160 ke-.
@@ -62,7 +62,7 @@ EffectParameterInfo Param(const std::string& name, const std::string& unit, doub
 // ipc: interpixel coupling is ~0.5-2 % per neighbour in hybrid CMOS arrays; in a CCD the
 //   analogous electrostatic coupling is expected to be smaller, so 1 % is a strong but
 //   realistic test injection.
-// jitter: the spot moves < 0.1 px between exposures (DESIGN.md); vibration of the projector
+// jitter: the spot moves < 0.1 px between exposures (lab spot data); vibration of the projector
 //   within a 2.5 s exposure of a comparable 0.1 px (1.2 um) rms is the assumed default. No
 //   motion by default (a linear drift is the alternative).
 // background: a bias-subtraction residual of 20 e- (about 6 ADU at 3.1 e-/ADU): a few times

@@ -405,7 +405,7 @@ bool WriteTrendReport(const std::string& out_dir, const TrendResult& r,
   if (any_focus) {
     md << "\n## Through-focus series\n\n"
           "At one focus position a Gaussian defocus and the CCD kernel are not separable "
-          "(DESIGN.md pitfall 1): in `integrated` sampling the CCD-only widths of the groups "
+          "(docs/trust.md, single focus): with `integrated` sampling the groups' CCD-only widths "
           "above rest on the priors. A series through focus, fitted with defocus = rate x "
           "|z - z0| and one CCD kernel, identifies them:\n\n"
           "| group | nm | CCD sigma_x px | CCD sigma_y px | FWHM um | e | defocus rate px/um | best focus um |\n"

@@ -1,5 +1,5 @@
 // An independent, slow, high-accuracy reference for the pixel-integrated spot model
-// (DESIGN.md section 1), used only by tests.
+// (docs/conventions.md), used only by tests.
 //
 // It shares nothing with the renderer: it works in Fourier space, where every factor of
 //

@@ -62,7 +62,7 @@
 // Not identifiable, and therefore never claimed (the output says why):
 //   defocus          in the baseline already; without it (baseline_defocus = false) only in
 //                    pixel_centre sampling or with a pillbox: a Gaussian defocus convolved
-//                    with the Gaussian CCD kernel is one Gaussian (DESIGN.md pitfall 1).
+//                    with the Gaussian CCD kernel is one Gaussian (docs/trust.md, single focus).
 //   brighter_fatter  needs two or more intensities (IsMultiIntensity): at one intensity the
 //                    slope is exactly a change of the CCD widths.
 //   jitter           needs two or more exposures: one exposure's jitter is its CCD widths.

@@ -1,4 +1,4 @@
-// What `ccdpsf diagnose` leaves in its output folder (DESIGN.md section 2):
+// What `ccdpsf diagnose` leaves in its output folder (docs/formats.md, diagnose):
 //   diagnose.json         named_effects (catalogue names in the order found, [] when nothing
 //                         is missing), rounds (per round: the model and its effects, the fit's
 //                         chi2/dof with its expected scatter, the statistics with predictive

@@ -3,7 +3,7 @@
 //
 // Each exposure is fitted alone with the paper's spot without a separate defocus (Airy
 // convolved with one Gaussian of widths sigma_x, sigma_y per axis: with a Gaussian defocus
-// only sigma_f^2 + sigma_ccd^2 is identified, DESIGN.md pitfall 1, so this is the total
+// only sigma_f^2 + sigma_ccd^2 is identified, docs/trust.md, single focus, so this is the total
 // width), its own flux, position and Airy radius. The total widths are then regressed on the
 // exposure's peak signal I (the fitted model's largest pixel [e-], the quantity the
 // catalogue's brighter_fatter slope multiplies) by weighted least squares, weights 1 / sd^2

@@ -2,7 +2,7 @@
 //
 // In `integrated` sampling with a Gaussian defocus the model depends on the defocus d and the
 // CCD widths sigma_x, sigma_y only through the total widths t_x = sqrt(sigma_x^2 + d^2),
-// t_y = sqrt(sigma_y^2 + d^2) (two Gaussians convolve to one; DESIGN.md pitfall 1). With flat
+// t_y = sqrt(sigma_y^2 + d^2) (two Gaussians make one; docs/trust.md, single focus). With flat
 // priors on d, sigma_x, sigma_y the prior density of (d, t_x, t_y) is the Jacobian
 //
 //   J(d) = t_x t_y / (sigma_x sigma_y) = t_x t_y / sqrt((t_x^2 - d^2) (t_y^2 - d^2))

@@ -24,7 +24,7 @@
 // and ONE more shared parameter follows the positions, at the very end of theta:
 //   5 + 2K  best_focus_um      z0, the stage position of best focus [um]      shared
 // (FitModel::FocusIndex()). With one focus position and a Gaussian defocus only the total
-// widths sqrt(sigma_f^2 + sigma_ccd^2) are identified (DESIGN.md pitfall 1); across a series
+// widths sqrt(sigma_f^2 + sigma_ccd^2) are identified (docs/trust.md, single focus); over a series
 // the total variance sigma_ccd^2 + rate^2 (z_k - z0)^2 changes with z_k while the CCD part
 // does not, which identifies the CCD widths. The model depends on sigma_f only through
 // sigma_f^2 = rate^2 (z_k - z0)^2, so it is smooth in rate and z0 (also at z_k = z0).

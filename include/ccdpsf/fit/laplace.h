@@ -7,7 +7,7 @@
 // has standard deviation 1 / sqrt(lambda) (prior widths). A flat prior of unit width has sd
 // 1 / sqrt(12) ~ 0.29; where the likelihood is broader than that (or lambda <= 0, a null
 // direction of the Jacobian) the data do not constrain the direction, the posterior along it
-// is the prior's, and a Gaussian covariance there would be a fiction (DESIGN.md pitfall 1:
+// is the prior's, and a Gaussian covariance there would be a fiction (docs/trust.md, single focus:
 // with a Gaussian defocus only sigma_f^2 + sigma_x^2 and sigma_f^2 + sigma_y^2 are
 // identified, so the Jacobian has an exact null direction). Such directions are listed, the
 // covariance is the inverse on the constrained subspace only, and a parameter that loads on

@@ -5,7 +5,7 @@
 //   v = defocus_sigma^2 (Gaussian defocus) or R^2 / 4 (pillbox: its second moment per axis).
 //
 // Why: the data constrain t_x and t_y tightly but say little or nothing about how each splits
-// between defocus and CCD kernel (DESIGN.md pitfall 1). In the fit parameters that leaves a
+// between defocus and CCD kernel (docs/trust.md, single focus). In the fit parameters that leaves a
 // thin curved ridge (sigma_f^2 + sigma_x^2 = const), on which the affine-invariant stretch
 // move mixes very slowly (measured: tau grew past 1500 steps and acceptance fell to 0.17
 // on the paper's values). In these coordinates the ridge is a straight line along the

@@ -3,10 +3,10 @@
 // Each effect is an optional model component with physical parameters, a documented
 // "realistic" default strength and a prior range for a fit. The simulator injects them
 // ("effects" in the simulation config) so they can be hidden in test data; `ccdpsf diagnose`
-// fits them as model components. The names are part of the interface (DESIGN.md section 2):
+// fits them as model components. The names are part of the interface (docs/formats.md):
 //
-//   defocus          the spot projector's defocus (the model's own component, DESIGN.md
-//                    section 1). In the catalogue so that a baseline can leave it out, as in
+//   defocus          the spot projector's defocus (the model's own component, docs/conventions.md,
+//                    forward model). In the catalogue so that a baseline can leave it out, as in
 //                    the paper's first model; never injected (the simulator's defocus is set
 //                    in "model").
 //   brighter_fatter  CCD widths grow linearly with the peak signal (paper section 4.3).

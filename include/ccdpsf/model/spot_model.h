@@ -1,4 +1,4 @@
-// The forward model of one spot-projection exposure (DESIGN.md section 1):
+// The forward model of one spot-projection exposure (docs/conventions.md):
 //
 //   M = [ Airy(flux, x, y, r) (*) D(defocus) ] (*) G_ccd(sigma_x, sigma_y), on the pixel grid
 //
@@ -13,7 +13,7 @@
 // Two samplings:
 //   kIntegrated   each pixel holds the exact integral of the continuous image over its unit
 //                 square (the default; the physics).
-//   kPixelCentre  the discretisation of the authors' 2015 Python code (DESIGN.md pitfall 2),
+//   kPixelCentre  the discretisation of the authors' 2015 code (docs/conventions.md, Sampling),
 //                 on stamp indices, parameterised by the peak meta-parameter m instead of the
 //                 flux. Kept so results can be compared with the paper's.
 #ifndef CCDPSF_MODEL_SPOT_MODEL_H_

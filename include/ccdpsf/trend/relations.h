@@ -1,5 +1,5 @@
-// Relations of a PSF metric with wavelength and intensity (paper section 4; DESIGN.md
-// section 1 "Trends"), with uncertainties propagated from the posterior draws of each
+// Relations of a PSF metric with wavelength and intensity (paper section 4; docs/metrics.md,
+// "Relations"), with uncertainties propagated from the posterior draws of each
 // setting's fit, and the combined model of paper section 4.4.
 //
 //   power law (wavelength):  X(lambda) = a lambda^alpha               lambda in nm
@@ -95,7 +95,7 @@ inline constexpr char kFlagPoorlyConstrained[] = "poorly_constrained";
 inline constexpr char kFlagScatterExceedsErrors[] = "scatter_exceeds_errors";
 inline constexpr char kFlagGaussianApproximation[] = "gaussian_approximation";
 
-// The metrics `ccdpsf trend` relates (DESIGN.md section 2; the fit's derived names).
+// The metrics `ccdpsf trend` relates (docs/metrics.md; the fit's derived names).
 const std::vector<std::string>& TrendMetricNames();
 
 // A summary of draws: median, central 68.27 % interval (15.87th / 84.13th percentiles by

@@ -1,4 +1,4 @@
-// Requirement checks on the trend relations (DESIGN.md section 1: the Euclid VIS ones by
+// Requirement checks on the trend relations (docs/metrics.md: the Euclid VIS ones by
 // default), evaluated on the propagated draws: value (median), 68 % interval, margin,
 // pass / fail and the probability of passing.
 //
@@ -73,7 +73,7 @@ struct Requirement {
   bool IsValid(std::string* error) const;
 };
 
-// Euclid VIS (DESIGN.md section 1): FWHM <= 10.8 um at 800 nm and I0; ellipticity <= 0.156
+// Euclid VIS (docs/metrics.md): FWHM <= 10.8 um at 800 nm and I0; ellipticity <= 0.156
 // (15.6 %) at 800 nm and I0; alpha of FWHM(lambda) <= -0.2.
 std::vector<Requirement> DefaultRequirements();
 

@@ -33,7 +33,7 @@
 // the prior. As points, such settings pulled the Table-1 800 nm line down at low intensity
 // (slope +1.0 to +1.65 sd in three runs). In integrated sampling the CCD widths trade against
 // the defocus along a ridge whose MAP end is at zero defocus, not at the widths' bound: those
-// stay in, with their prior-wide intervals (DESIGN.md pitfall 1). A bound-only gap whose chain
+// stay in, with prior-wide intervals (docs/trust.md, single focus). A bound-only gap whose chain
 // converged carries the 95th percentile of its draws (corrected to I0 like a point) as an upper
 // limit: in trend.json's gaps, the relation CSVs and the plots (a downward arrow). It is a
 // Bayesian limit of a posterior that is flat from the prior's lower bound up to the wall, so

@@ -1,5 +1,5 @@
 // What `ccdpsf trend` leaves in its output folder:
-//   trend.json        relations (DESIGN.md section 2: <metric>_vs_wavelength with a, alpha;
+//   trend.json        relations (docs/formats.md, trend: <metric>_vs_wavelength with a, alpha;
 //                     <metric>_vs_intensity with intercept, slope; each {median, lo68, hi68}),
 //                     intensity relations at other wavelengths, the requirement table, every
 //                     group's status and metrics, notes. Written last: its presence means the
