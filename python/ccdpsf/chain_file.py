@@ -5,7 +5,8 @@ step, log_prob, then NPARAM fitted parameters, then NDERIVED derived quantities 
 with its TUNIT; the keywords BURNIN, WALKERS, NSTEPS, NPARAM, NDERIVED, CONVERGD are in the
 CHAIN header. Older files have no NPARAM: every column after log_prob is a parameter, the
 keywords (BURNIN, WALKERS, CONVERGD) are in the primary header, the names keep their dots
-(``x_px.0``) and the columns carry no units (the units are then read from the names).
+(``x_px.0``) and the columns carry no units. A column without TUNIT gets the unit its name
+announces (``x_px_0`` -> pix; units.py).
 
 Rows may come in any order: each row is placed by its own (step, walker), and every cell of the
 steps x walkers grid must be filled exactly once.
@@ -62,10 +63,13 @@ class ChainFile:
                 num_param, num_derived = len(value_names), 0
             self.parameter_columns = value_names[:num_param]
             self.derived_columns = value_names[num_param:]
-            if self.new_format:
-                self.units = {c.name: _column_unit(c, self.path) for c in table_hdu.columns[3:]}
-            else:
-                self.units = {n: unit_from_name(n, indexed=True) for n in value_names}
+            # TUNIT when the column has one; else the unit its name announces (older files
+            # have no TUNIT at all; a dimensionless quantity's name announces none).
+            self.units = {
+                c.name: (_column_unit(c, self.path) if c.unit is not None and str(c.unit).strip()
+                         else unit_from_name(c.name, indexed=True))
+                for c in table_hdu.columns[3:]
+            }
 
             def keyword(name):
                 # Current files: the CHAIN header; older ones: the primary header.
