@@ -35,13 +35,14 @@ namespace {
 // --target_ess defaults to this. The chain must still exceed 50 taus.
 constexpr double kTrendTargetEss = 400;
 
-// Counts of verdicts, in a fixed order of names ("pass 2, fail 0, ...").
+// Counts of verdicts in a fixed order ("2 pass, 0 fail, ..."); the rare kinds ("n/a", "failed
+// to fit") only when there are any.
 std::string Counts(const std::vector<std::string>& order, const std::map<std::string, int>& n) {
   std::string out;
   for (const std::string& name : order) {
     const auto it = n.find(name);
     const int count = it == n.end() ? 0 : it->second;
-    if (count == 0 && (name == "n/a" || name == "failed to fit")) continue;  // rare: only when any
+    if (count == 0 && (name == "n/a" || name == "failed to fit")) continue;
     out += (out.empty() ? "" : ", ") + std::to_string(count) + " " + name;
   }
   return out;
@@ -52,7 +53,9 @@ std::string Counts(const std::vector<std::string>& order, const std::map<std::st
 // between is undetermined), the same counts trend.json and report.md give.
 std::string TrendSummary(const trend::TrendResult& r, const std::string& out_dir) {
   std::map<std::string, int> groups, requirements, focus;
-  for (const trend::GroupResult& g : r.groups) ++groups[g.ok ? g.quality.Verdict() : "failed to fit"];
+  for (const trend::GroupResult& g : r.groups) {
+    ++groups[g.ok ? g.quality.Verdict() : "failed to fit"];
+  }
   for (const trend::RequirementResult& q : r.requirements) ++requirements[trend::Verdict(q)];
   for (const auto& q : r.focus_requirements) ++focus[trend::Verdict(q.result)];
   const std::vector<std::string> verdicts = {"pass", "fail", "undetermined", "n/a"};
