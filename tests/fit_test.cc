@@ -483,7 +483,8 @@ TEST(FitConfig, ParsesOverridesAndRejectsUnknownKeys) {
   std::string error;
   ASSERT_TRUE(ParseFitConfig(R"({"sampling": "pixel_centre", "joint": true,
       "priors": {"airy_radius_px": [0.2, 1.0]}, "mcmc": {"seed": 9, "walkers": 40},
-      "calibration": {"gain_e_per_adu": 2.5, "stamp_size": 15}})",
+      "calibration": {"gain_e_per_adu": 2.5, "stamp_size": 15},
+      "flags": {"outliers": false, "pixel_um": 12}})",
                              &c, &error))
       << error;
   EXPECT_EQ(c.model.model.sampling, model::Sampling::kPixelCentre);
@@ -495,10 +496,13 @@ TEST(FitConfig, ParsesOverridesAndRejectsUnknownKeys) {
   EXPECT_EQ(*c.calibration.given.Find("gain_e_per_adu")->number, 2.5);
   EXPECT_EQ(c.calibration.given.Find("gain_e_per_adu")->source, "FIT.json");
   EXPECT_EQ(c.calibration.stamp_size, 15);
+  // "flags" is kept as read, for the tool to apply.
+  EXPECT_EQ(c.flags, nlohmann::json({{"outliers", false}, {"pixel_um", 12}}));
   for (const char* bad :
        {R"({"priors": {"airy_radius": [0.2, 1.0]}})",
         R"({"priors": {"airy_radius_px": [1.0, 0.2]}})", R"({"likelihood": "cauchy"})",
-        R"({"mcmc": {"walkers": -2}})", R"({"calibration": {"gain_e_per_adu": 0}})", "{oops"}) {
+        R"({"mcmc": {"walkers": -2}})", R"({"calibration": {"gain_e_per_adu": 0}})",
+        R"({"flags": [1, 2]})", "{oops"}) {
     FitConfig d;
     EXPECT_FALSE(ParseFitConfig(bad, &d, &error)) << bad;
     EXPECT_FALSE(error.empty());

@@ -1,9 +1,11 @@
 // ccdpsf: measure the intrinsic PSF of a CCD from spot-projection exposures.
 //
-// A thin dispatcher: parse flags, turn them into library options, call the library, map the
-// outcome to an exit code. Errors on user input are one line on stderr and exit code 1;
-// usage errors exit with 2.
+// A thin dispatcher: make the command's defaults the flags' defaults, check and parse the
+// flags, call the command, return its exit code. Errors on user input are one line on stderr
+// and exit code 1; usage errors exit with 2 (command.h).
+#include <charconv>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <string>
 #include <vector>
@@ -13,13 +15,11 @@
 #include "gflags/gflags.h"
 #include "glog/logging.h"
 
-DEFINE_string(config, "",
-              "JSON configuration file (simulate: the simulation config; fit: FIT.json)");
-DEFINE_string(out, "", "Output folder; created if missing");
-DEFINE_string(sampling, "integrated",
-              "Model sampling: integrated (exact pixel integral) or pixel_centre (the 2015 "
-              "code's discretisation)");
-DEFINE_string(defocus, "gaussian", "Defocus kernel: gaussian or pillbox");
+// The parser's flags read by several commands; their meanings are the commands' options.
+DEFINE_string(config, "", "");
+DEFINE_string(out, "", "");
+DEFINE_string(sampling, "integrated", "");
+DEFINE_string(defocus, "gaussian", "");
 
 namespace ccdpsf::tools {
 
@@ -27,6 +27,27 @@ const std::vector<Command>& Commands() {
   static const std::vector<Command> commands = {SimulateCommand(), FitCommand(), TrendCommand(),
                                                 DiagnoseCommand(), GainCommand()};
   return commands;
+}
+
+namespace {
+const Command* current_command = nullptr;
+}  // namespace
+
+const Command& CurrentCommand() { return *current_command; }
+void SetCurrentCommand(const Command& command) { current_command = &command; }
+
+const Option* Command::Find(const std::string& option) const {
+  for (const Option& o : options) {
+    if (o.name == option) return &o;
+  }
+  return nullptr;
+}
+
+std::string NumberText(double value) {
+  char text[64];
+  // The shortest round-trip form (fixed or scientific, whichever is shorter).
+  const auto end = std::to_chars(text, text + sizeof(text), value).ptr;
+  return std::string(text, end);
 }
 
 int Fail(const std::string& message) {
@@ -48,24 +69,37 @@ namespace {
 
 // Checks the flags in argv[first..argc) before gflags parses them: gflags ends the process
 // with exit code 1 on an unknown flag or a value it cannot parse, where a usage error must
-// exit with 2. Empty if every flag is known and its value parses; else a one-line reason.
-std::string FlagSyntaxError(int first, int argc, char** argv, const char* command) {
+// exit with 2; and it knows every command's flags (and its own, --flagfile, --version ...),
+// where only the command's options are allowed. Empty if every flag is one of the command's
+// and its value parses; else a one-line reason.
+std::string FlagSyntaxError(int first, int argc, char** argv, const Command& command) {
+  const std::string cname = command.name;
   for (int i = first; i < argc; ++i) {
     std::string arg = argv[i];
     if (arg == "--") break;  // positional arguments only after it
     if (arg.size() < 2 || arg[0] != '-') continue;
     arg.erase(0, arg[1] == '-' ? 2 : 1);
     const size_t eq = arg.find('=');
-    const std::string name = arg.substr(0, eq);
+    std::string name = arg.substr(0, eq);
     gflags::CommandLineFlagInfo info;
-    if (!gflags::GetCommandLineFlagInfo(name.c_str(), &info)) {
-      // --nofoo for a boolean foo.
-      if (eq == std::string::npos && name.rfind("no", 0) == 0 &&
-          gflags::GetCommandLineFlagInfo(name.substr(2).c_str(), &info) && info.type == "bool") {
-        continue;
+    // --nofoo for a boolean foo.
+    if (command.Find(name) == nullptr && eq == std::string::npos && name.rfind("no", 0) == 0 &&
+        command.Find(name.substr(2)) != nullptr &&
+        gflags::GetCommandLineFlagInfo(name.substr(2).c_str(), &info) && info.type == "bool") {
+      continue;
+    }
+    if (command.Find(name) == nullptr) {
+      for (const Command& other : Commands()) {
+        if (other.Find(name) != nullptr) {
+          return "--" + name + " does not apply to '" + cname + "'; 'ccdpsf " + cname +
+                 " --help' lists its options";
+        }
       }
-      return "unknown option --" + name + " for '" + command + "'; 'ccdpsf help " + command +
-             "' lists its options";
+      return "unknown option --" + name + " for '" + cname + "'; 'ccdpsf " + cname +
+             " --help' lists its options";
+    }
+    if (!gflags::GetCommandLineFlagInfo(name.c_str(), &info)) {
+      return "option --" + name + " has no flag";  // a table naming a flag never defined
     }
     std::string value;
     if (eq != std::string::npos) {
@@ -85,15 +119,39 @@ std::string FlagSyntaxError(int first, int argc, char** argv, const char* comman
   return "";
 }
 
-void PrintCommandHelp(const Command& c) {
-  std::printf("%s\n\n  %s\n\nOptions:\n", c.synopsis, c.summary);
-  for (const char* name : c.flags) {
-    gflags::CommandLineFlagInfo info;
-    if (!gflags::GetCommandLineFlagInfo(name, &info)) continue;
-    std::printf("  --%s (%s; default \"%s\")\n      %s\n", info.name.c_str(), info.type.c_str(),
-                info.default_value.c_str(), info.description.c_str());
+// Makes each of the command's options default to the command's value: the flag then holds
+// it until given, and is_default (FlagGiven) stays as gflags keeps it.
+void ApplyCommandDefaults(const Command& command) {
+  for (const Option& o : command.options) {
+    const std::string set = gflags::SetCommandLineOptionWithMode(
+        o.name.c_str(), o.default_value.c_str(), gflags::SET_FLAGS_DEFAULT);
+    // Only a wrong table can fail here; say so rather than run with another default.
+    if (set.empty()) {
+      std::fprintf(stderr, "ccdpsf: internal error: %s's default for --%s ('%s') is not valid\n",
+                   command.name, o.name.c_str(), o.default_value.c_str());
+      std::exit(70);
+    }
   }
 }
+
+void PrintCommandHelp(const Command& c) {
+  std::printf("%s\n\n  %s\n\nOptions:\n", c.synopsis, c.summary);
+  for (const Option& o : c.options) {
+    gflags::CommandLineFlagInfo info;
+    if (!gflags::GetCommandLineFlagInfo(o.name.c_str(), &info)) continue;
+    if (o.no_default) {
+      std::printf("  --%s (%s; no default)\n      %s\n", o.name.c_str(), info.type.c_str(),
+                  o.description.c_str());
+    } else {
+      std::printf("  --%s (%s; default \"%s\")\n      %s\n", o.name.c_str(), info.type.c_str(),
+                  o.default_value.c_str(), o.description.c_str());
+    }
+  }
+  std::printf("  --help\n      This list\n  --version\n      The versions of ccdpsf and its "
+              "libraries\n");
+}
+
+void PrintVersions() { std::printf("%s\n", SoftwareVersions().dump(2).c_str()); }
 
 void PrintHelp() {
   std::printf(
@@ -130,8 +188,8 @@ int main(int argc, char** argv) {
     ccdpsf::tools::PrintHelp();
     return 0;
   }
-  if (name == "version" || name == "--version") {
-    std::printf("%s\n", ccdpsf::SoftwareVersions().dump(2).c_str());
+  if (name == "version" || name == "--version" || name == "-version") {
+    ccdpsf::tools::PrintVersions();
     return 0;
   }
   const Command* command = nullptr;
@@ -144,31 +202,26 @@ int main(int argc, char** argv) {
     return ccdpsf::tools::kExitUsage;
   }
   for (int i = 2; i < argc; ++i) {
+    if (std::strcmp(argv[i], "--") == 0) break;
     if (std::strcmp(argv[i], "--help") == 0 || std::strcmp(argv[i], "-h") == 0 ||
         std::strcmp(argv[i], "-help") == 0) {
       ccdpsf::tools::PrintCommandHelp(*command);
       return 0;
     }
+    if (std::strcmp(argv[i], "--version") == 0 || std::strcmp(argv[i], "-version") == 0) {
+      ccdpsf::tools::PrintVersions();
+      return 0;
+    }
   }
-  const std::string syntax = ccdpsf::tools::FlagSyntaxError(2, argc, argv, command->name);
+  ccdpsf::tools::SetCurrentCommand(*command);
+  ccdpsf::tools::ApplyCommandDefaults(*command);
+  const std::string syntax = ccdpsf::tools::FlagSyntaxError(2, argc, argv, *command);
   if (!syntax.empty()) return ccdpsf::tools::Usage(syntax);
   // gflags sees the arguments after the command name; positional arguments remain.
   int sub_argc = argc - 1;
   char** sub_argv = argv + 1;
   gflags::SetUsageMessage(command->synopsis);
   gflags::ParseCommandLineFlags(&sub_argc, &sub_argv, /*remove_flags=*/true);
-  // A flag that belongs to another command is an error, never silently ignored.
-  std::vector<gflags::CommandLineFlagInfo> all;
-  gflags::GetAllFlags(&all);
-  for (const auto& info : all) {
-    if (info.is_default || info.filename.find("tools/") == std::string::npos) continue;
-    bool allowed = false;
-    for (const char* f : command->flags) allowed |= info.name == f;
-    if (!allowed) {
-      return ccdpsf::tools::Usage("--" + info.name + " does not apply to '" + command->name +
-                                  "'");
-    }
-  }
   std::vector<std::string> args(sub_argv + 1, sub_argv + sub_argc);
   return command->run(args);
 }

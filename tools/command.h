@@ -1,5 +1,12 @@
-// The subcommands of the ccdpsf binary. Each lives in tools/<name>_command.cc, defines its
-// own gflags, and registers itself here; tools/ccdpsf.cc dispatches.
+// The subcommands of the ccdpsf binary. Each lives in tools/<name>_command.cc with the table
+// of its options and registers itself here; tools/ccdpsf.cc dispatches.
+//
+// gflags is the parser: every flag is defined once (DEFINE_* in the file that first reads
+// it) for all commands. What a flag means and defaults to is the command's: its Option
+// table. Before parsing, main() makes each option's default the command's
+// (gflags::SET_FLAGS_DEFAULT), so a flag not given holds the command's default and
+// FlagGiven() stays false for it; `--help` prints the table; an option not in the table is a
+// usage error.
 #ifndef CCDPSF_TOOLS_COMMAND_H_
 #define CCDPSF_TOOLS_COMMAND_H_
 
@@ -11,16 +18,36 @@
 
 namespace ccdpsf::tools {
 
+// One option of a command, as that command's help shows it.
+struct Option {
+  std::string name;           // the flag, without "--"
+  std::string default_value;  // this command's default, as flag text ("1000", "true", "")
+  std::string description;    // what it does in this command
+  // The flag's value means "not given" until it is given (the metadata flags: the value
+  // then comes from the manifest or the header); help shows no default.
+  bool no_default = false;
+};
+
 struct Command {
   const char* name;
   const char* synopsis;
   const char* summary;
-  std::vector<const char*> flags;  // the gflags this command reads
+  std::vector<Option> options;
   // args: the positional arguments after flag parsing. Returns the exit code.
   int (*run)(const std::vector<std::string>& args);
+
+  // The option named `name`, or null when the command has none of that name.
+  const Option* Find(const std::string& name) const;
 };
 
 const std::vector<Command>& Commands();
+
+// The command being run (set by main() before it parses the flags).
+const Command& CurrentCommand();
+void SetCurrentCommand(const Command& command);
+
+// A number as the shortest text that reads back to it exactly ("1000", "0.01").
+std::string NumberText(double value);
 
 // The commands, defined in their files.
 Command SimulateCommand();
@@ -29,9 +56,28 @@ Command TrendCommand();
 Command DiagnoseCommand();
 Command GainCommand();
 
-// The fit options of `fit` and `trend`: defaults <- --config=FIT.json <- the fit flags given
-// (defined in fit_command.cc). False with a one-line reason on bad values.
+// The fit options of `fit`, `trend` and `diagnose`: the command's defaults <- --config=FIT.json
+// (its "flags" applied as flags not given on the command line: run_config.cc) <- the flags
+// given (defined in fit_command.cc). False with a one-line reason on bad values.
 bool ResolveFitConfig(fit::FitConfig* config, std::string* error);
+
+// The options of a run as FIT.json (fit_config.h) holding every option it resolved: `config`
+// with the --keywords flag's names merged into "keywords", and under "flags" every other
+// option of the current command that decides what the run computes (the metadata flags only
+// where given). `command_options` adds command-specific entries to "flags" (trend's
+// requirement list). Written as OUT/config.json, so that --config=OUT/config.json with the
+// same inputs repeats the run (run_config.cc).
+nlohmann::json RunConfigJson(const fit::FitConfig& config, const nlohmann::json& command_options,
+                             std::string* error);
+// Writes it as dir/config.json. False with a one-line reason.
+bool WriteRunConfig(const std::string& dir, const fit::FitConfig& config,
+                    const nlohmann::json& command_options, std::string* error);
+// Applies FIT.json's "flags" to the current command: each one not given on the command line
+// is set as if it were; `skip` names entries the command reads itself ("requirements").
+// False with a one-line reason for an option the command does not have or a value of the
+// wrong type.
+bool ApplyConfigFlags(const nlohmann::json& flags, const std::vector<std::string>& skip,
+                      std::string* error);
 
 // Prints "ccdpsf: error: <message>" on stderr and returns exit code 1.
 int Fail(const std::string& message);
@@ -44,8 +90,9 @@ int Usage(const std::string& message);
 // Exit code of a completed run whose verdict is suspect or invalid under --strict.
 constexpr int kExitStrict = 3;
 
-// The metadata flags shared by fit, diagnose and trend (tools/input_flags.cc).
-const std::vector<const char*>& InputFlagNames();
+// The options that say what a file's header lacks, shared by fit, diagnose and trend, and the
+// reader's memory ceiling (tools/input_flags.cc).
+std::vector<Option> InputOptions();
 // The values the flags give (sources "flag --name") and the keyword map's overlay.
 bool InputFlags(GivenMetadata* given, KeywordMap* keywords, std::string* error);
 // The run's files with their options: flags, then --manifest's rows, then `config`.
@@ -58,7 +105,7 @@ bool ResolveInputs(const std::vector<std::string>& files, const CalibrationOptio
 // them (it is replaced as a whole: output_folder.h).
 std::vector<std::string> RunInputs(const std::vector<std::string>& args);
 
-// True when --name was given on the command line.
+// True when --name was given on the command line (or by the "flags" of --config).
 bool FlagGiven(const char* name);
 
 }  // namespace ccdpsf::tools

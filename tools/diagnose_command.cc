@@ -13,25 +13,21 @@
 #include "command.h"
 #include "gflags/gflags.h"
 
+DECLARE_string(config);
 DECLARE_string(out);
 DECLARE_uint64(seed);
 DECLARE_int32(threads);
 DECLARE_bool(strict);
 DECLARE_string(flux);
 DECLARE_bool(mixed_wavelengths);
-DEFINE_int32(max_rounds, 3, "diagnose: rounds of testing (each may name one effect)");
-DEFINE_int32(predictive_sims, 50,
-             "diagnose: simulations of each fitted model for the predictive p-values (0: none)");
-DEFINE_double(alpha, 0.01,
-              "diagnose: family-wise false-claim rate per round (Bonferroni over the candidates)");
-DEFINE_string(baseline, "paper",
-              "diagnose: paper (the paper's model) or no_defocus (without the defocus, which "
-              "then becomes a candidate); add effects with +, e.g. paper+background");
-DEFINE_string(candidates, "",
-              "diagnose: comma-separated catalogue effects and model alternatives (pillbox_defocus, pixel_response) that may be named (default: all)");
-DEFINE_bool(thresholds, false,
-            "diagnose: simulate the detection threshold of every effect not found (slow)");
-DEFINE_int32(threshold_sims, 10, "diagnose: simulations per strength for --thresholds");
+// The parser's flags read only by diagnose; their meanings are DiagnoseCommand()'s table.
+DEFINE_int32(max_rounds, 3, "");
+DEFINE_int32(predictive_sims, 50, "");
+DEFINE_double(alpha, 0.01, "");
+DEFINE_string(baseline, "paper", "");
+DEFINE_string(candidates, "", "");
+DEFINE_bool(thresholds, false, "");
+DEFINE_int32(threshold_sims, 10, "");
 
 namespace ccdpsf::tools {
 namespace {
@@ -55,31 +51,33 @@ bool ParseKinds(const std::string& text, std::vector<model::EffectKind>* kinds,
 
 int RunDiagnose(const std::vector<std::string>& files) {
   if (FLAGS_out.empty()) return Usage("diagnose needs --out=DIR");
-  if (files.empty() && !FlagGiven("manifest")) {
-    return Usage("diagnose needs at least one FITS file (or --manifest)");
-  }
   fit::FitConfig config;
   std::string error;
+  // The seed, threads and flux come from here too: flag, else FIT.json, else diagnose's
+  // default.
   if (!ResolveFitConfig(&config, &error)) return Fail(error);
+  if (files.empty() && !FlagGiven("manifest")) {  // a config's "flags" may name the manifest
+    return Usage("diagnose needs at least one FITS file (or --manifest)");
+  }
   config.model.through_focus = false;
   diagnose::DiagnoseOptions options;
   options.max_rounds = FLAGS_max_rounds;
   options.predictive.num_simulations = FLAGS_predictive_sims;
-  options.predictive.seed = FLAGS_seed;
+  options.predictive.seed = config.fit.mcmc.seed;
   options.alpha = FLAGS_alpha;
-  options.fit.num_threads = FLAGS_threads;
-  options.map.num_threads = FLAGS_threads;
+  options.fit.num_threads = config.fit.mcmc.num_threads;
+  options.map.num_threads = config.fit.mcmc.num_threads;
   options.compute_thresholds = FLAGS_thresholds;
   options.thresholds.num_simulations = FLAGS_threshold_sims;
-  options.thresholds.seed = FLAGS_seed;
+  options.thresholds.seed = config.fit.mcmc.seed;
   options.progress = [](const std::string& line) {
     std::fprintf(stderr, "ccdpsf diagnose: %s\n", line.c_str());
   };
-  if (FLAGS_flux == "auto") {
+  if (!config.flux_given) {
     options.flux = diagnose::FluxChoice::kAuto;
-  } else if (FLAGS_flux == "shared") {
+  } else if (config.model.flux == fit::FluxMode::kShared) {
     options.flux = diagnose::FluxChoice::kShared;
-  } else if (FLAGS_flux == "per_exposure") {
+  } else if (config.model.flux == fit::FluxMode::kPerExposure) {
     options.flux = diagnose::FluxChoice::kPerExposure;
   } else {
     return Fail("diagnose: --flux must be auto, shared or per_exposure");
@@ -205,16 +203,18 @@ int RunDiagnose(const std::vector<std::string>& files) {
                           {"max_rounds", options.max_rounds},
                           {"predictive_sims", options.predictive.num_simulations},
                           {"alpha", options.alpha},
-                          {"flux", FLAGS_flux},
+                          {"flux", config.flux_given ? fit::ToString(config.model.flux)
+                                                     : std::string("auto")},
                           {"baseline", FLAGS_baseline},
                           {"candidates", FLAGS_candidates},
                           {"thresholds", options.compute_thresholds},
                           {"threshold_sims", options.thresholds.num_simulations}}},
-                        {"seed", FLAGS_seed},
+                        {"seed", config.fit.mcmc.seed},
                         {"software", SoftwareVersions()}};
   std::vector<std::string> warnings;
   if (!diagnose::WriteDiagnoseReport(out.partial(), *base, result, options, run, &warnings,
                                      &error) ||
+      !WriteRunConfig(out.partial(), config, nlohmann::json::object(), &error) ||
       !out.Commit({}, &error)) {
     return Fail(error);
   }
@@ -231,21 +231,52 @@ int RunDiagnose(const std::vector<std::string>& files) {
 
 }  // namespace
 
-std::vector<const char*> DiagnoseFlagNames() {
-  std::vector<const char*> names = {"out",        "config",     "sampling",          "defocus",
-                                    "seed",       "threads",    "max_rounds",        "predictive_sims",
-                                    "alpha",      "flux",       "baseline",          "candidates",
-                                    "thresholds", "threshold_sims", "strict", "mixed_wavelengths"};
-  for (const char* n : InputFlagNames()) names.push_back(n);
-  return names;
-}
-
 Command DiagnoseCommand() {
+  const fit::FitConfig d;  // the library's fit defaults (the baseline's model)
+  const diagnose::DiagnoseOptions dd;
+  std::vector<Option> options = {
+      {"out", "", "Output folder (required); replaced as a whole by the run's results"},
+      {"config", "",
+       "FIT.json with the baseline's options (priors, calibration, keyword map) and \"flags\" "
+       "(e.g. max_rounds); a diagnosis's OUT/config.json repeats it; flags given override it"},
+      {"sampling", model::ToString(d.model.model.sampling),
+       "Model sampling: integrated (exact pixel integral) or pixel_centre (the 2015 code's "
+       "discretisation)"},
+      {"defocus", model::ToString(d.model.model.defocus),
+       "Defocus kernel of the baseline: gaussian or pillbox"},
+      {"seed", "1",
+       "Random seed of the predictive simulations and of the --thresholds study"},
+      {"threads", std::to_string(dd.map.num_threads),
+       "Ceres threads, and predictive simulations run at a time"},
+      {"max_rounds", std::to_string(dd.max_rounds),
+       "Rounds of testing (each may name one effect)"},
+      {"predictive_sims", std::to_string(dd.predictive.num_simulations),
+       "Simulations of each fitted model for the predictive p-values (0: none)"},
+      {"alpha", NumberText(dd.alpha),
+       "Family-wise false-claim rate per round (Bonferroni over the candidates)"},
+      {"flux", "auto",
+       "How the exposures share the light: auto (a flux per exposure for a set at several "
+       "intensities, else shared), shared or per_exposure"},
+      {"baseline", "paper",
+       "paper (the paper's model) or no_defocus (without the defocus, which then becomes a "
+       "candidate); add effects with +, e.g. paper+background"},
+      {"candidates", "",
+       "Comma-separated catalogue effects and model alternatives (pillbox_defocus, "
+       "pixel_response) that may be named (empty: all)"},
+      {"thresholds", dd.compute_thresholds ? "true" : "false",
+       "Simulate the detection threshold of every effect not found (slow)"},
+      {"threshold_sims", std::to_string(dd.thresholds.num_simulations),
+       "Simulations per strength for --thresholds"},
+      {"mixed_wavelengths", "false",
+       "Let the exposures be at different wavelengths (one PSF shared across them)"},
+      {"strict", "false",
+       "Exit with code 3 when the verdict on the data is suspect or invalid (for pipelines); "
+       "without it a completed run exits 0 whatever the verdict"}};
+  for (const Option& o : InputOptions()) options.push_back(o);
   return {"diagnose",
           "ccdpsf diagnose --out=DIR [--baseline=paper] [--max_rounds=3] [options] FILE.fits...",
           "Find the physical effect the model is missing: fit, test the catalogue, add, repeat.",
-          DiagnoseFlagNames(),
-          RunDiagnose};
+          options, RunDiagnose};
 }
 
 }  // namespace ccdpsf::tools

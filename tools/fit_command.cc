@@ -21,81 +21,87 @@ DECLARE_string(out);
 DECLARE_string(sampling);
 DECLARE_string(defocus);
 DECLARE_int32(stamp_size);
-DEFINE_bool(joint, false,
-            "fit: one joint fit of all files (CCD widths, intensity, defocus and Airy radius "
-            "shared; a position per exposure) instead of one fit per file");
-DEFINE_bool(through_focus, false,
-            "fit: with --joint, fit the files as a through-focus series: Gaussian defocus "
-            "sigma = rate x |FOCUSPOS - z0| per exposure (rate and best focus z0 fitted), CCD "
-            "kernel shared; identifies the CCD widths. Default: on when every file has "
-            "FOCUSPOS with >= 3 distinct values (integrated sampling, Gaussian defocus)");
-DEFINE_string(likelihood, "gaussian",
-              "fit: gaussian (the paper's, with model-dependent variance) or poisson_normal "
-              "(exact, for low signal)");
-DEFINE_uint64(seed, 1, "fit: random seed of the MCMC");
-DEFINE_int32(walkers, 0,
-             "fit: MCMC walkers (0: max(2 x ensemble dimension + 2, target_ess / 50))");
-DEFINE_int32(max_steps, 20000, "fit: MCMC step limit");
-DEFINE_double(target_ess, 1000,
-              "fit: effective sample size every parameter must reach (trend: 400 unless given)");
-DEFINE_int32(threads, 2, "fit: threads for the MCMC; trend: groups fitted at a time; diagnose: Ceres threads and predictive simulations run at a time");
-DEFINE_bool(mcmc, true, "fit: run the MCMC (--nomcmc: MAP and Laplace only)");
-DEFINE_string(flux, "auto",
-              "How the exposures of a joint fit share the light: auto (chosen from the data "
-              "and said), shared, per_exposure or (fit, trend) exptime_scaled");
-DEFINE_bool(mixed_wavelengths, false,
-            "Let a joint fit share one PSF across exposures at different wavelengths");
-DEFINE_bool(strict, false,
-            "Exit with code 3 when a completed fit's verdict is suspect or invalid (for "
-            "pipelines); without it a completed run exits 0 whatever the verdict");
-DEFINE_bool(resume, false,
-            "fit, trend: continue a run that was killed, into the same --out with the same "
-            "inputs and options (fit: each MCMC from its last checkpoint, ending with the chain "
-            "of an uninterrupted run; trend: the groups already finished are kept)");
-DEFINE_double(checkpoint_s, 30, "fit: seconds between MCMC checkpoints (for --resume)");
-DEFINE_bool(outliers, true,
-            "Mask pixels the fitted model cannot explain (cosmic rays, hot pixels) and refit");
+// The parser's flags read by fit (and some by trend and diagnose); what each means and
+// defaults to is each command's option table (FitCommand() below, trend_command.cc,
+// diagnose_command.cc).
+DEFINE_bool(joint, false, "");
+DEFINE_bool(through_focus, false, "");
+DEFINE_string(likelihood, "gaussian", "");
+DEFINE_uint64(seed, 1, "");
+DEFINE_int32(walkers, 0, "");
+DEFINE_int32(max_steps, 20000, "");
+DEFINE_double(target_ess, 1000, "");
+DEFINE_int32(threads, 2, "");
+DEFINE_bool(mcmc, true, "");
+DEFINE_string(flux, "auto", "");
+DEFINE_bool(mixed_wavelengths, false, "");
+DEFINE_bool(strict, false, "");
+DEFINE_bool(resume, false, "");
+DEFINE_double(checkpoint_s, 30, "");
+DEFINE_bool(outliers, true, "");
 
 namespace ccdpsf::tools {
 
-// Defaults <- FIT.json <- flags given on the command line.
-bool ResolveFitConfig(fit::FitConfig* c, std::string* error) {
-  c->fit.mcmc.seed = FLAGS_seed;
-  if (!FLAGS_config.empty() && !fit::LoadFitConfig(FLAGS_config, c, error)) return false;
-  if (FlagGiven("sampling") && !model::ParseSampling(FLAGS_sampling, &c->model.model.sampling)) {
+namespace {
+
+// Sets the fit options of `c` from the current command's fit flags: every one it has
+// (`given_only` false: the command's defaults, or values given) or only those given.
+bool ApplyFitFlags(bool given_only, fit::FitConfig* c, std::string* error) {
+  auto use = [given_only](const char* name) {
+    return CurrentCommand().Find(name) != nullptr && (!given_only || FlagGiven(name));
+  };
+  if (use("sampling") && !model::ParseSampling(FLAGS_sampling, &c->model.model.sampling)) {
     *error = "--sampling must be integrated or pixel_centre";
     return false;
   }
-  if (FlagGiven("defocus") && !model::ParseDefocusKind(FLAGS_defocus, &c->model.model.defocus)) {
+  if (use("defocus") && !model::ParseDefocusKind(FLAGS_defocus, &c->model.model.defocus)) {
     *error = "--defocus must be gaussian or pillbox";
     return false;
   }
-  if (FlagGiven("likelihood") && !fit::ParseLikelihoodKind(FLAGS_likelihood, &c->model.likelihood)) {
+  if (use("likelihood") && !fit::ParseLikelihoodKind(FLAGS_likelihood, &c->model.likelihood)) {
     *error = "--likelihood must be gaussian or poisson_normal";
     return false;
   }
-  if (FlagGiven("joint")) c->joint = FLAGS_joint;
-  if (FlagGiven("through_focus")) {
+  if (use("joint")) c->joint = FLAGS_joint;
+  // Not given, the choice is made from the files (RunFit): no default to apply.
+  if (use("through_focus") && FlagGiven("through_focus")) {
     c->model.through_focus = FLAGS_through_focus;
     c->through_focus_given = true;
   }
-  if (FlagGiven("seed")) c->fit.mcmc.seed = FLAGS_seed;
-  if (FlagGiven("walkers")) c->fit.num_walkers = FLAGS_walkers;
-  if (FlagGiven("max_steps")) c->fit.mcmc.max_steps = FLAGS_max_steps;
-  if (FlagGiven("target_ess")) c->fit.mcmc.target_ess = FLAGS_target_ess;
-  if (FlagGiven("threads")) c->fit.mcmc.num_threads = FLAGS_threads;
-  if (FlagGiven("mcmc")) c->fit.run_mcmc = FLAGS_mcmc;
-  if (FlagGiven("stamp_size")) c->calibration.stamp_size = FLAGS_stamp_size;
-  if (!c->calibration.IsValid(error)) return false;
-  if (FlagGiven("flux") && FLAGS_flux != "auto") {
-    if (!fit::ParseFluxMode(FLAGS_flux, &c->model.flux)) {
+  if (use("seed")) c->fit.mcmc.seed = FLAGS_seed;
+  if (use("walkers")) c->fit.num_walkers = FLAGS_walkers;
+  if (use("max_steps")) c->fit.mcmc.max_steps = FLAGS_max_steps;
+  if (use("target_ess")) c->fit.mcmc.target_ess = FLAGS_target_ess;
+  if (use("threads")) c->fit.mcmc.num_threads = FLAGS_threads;
+  if (use("mcmc")) c->fit.run_mcmc = FLAGS_mcmc;
+  if (use("stamp_size")) c->calibration.stamp_size = FLAGS_stamp_size;
+  if (use("flux")) {
+    if (FLAGS_flux == "auto") {
+      c->flux_given = false;
+    } else if (fit::ParseFluxMode(FLAGS_flux, &c->model.flux)) {
+      c->flux_given = true;
+    } else {
       *error = "--flux must be auto, shared, per_exposure or exptime_scaled";
       return false;
     }
-    c->flux_given = true;
-  } else if (FlagGiven("flux")) {
-    c->flux_given = false;
   }
+  return true;
+}
+
+}  // namespace
+
+// The command's defaults <- FIT.json (with its "flags") <- flags given on the command line.
+bool ResolveFitConfig(fit::FitConfig* c, std::string* error) {
+  if (!ApplyFitFlags(/*given_only=*/false, c, error)) return false;
+  if (!FLAGS_config.empty()) {
+    if (!fit::LoadFitConfig(FLAGS_config, c, error)) return false;
+    if (!ApplyConfigFlags(c->flags, {"requirements"}, error)) {
+      *error = "'" + FLAGS_config + "': " + *error;
+      return false;
+    }
+  }
+  if (!ApplyFitFlags(/*given_only=*/true, c, error)) return false;
+  if (!c->calibration.IsValid(error)) return false;
   if (!fit::CheckMcmcSettings(c->fit.num_walkers, c->fit.mcmc.max_steps, c->fit.mcmc.num_threads,
                               c->fit.mcmc.target_ess, "--", error)) {
     return false;
@@ -280,34 +286,68 @@ int RunFit(const std::vector<std::string>& files) {
   }
   // A run that wrote nothing (its one fit failed) leaves the earlier results in place.
   if (!IsCcdpsfOutput(out.partial())) return status;
-  if (!out.Commit({kCheckpoints}, &error)) return Fail(error);
+  if (!WriteRunConfig(out.partial(), config, nlohmann::json::object(), &error) ||
+      !out.Commit({kCheckpoints}, &error)) {
+    return Fail(error);
+  }
   if (status == 0 && flagged && FLAGS_strict) return kExitStrict;
   return status;
 }
 
 }  // namespace
 
-std::vector<const char*> FitFlagNames() {
-  std::vector<const char*> names = {"out",        "config",    "joint",     "through_focus",
-                                    "sampling",   "defocus",   "likelihood", "seed",
-                                    "walkers",    "max_steps", "target_ess", "threads",
-                                    "mcmc",       "flux",      "mixed_wavelengths", "strict",
-                                    "outliers"};
-  for (const char* n : InputFlagNames()) names.push_back(n);
-  return names;
-}
-
 Command FitCommand() {
+  const fit::FitConfig d;  // the library's defaults, which fit's flags default to
+  std::vector<Option> options = {
+      {"out", "", "Output folder (required); replaced as a whole by the run's results"},
+      {"config", "",
+       "FIT.json with the fit's options (priors, MAP starts, MCMC settings, calibration, "
+       "keyword map, \"flags\"); a run's OUT/config.json repeats it; flags given override it"},
+      {"joint", d.joint ? "true" : "false",
+       "One joint fit of all files (CCD widths, intensity, defocus and Airy radius shared; a "
+       "position per exposure) instead of one fit per file"},
+      {"through_focus", "false",
+       "With --joint, fit the files as a through-focus series: Gaussian defocus sigma = rate x "
+       "|FOCUSPOS - z0| per exposure (rate and best focus z0 fitted), CCD kernel shared; "
+       "identifies the CCD widths. Not given: on when every file has FOCUSPOS with >= 3 "
+       "distinct values (integrated sampling, Gaussian defocus)"},
+      {"sampling", model::ToString(d.model.model.sampling),
+       "Model sampling: integrated (exact pixel integral) or pixel_centre (the 2015 code's "
+       "discretisation)"},
+      {"defocus", model::ToString(d.model.model.defocus), "Defocus kernel: gaussian or pillbox"},
+      {"likelihood", fit::ToString(d.model.likelihood),
+       "gaussian (the paper's, with model-dependent variance) or poisson_normal (exact, for "
+       "low signal)"},
+      {"seed", "1", "Random seed of the MCMC (same seed, same chain)"},
+      {"walkers", std::to_string(d.fit.num_walkers),
+       "MCMC walkers (0: max(2 x ensemble dimension + 2, target_ess / 50))"},
+      {"max_steps", std::to_string(d.fit.mcmc.max_steps),
+       "MCMC step limit (the chain stops there converged or not)"},
+      {"target_ess", NumberText(d.fit.mcmc.target_ess),
+       "Effective sample size every parameter must reach for the MCMC to have converged"},
+      {"threads", std::to_string(d.fit.mcmc.num_threads),
+       "Threads of the MCMC (the chain is the same for any number)"},
+      {"mcmc", d.fit.run_mcmc ? "true" : "false",
+       "Run the MCMC (--nomcmc: MAP and Laplace only)"},
+      {"flux", "auto",
+       "How the exposures of a joint fit share the light: auto (chosen from the data and "
+       "said), shared, per_exposure or exptime_scaled"},
+      {"mixed_wavelengths", "false",
+       "Let a joint fit share one PSF across exposures at different wavelengths"},
+      {"outliers", fit::OutlierOptions().enabled ? "true" : "false",
+       "Mask pixels the fitted model cannot explain (cosmic rays, hot pixels) and refit"},
+      {"strict", "false",
+       "Exit with code 3 when a fit's verdict is suspect or invalid (for pipelines); without "
+       "it a completed run exits 0 whatever the verdict"},
+      {"resume", "false",
+       "Continue a run that was killed, into the same --out with the same inputs and options: "
+       "each MCMC from its last checkpoint, ending with the chain of an uninterrupted run"},
+      {"checkpoint_s", "30", "Seconds between MCMC checkpoints (for --resume)"}};
+  for (const Option& o : InputOptions()) options.push_back(o);
   return {"fit",
           "ccdpsf fit --out=DIR [--joint] [--config=FIT.json] [options] FILE.fits...",
           "Fit the spot model: MAP (Ceres), Laplace covariance, MCMC credible intervals.",
-          [] {
-            std::vector<const char*> names = FitFlagNames();
-            names.push_back("resume");
-            names.push_back("checkpoint_s");
-            return names;
-          }(),
-          RunFit};
+          options, RunFit};
 }
 
 }  // namespace ccdpsf::tools

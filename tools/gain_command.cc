@@ -21,9 +21,7 @@ DECLARE_double(saturation_adu);
 DECLARE_string(manifest);
 DECLARE_string(out);
 DECLARE_int32(max_image_mb);  // the reader's memory ceiling (input_flags.cc)
-DEFINE_string(gain_method, "auto",
-              "gain: auto (pairs when two frames share an exposure time, else single_frame), "
-              "pairs or single_frame");
+DEFINE_string(gain_method, "auto", "");  // meaning: GainCommand()'s table
 
 namespace ccdpsf::tools {
 namespace {
@@ -223,8 +221,31 @@ Command GainCommand() {
           "[--gain_method=auto|pairs|single_frame] [--max_image_mb=MB] [--out=DIR] FILE.fits...",
           "Estimate the gain [e-/ADU] and read noise [e-] by photon transfer, from frame pairs "
           "at equal exposure times or from single frames.",
-          {"exptime_s", "manifest", "bias_adu", "saturation_adu", "gain_method", "max_image_mb",
-           "out"},
+          {{"exptime_s", "0",
+            "Exposure time [s] of every frame; overrides the manifest and EXPTIME (frames at "
+            "one exposure time are paired)",
+            true},
+           {"manifest", "",
+            "CSV or JSON file with one row per frame (columns: file, and exptime_s, bias_adu, "
+            "saturation_adu where the headers lack them); no files given: every file it lists",
+            true},
+           {"bias_adu", "0",
+            "Bias level [ADU] of every frame; overrides the manifest and BIASLVL (else from the "
+            "overscan or the frame)",
+            true},
+           {"saturation_adu", "0",
+            "Saturation level [ADU]: pixels at or above it are left out; overrides the manifest "
+            "and SATURATE",
+            true},
+           {"gain_method", "auto",
+            "auto (pairs when two frames share an exposure time, else single_frame), pairs or "
+            "single_frame"},
+           {"max_image_mb", std::to_string(kDefaultMaxImageBytes >> 20),
+            "Largest image to read [MB = 2^20 bytes], as doubles (8 bytes a pixel); larger "
+            "images, and gzip files decompressing to more, are refused before reading"},
+           {"out", "",
+            "Output folder for gain.json and gain.csv (not given: the summary on the terminal "
+            "only)"}},
           RunGain};
 }
 

@@ -9,52 +9,76 @@
 #include "command.h"
 #include "gflags/gflags.h"
 
-DEFINE_double(gain_e_per_adu, 0, "Gain [e-/ADU]; overrides the manifest and GAIN");
-DEFINE_double(read_noise_e, 0, "Read noise [e-]; overrides the manifest and RDNOISE");
-DEFINE_double(bias_adu, 0, "Bias level [ADU]; overrides the manifest, BIASLVL and the bias section");
-DEFINE_string(bias_section, "",
-              "Overscan / prescan as an IRAF section, e.g. [1:20,1:2048] (1-based, inclusive); "
-              "overrides the manifest and BIASSEC");
-DEFINE_string(data_section, "",
-              "Light-sensitive pixels of the image as an IRAF section; overrides DATASEC");
-DEFINE_double(saturation_adu, 0,
-              "Saturation level [ADU]: pixels at or above it are fitted as censored; overrides "
-              "the manifest and SATURATE");
-DEFINE_double(pixel_um, 0, "Pixel pitch [um]; overrides the manifest and PIXSIZE (required "
-                           "from one of them)");
-DEFINE_double(wavelength_nm, 0, "Wavelength [nm]; overrides the manifest and WAVELEN");
-DEFINE_double(exptime_s, 0, "Exposure time [s]; overrides the manifest and EXPTIME");
-DEFINE_double(focus_position_um, 0, "Stage focus position [um]; overrides FOCUSPOS");
-DEFINE_double(spot_x_px, 0, "Spot x [frame pixels, 0-based]; with --spot_y_px skips spot finding");
-DEFINE_double(spot_y_px, 0, "Spot y [frame pixels, 0-based]");
-DEFINE_string(search_region, "",
-              "Look for the spot only in this IRAF section, e.g. [600:700,420:520]");
-DEFINE_string(hdu, "",
-              "Image to read: extension number (0 = primary, 1 = first extension) or EXTNAME; "
-              "default: the primary image, or for a multi-extension file the segment holding "
-              "the spot");
-DEFINE_string(bad_pixel_mask, "",
-              "FITS image of the frame's size whose non-zero pixels are never fitted");
-DEFINE_string(keywords, "",
-              "Keyword map for another lab's headers: a JSON file, or "
-              "quantity=KEYWORD[*scale],... e.g. gain_e_per_adu=EGAIN,exptime_s=EXPMS*0.001");
-DEFINE_string(manifest, "",
-              "CSV or JSON file with one row per FITS file giving what its header lacks "
-              "(columns: file, setting, and any quantity above)");
-DEFINE_int32(stamp_size, 21, "Stamp side [px]");
-DEFINE_int32(max_image_mb, static_cast<int>(ccdpsf::kDefaultMaxImageBytes >> 20),
-             "Largest image to read [MB = 2^20 bytes], as doubles (8 bytes a pixel); larger "
-             "images, and gzip files decompressing to more, are refused before reading");
+// The parser's flags; what each means is InputOptions() below. 0 / "" = not given.
+DEFINE_double(gain_e_per_adu, 0, "");
+DEFINE_double(read_noise_e, 0, "");
+DEFINE_double(bias_adu, 0, "");
+DEFINE_string(bias_section, "", "");
+DEFINE_string(data_section, "", "");
+DEFINE_double(saturation_adu, 0, "");
+DEFINE_double(pixel_um, 0, "");
+DEFINE_double(wavelength_nm, 0, "");
+DEFINE_double(exptime_s, 0, "");
+DEFINE_double(focus_position_um, 0, "");
+DEFINE_double(spot_x_px, 0, "");
+DEFINE_double(spot_y_px, 0, "");
+DEFINE_string(search_region, "", "");
+DEFINE_string(hdu, "", "");
+DEFINE_string(bad_pixel_mask, "", "");
+DEFINE_string(keywords, "", "");
+DEFINE_string(manifest, "", "");
+DEFINE_int32(stamp_size, 21, "");
+DEFINE_int32(max_image_mb, static_cast<int>(ccdpsf::kDefaultMaxImageBytes >> 20), "");
 
 namespace ccdpsf::tools {
 
-const std::vector<const char*>& InputFlagNames() {
-  static const std::vector<const char*> names = {
-      "gain_e_per_adu", "read_noise_e",  "bias_adu",     "bias_section",      "data_section",
-      "saturation_adu", "pixel_um",      "wavelength_nm", "exptime_s",        "focus_position_um",
-      "spot_x_px",      "spot_y_px",     "search_region", "hdu",              "bad_pixel_mask",
-      "keywords",       "manifest",      "stamp_size",    "max_image_mb"};
-  return names;
+std::vector<Option> InputOptions() {
+  // The metadata flags: each value applies to every file and outranks the manifest and the
+  // header (metadata.h).
+  std::vector<Option> o = {
+      {"gain_e_per_adu", "0", "Gain [e-/ADU]; overrides the manifest and GAIN", true},
+      {"read_noise_e", "0", "Read noise [e-]; overrides the manifest and RDNOISE", true},
+      {"bias_adu", "0", "Bias level [ADU]; overrides the manifest, BIASLVL and the bias section",
+       true},
+      {"bias_section", "",
+       "Overscan / prescan as an IRAF section, e.g. [1:20,1:2048] (1-based, inclusive); "
+       "overrides the manifest and BIASSEC",
+       true},
+      {"data_section", "",
+       "Light-sensitive pixels of the image as an IRAF section; overrides DATASEC", true},
+      {"saturation_adu", "0",
+       "Saturation level [ADU]: pixels at or above it are fitted as censored; overrides the "
+       "manifest and SATURATE",
+       true},
+      {"pixel_um", "0",
+       "Pixel pitch [um]; overrides the manifest and PIXSIZE (required from one of them)", true},
+      {"wavelength_nm", "0", "Wavelength [nm]; overrides the manifest and WAVELEN", true},
+      {"exptime_s", "0", "Exposure time [s]; overrides the manifest and EXPTIME", true},
+      {"focus_position_um", "0", "Stage focus position [um]; overrides FOCUSPOS", true},
+      {"spot_x_px", "0", "Spot x [frame pixels, 0-based]; with --spot_y_px skips spot finding",
+       true},
+      {"spot_y_px", "0", "Spot y [frame pixels, 0-based]", true},
+      {"search_region", "", "Look for the spot only in this IRAF section, e.g. [600:700,420:520]",
+       true},
+      {"hdu", "",
+       "Image to read: extension number (0 = primary, 1 = first extension) or EXTNAME; when not "
+       "given: the primary image, or for a multi-extension file the segment holding the spot",
+       true},
+      {"bad_pixel_mask", "",
+       "FITS image of the frame's size whose non-zero pixels are never fitted", true},
+      {"keywords", "",
+       "Keyword map for another lab's headers: a JSON file, or "
+       "quantity=KEYWORD[*scale],... e.g. gain_e_per_adu=EGAIN,exptime_s=EXPMS*0.001",
+       true},
+      {"manifest", "",
+       "CSV or JSON file with one row per FITS file giving what its header lacks (columns: "
+       "file, setting, and any quantity above)",
+       true},
+      {"stamp_size", std::to_string(CalibrationOptions().stamp_size), "Stamp side [px]"},
+      {"max_image_mb", std::to_string(kDefaultMaxImageBytes >> 20),
+       "Largest image to read [MB = 2^20 bytes], as doubles (8 bytes a pixel); larger images, "
+       "and gzip files decompressing to more, are refused before reading"}};
+  return o;
 }
 
 bool InputFlags(GivenMetadata* given, KeywordMap* keywords, std::string* error) {

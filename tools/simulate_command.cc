@@ -13,9 +13,7 @@
 
 DECLARE_string(config);
 DECLARE_string(out);
-DEFINE_bool(noiseless, false,
-            "simulate: write the expected electrons per pixel as 64-bit floats "
-            "(model_NNN.fits) instead of noisy 16-bit exposures");
+DEFINE_bool(noiseless, false, "");  // meaning: SimulateCommand()'s table
 
 namespace ccdpsf::tools {
 namespace {
@@ -76,7 +74,14 @@ Command SimulateCommand() {
   return {"simulate", "ccdpsf simulate --config=SIM.json --out=DIR [--noiseless]",
           "Simulate spot-projection exposures (the paper's 9-step procedure), or a whole "
           "campaign with a known truth.",
-          {"config", "out", "noiseless"}, RunSimulate};
+          {{"config", "",
+            "The simulation config SIM.json (required); a top-level \"campaign\" key makes a "
+            "whole campaign"},
+           {"out", "", "Output folder (required); replaced as a whole by the simulated files"},
+           {"noiseless", "false",
+            "Write the expected electrons per pixel as 64-bit floats (model_NNN.fits) instead "
+            "of noisy 16-bit exposures"}},
+          RunSimulate};
 }
 
 }  // namespace ccdpsf::tools

@@ -1,6 +1,7 @@
 // ccdpsf trend: a characterisation campaign in, the CCD PSF's relations with wavelength and
 // intensity, the combined model and the requirement checks out.
 #include <cstdio>
+#include <map>
 #include <fstream>
 #include <sstream>
 
@@ -14,23 +15,58 @@
 #include "command.h"
 #include "gflags/gflags.h"
 
+DECLARE_string(config);
 DECLARE_string(out);
 DECLARE_uint64(seed);
 DECLARE_int32(threads);
 DECLARE_bool(strict);
 DECLARE_string(manifest);
 DECLARE_bool(resume);
-DEFINE_string(requirements, "",
-              "trend: JSON list of requirements (default: the Euclid VIS ones: FWHM <= 10.8 um "
-              "and e <= 0.156 at 800 nm and I0, alpha of FWHM(lambda) <= -0.2)");
-DEFINE_double(reference_intensity_e, 157800,
-              "trend: intensity zero point I0 [e- in the peak pixel] of the combined model");
-DEFINE_bool(group_reports, true, "trend: write each group's full fit report under DIR/groups/");
+// The parser's flags read only by trend; their meanings are TrendCommand()'s table.
+DEFINE_string(requirements, "", "");
+DEFINE_double(reference_intensity_e, 157800, "");
+DEFINE_bool(group_reports, true, "");
 
 namespace ccdpsf::tools {
 namespace {
 
+// A campaign's relations need a few hundred independent draws per setting (the MC error of
+// a 68 % bound is then ~0.07 sd), not the 1000 of a single fit's default: trend's
+// --target_ess defaults to this. The chain must still exceed 50 taus.
 constexpr double kTrendTargetEss = 400;
+
+// Counts of verdicts in a fixed order ("2 pass, 0 fail, ..."); the rare kinds ("n/a", "failed
+// to fit") only when there are any.
+std::string Counts(const std::vector<std::string>& order, const std::map<std::string, int>& n) {
+  std::string out;
+  for (const std::string& name : order) {
+    const auto it = n.find(name);
+    const int count = it == n.end() ? 0 : it->second;
+    if (count == 0 && (name == "n/a" || name == "failed to fit")) continue;
+    out += (out.empty() ? "" : ", ") + std::to_string(count) + " " + name;
+  }
+  return out;
+}
+
+// The terminal's summary of a trend: the groups by their verdict (or failure to fit) and the
+// requirements by their verdict (requirements.h: pass / fail need P(pass) beyond 0.95 / 0.05,
+// between is undetermined), the same counts trend.json and report.md give.
+std::string TrendSummary(const trend::TrendResult& r, const std::string& out_dir) {
+  std::map<std::string, int> groups, requirements, focus;
+  for (const trend::GroupResult& g : r.groups) {
+    ++groups[g.ok ? g.quality.Verdict() : "failed to fit"];
+  }
+  for (const trend::RequirementResult& q : r.requirements) ++requirements[trend::Verdict(q)];
+  for (const auto& q : r.focus_requirements) ++focus[trend::Verdict(q.result)];
+  const std::vector<std::string> verdicts = {"pass", "fail", "undetermined", "n/a"};
+  std::string line = "trend of " + std::to_string(r.groups.size()) + " groups (" +
+                     Counts({"ok", "suspect", "invalid", "failed to fit"}, groups) +
+                     "); requirements: " + Counts(verdicts, requirements);
+  if (!r.focus_requirements.empty()) {
+    line += "; on the through-focus series: " + Counts(verdicts, focus);
+  }
+  return line + "; report: " + out_dir + "/report.md";
+}
 
 // What decides a trend's numbers, for the keys of its stored groups (group_store.h): the
 // inputs and every option given, but not those that change only where or how fast it runs.
@@ -58,20 +94,22 @@ int RunTrend(const std::vector<std::string>& inputs) {
   if (FLAGS_out.empty()) return Usage("trend needs --out=DIR");
   std::string error;
   trend::GroupFitOptions fit_options;
-  // A campaign's relations need a few hundred independent draws per setting (the MC error of
-  // a 68 % bound is then ~0.07 sd), not the 1000 of a single fit's default: 400 unless
-  // FIT.json or --target_ess says otherwise. The chain must still exceed 50 taus.
-  fit_options.config.fit.mcmc.target_ess = kTrendTargetEss;
   if (!ResolveFitConfig(&fit_options.config, &error)) return Fail(error);
   fit_options.seed = fit_options.config.fit.mcmc.seed;
   fit_options.flux_given = fit_options.config.flux_given;
-  fit_options.parallel_groups = FlagGiven("threads") ? FLAGS_threads
-                                                     : fit_options.config.fit.mcmc.num_threads;
+  // --threads (or FIT.json's mcmc.threads): groups fitted at a time, each MCMC as many.
+  fit_options.parallel_groups = fit_options.config.fit.mcmc.num_threads;
 
   trend::TrendOptions trend_options;
   trend_options.reference_intensity_e = FLAGS_reference_intensity_e;
   trend_options.relation.seed = fit_options.seed;
-  if (!FLAGS_requirements.empty()) {
+  const nlohmann::json& config_flags = fit_options.config.flags;
+  if (!FlagGiven("requirements") && config_flags.contains("requirements")) {
+    // A config.json's own list (run_config.cc), not a file.
+    auto requirements = trend::ParseRequirements(config_flags["requirements"], &error);
+    if (!requirements) return Fail("'" + FLAGS_config + "': flags.requirements: " + error);
+    trend_options.requirements = *requirements;
+  } else if (!FLAGS_requirements.empty()) {
     std::ifstream in(FLAGS_requirements);
     if (!in) return Fail("cannot read --requirements file " + FLAGS_requirements);
     std::stringstream text;
@@ -148,48 +186,76 @@ int RunTrend(const std::vector<std::string>& inputs) {
                         {"software", SoftwareVersions()}};
   std::vector<std::string> warnings;
   if (!trend::WriteTrendReport(out.partial(), trend_result, run, &warnings, &error) ||
+      !WriteRunConfig(out.partial(), fit_options.config,
+                      {{"requirements", trend::RequirementsToJson(trend_options.requirements)}},
+                      &error) ||
       !out.Commit({kStore}, &error)) {
     return Fail(error);
   }
   for (const std::string& w : warnings) std::fprintf(stderr, "ccdpsf: warning: %s\n", w.c_str());
-  int passed = 0, decided = 0;
-  for (const auto& q : trend_result.requirements) {
-    if (q.pass) {
-      ++decided;
-      passed += *q.pass ? 1 : 0;
-    }
-  }
-  int suspect = 0;
+  std::printf("%s\n", TrendSummary(trend_result, FLAGS_out).c_str());
+  int flagged = 0;  // groups not fitted, suspect or invalid
   for (const auto& g : trend_result.groups) {
-    suspect += g.ok && g.quality.Worst() == Severity::kSuspect ? 1 : 0;
+    flagged += !g.ok || g.quality.Worst() != Severity::kNote ? 1 : 0;
   }
-  std::printf("trend of %zu groups (%d failed or invalid, %d suspect): %d/%d requirements pass; "
-              "report: %s/report.md\n",
-              trend_result.groups.size(), failed, suspect, passed, decided, FLAGS_out.c_str());
-  if (FLAGS_strict && (failed > 0 || suspect > 0)) return kExitStrict;
+  if (FLAGS_strict && flagged > 0) return kExitStrict;
   return 0;
 }
 
 }  // namespace
 
-std::vector<const char*> TrendFlagNames() {
-  std::vector<const char*> names = {"out",        "config",      "sampling",   "defocus",
-                                    "likelihood", "seed",        "walkers",    "max_steps",
-                                    "target_ess", "threads",     "mcmc",       "flux",
-                                    "strict",     "requirements", "reference_intensity_e",
-                                    "group_reports", "resume"};
-  for (const char* n : InputFlagNames()) names.push_back(n);
-  return names;
-}
-
 Command TrendCommand() {
+  const fit::FitConfig d;  // the library's defaults, which most of trend's fit options take
+  std::vector<Option> options = {
+      {"out", "", "Output folder (required); replaced as a whole by the run's results"},
+      {"config", "",
+       "FIT.json with the options of every group's fit (priors, MCMC settings, calibration, "
+       "keyword map) and \"flags\" (e.g. trend's requirement list); a trend's OUT/config.json "
+       "repeats it; flags given override it"},
+      {"sampling", model::ToString(d.model.model.sampling),
+       "Model sampling of every group's fit: integrated (exact pixel integral) or pixel_centre "
+       "(the 2015 code's discretisation)"},
+      {"defocus", model::ToString(d.model.model.defocus),
+       "Defocus kernel of every group's fit: gaussian or pillbox"},
+      {"likelihood", fit::ToString(d.model.likelihood),
+       "gaussian (the paper's, with model-dependent variance) or poisson_normal (exact, for "
+       "low signal)"},
+      {"seed", "1",
+       "Random seed of the groups' MCMCs (each group's derived from it) and of the relations' "
+       "draws"},
+      {"walkers", std::to_string(d.fit.num_walkers),
+       "MCMC walkers per group (0: max(2 x ensemble dimension + 2, target_ess / 50))"},
+      {"max_steps", std::to_string(d.fit.mcmc.max_steps), "MCMC step limit per group"},
+      {"target_ess", NumberText(kTrendTargetEss),
+       "Effective sample size every parameter of a group must reach (a few hundred draws "
+       "suffice for the relations; a single fit's default is 1000)"},
+      {"threads", std::to_string(d.fit.mcmc.num_threads),
+       "Groups fitted at a time, and threads of each group's MCMC"},
+      {"mcmc", d.fit.run_mcmc ? "true" : "false",
+       "Run each group's MCMC (--nomcmc: MAP and Laplace only; relations from the Laplace "
+       "approximation)"},
+      {"flux", "auto",
+       "How a group's exposures share the light: auto (chosen from the data and said), "
+       "shared, per_exposure or exptime_scaled"},
+      {"requirements", "",
+       "JSON list of requirements (not given: the Euclid VIS ones: FWHM <= 10.8 um and e <= "
+       "0.156 at 800 nm and I0, alpha of FWHM(lambda) <= -0.2)"},
+      {"reference_intensity_e", NumberText(trend::TrendOptions().reference_intensity_e),
+       "Intensity zero point I0 [e- in the peak pixel] of the combined model"},
+      {"group_reports", "true", "Write each group's full fit report under DIR/groups/"},
+      {"strict", "false",
+       "Exit with code 3 when a group failed to fit or its verdict is suspect or invalid (for "
+       "pipelines); without it a completed run exits 0 whatever the verdicts"},
+      {"resume", "false",
+       "Continue a run that was killed, into the same --out with the same inputs and options: "
+       "the groups already finished are kept"}};
+  for (const Option& o : InputOptions()) options.push_back(o);
   return {"trend",
           "ccdpsf trend --out=DIR [options] CAMPAIGN (manifest.json, its folder, or FITS files "
           "and folders grouped by WAVELEN / EXPTIME)",
           "Fit every setting of a campaign jointly; relations with wavelength and intensity; "
           "requirement checks.",
-          TrendFlagNames(),
-          RunTrend};
+          options, RunTrend};
 }
 
 }  // namespace ccdpsf::tools

@@ -233,6 +233,14 @@ bool ParseFitConfig(const std::string& text, FitConfig* c, std::string* error) {
     }
     if (!co.IsValid(error)) return false;
   }
+  if (r.ok() && r.Has("flags")) {
+    const json& f = r.Get("flags");
+    if (!f.is_object()) {
+      *error = "'flags' must be a JSON object of option names and values";
+      return false;
+    }
+    c->flags = f;
+  }
   if (r.ok() && r.Has("keywords")) {
     if (!c->calibration.keywords.Overlay(r.Get("keywords"), error)) return false;
   }

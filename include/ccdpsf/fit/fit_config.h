@@ -13,10 +13,19 @@
 //             "positions_by_conditional": true, "position_update_every": 2},
 //    "calibration": {"gain_e_per_adu": 3.1, "read_noise_e": 4.5, "bias_adu": 1000,
 //                    "saturation_adu": 65535, "pixel_um": 12, "stamp_size": 21},
-//    "keywords": {"gain_e_per_adu": "EGAIN", "exptime_s": {"keyword": "EXPMS", "scale": 1e-3}}}
+//    "keywords": {"gain_e_per_adu": "EGAIN", "exptime_s": {"keyword": "EXPMS", "scale": 1e-3}},
+//    "flags": {"pixel_um": 12, "outliers": true}}
 //
 // "calibration" takes stamp_size and any quantity of metadata.h (values for every file, of
 // lower precedence than a flag or a manifest row); "keywords" is the keyword map (metadata.h).
+//
+// "flags" holds command-line options of the command the file is given to that the keys above
+// do not (the metadata flags, --outliers, trend's --reference_intensity_e, diagnose's
+// --max_rounds, ...), by flag name, each as if given on the command line, where a flag given
+// outranks it; trend's "requirements" is the list itself (trend/requirements.h). The library
+// keeps it as read (FitConfig::flags); the ccdpsf tool checks and applies it. Every run of
+// `ccdpsf fit`, `trend` and `diagnose` writes config.json in this format: every option it
+// resolved, so that `--config=OUT/config.json` with the same inputs repeats the run.
 //
 // Every key is optional; unknown keys are errors. "through_focus" fits a joint set as a
 // through-focus series (fit_model.h); `ccdpsf fit --joint` switches it on by itself when it
@@ -41,6 +50,8 @@ struct FitConfig {
   bool through_focus_given = false;
   // model.flux was set explicitly ("flux" in FIT.json, --flux): no choice from the data.
   bool flux_given = false;
+  // "flags": command-line options by name (a JSON object; empty when absent), unchecked here.
+  nlohmann::json flags = nlohmann::json::object();
 };
 
 // Overlays the JSON onto *config (keys absent keep their current values). False with a
