@@ -97,13 +97,13 @@ PngInfo ReadPngInfo(const std::string& path) {
 void ExpectPng(const PlotResult& result, uint32_t min_width, uint32_t max_width,
                uint32_t min_height, uint32_t max_height) {
   if (!GnuplotAvailable()) {
-    EXPECT_FALSE(result.png_written);
+    EXPECT_FALSE(result.image_written);
     EXPECT_FALSE(result.message.empty());
     return;
   }
-  ASSERT_TRUE(result.png_written) << result.message;
-  const PngInfo png = ReadPngInfo(result.png_path);
-  ASSERT_TRUE(png.valid) << result.png_path;
+  ASSERT_TRUE(result.image_written) << result.message;
+  const PngInfo png = ReadPngInfo(result.image_path);
+  ASSERT_TRUE(png.valid) << result.image_path;
   EXPECT_GE(png.width, min_width);
   EXPECT_LE(png.width, max_width);
   EXPECT_GE(png.height, min_height);
@@ -175,7 +175,7 @@ TEST(Plot, CornerWritesDataScriptAndPng) {
   std::string error;
   ASSERT_TRUE(WriteCornerPlot(dir.path(), "corner", in, &result, &error)) << error;
   EXPECT_EQ(result.script_path, dir.File("corner.gp"));
-  EXPECT_EQ(result.png_path, dir.File("corner.png"));
+  EXPECT_EQ(result.image_path, dir.File("corner.png"));
   ASSERT_TRUE(Exists(result.script_path));
   for (const std::string& path : result.data_paths) EXPECT_TRUE(Exists(path)) << path;
   const std::string script = ReadText(result.script_path);
@@ -529,7 +529,7 @@ TEST(Plot, XyPlotOnLogAxesAllowsLowerBoundsBelowZero) {
   std::string error;
   ASSERT_TRUE(WriteXyPlot(dir.path(), "fwhm_log", in, &result, &error)) << error;
   ExpectPng(result, 600, 1400, 400, 900);
-  EXPECT_TRUE(result.message.empty() || !result.png_written) << result.message;
+  EXPECT_TRUE(result.message.empty() || !result.image_written) << result.message;
 }
 
 // The y range the script sets: "set yrange [lo:hi]".
@@ -587,7 +587,7 @@ TEST(Plot, XyPlotDrawsUpperLimitsAsDownwardArrows) {
     EXPECT_NE(script.find("ls 3 notitle"), std::string::npos);
     EXPECT_NE(script.find("'FWHM_x: upper limit'"), std::string::npos);
     ExpectPng(result, 600, 1400, 400, 900);
-    EXPECT_TRUE(result.message.empty() || !result.png_written) << result.message;
+    EXPECT_TRUE(result.message.empty() || !result.image_written) << result.message;
   }
 }
 
@@ -656,7 +656,7 @@ TEST(Plot, MissingGnuplotStillWritesDataAndScript) {
   PlotOptions options;
   options.gnuplot_path = kMissingGnuplot;
   ASSERT_TRUE(WriteXyPlot(dir.path(), "fwhm", MakeXyInput(), &result, &error, options)) << error;
-  EXPECT_FALSE(result.png_written);
+  EXPECT_FALSE(result.image_written);
   EXPECT_NE(result.message.find("not found"), std::string::npos) << result.message;
   EXPECT_NE(result.message.find("gnuplot fwhm.gp"), std::string::npos) << result.message;
   EXPECT_EQ(result.message.find('\n'), std::string::npos);
@@ -669,12 +669,12 @@ TEST(Plot, MissingGnuplotStillWritesDataAndScript) {
   ASSERT_TRUE(
       WriteCornerPlot(dir.path(), "corner", MakeCornerInput(2, 50, 1), &result, &error, options))
       << error;
-  EXPECT_FALSE(result.png_written);
+  EXPECT_FALSE(result.image_written);
   EXPECT_TRUE(Exists(dir.File("corner.gp")));
   ASSERT_TRUE(
       WriteResidualMaps(dir.path(), "maps", {MakeStamp(9, 9, 0, 0, 1)}, &result, &error, options))
       << error;
-  EXPECT_FALSE(result.png_written);
+  EXPECT_FALSE(result.image_written);
   EXPECT_TRUE(Exists(dir.File("maps.gp")));
   EXPECT_TRUE(Exists(dir.File("maps_000.dat")));
   ExpectNoTemporaries(dir);
@@ -689,7 +689,7 @@ TEST(Plot, EnvironmentVariableChoosesTheGnuplotProgram) {
   const bool available = GnuplotAvailable();
   ::unsetenv("CCDPSF_GNUPLOT");
   ASSERT_TRUE(ok) << error;
-  EXPECT_FALSE(result.png_written);
+  EXPECT_FALSE(result.image_written);
   EXPECT_NE(result.message.find(kMissingGnuplot), std::string::npos) << result.message;
   EXPECT_FALSE(available);
 }
@@ -703,7 +703,7 @@ TEST(Plot, FailingGnuplotIsReportedNotAnError) {
   PlotResult result;
   std::string error;
   ASSERT_TRUE(WriteXyPlot(dir.path(), "xy", MakeXyInput(), &result, &error, options)) << error;
-  EXPECT_FALSE(result.png_written);
+  EXPECT_FALSE(result.image_written);
   EXPECT_NE(result.message.find("exit status 1"), std::string::npos) << result.message;
   EXPECT_FALSE(Exists(dir.File("xy.png")));
   ExpectNoTemporaries(dir);
@@ -721,7 +721,7 @@ TEST(Plot, HangingGnuplotIsStoppedAfterTheTimeLimit) {
   PlotResult result;
   std::string error;
   ASSERT_TRUE(WriteXyPlot(dir.File("out"), "xy", MakeXyInput(), &result, &error, options)) << error;
-  EXPECT_FALSE(result.png_written);
+  EXPECT_FALSE(result.image_written);
   EXPECT_NE(result.message.find("did not finish"), std::string::npos) << result.message;
 }
 
@@ -732,7 +732,7 @@ TEST(Plot, ScriptRemakesThePngWhenRunByHandInItsFolder) {
   std::string error;
   ASSERT_TRUE(WriteResidualMaps(dir.path(), "maps", {MakeStamp(21, 21, 0, 0, 4)}, &result, &error))
       << error;
-  ASSERT_EQ(std::remove(result.png_path.c_str()), 0);
+  ASSERT_EQ(std::remove(result.image_path.c_str()), 0);
   // `cd DIR && gnuplot maps.gp`, with no outfile given: the script's default name is used.
   const std::optional<std::string> gnuplot = internal::FindExecutable("gnuplot");
   ASSERT_TRUE(gnuplot.has_value());

@@ -563,7 +563,7 @@ bool WriteDiagnoseReport(const std::string& out_dir, const fit::FitModel& base,
   const std::string dir = out.staging_dir();
   std::vector<std::string> plot_notes;
   auto note_plot = [&](const PlotResult& pr) {
-    if (!pr.png_written && !pr.message.empty()) {
+    if (!pr.image_written && !pr.message.empty()) {
       warnings->push_back(pr.message);
       plot_notes.push_back(pr.message);
     }

@@ -220,7 +220,7 @@ bool WriteFitReport(const std::string& out_dir, const ExposuresFit& fit, const j
   if (!WriteFitsImagesF64(out.Path("residuals.fits"), primary, hdus, error)) return false;
   PlotResult plot;
   if (!WriteResidualMaps(out.staging_dir(), "residuals", panels, &plot, error)) return false;
-  if (!plot.png_written) warnings->push_back("residuals.png not made: " + plot.message);
+  if (!plot.image_written) warnings->push_back("residuals.png not made: " + plot.message);
 
   // chain.fits and the corner plot.
   if (r.have_mcmc) {
@@ -274,7 +274,7 @@ bool WriteFitReport(const std::string& out_dir, const ExposuresFit& fit, const j
     corner.num_samples = static_cast<int>(n);
     corner.title = "posterior (MCMC), MAP and Laplace 68/95 % ellipses";
     if (!WriteCornerPlot(out.staging_dir(), "corner", corner, &plot, error)) return false;
-    if (!plot.png_written) warnings->push_back("corner.png not made: " + plot.message);
+    if (!plot.image_written) warnings->push_back("corner.png not made: " + plot.message);
   }
 
   // report.md: the numbers people come for, and the plots.

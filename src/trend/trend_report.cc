@@ -171,7 +171,7 @@ void PlotFits(const std::string& dir, const std::string& stem, const std::string
   std::string error;
   if (!WriteXyPlot(dir, stem, in, &plot, &error)) {
     warnings->push_back(stem + ".png not made: " + error);
-  } else if (!plot.png_written) {
+  } else if (!plot.image_written) {
     warnings->push_back(stem + ".png not made: " + plot.message);
   } else {
     pngs->push_back(stem + ".png");

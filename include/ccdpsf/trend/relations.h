@@ -175,6 +175,11 @@ struct PointSummary {
   bool gaussian = false;      // true: no draws, N(median, sd^2) used
   int num_draws = 0;          // 0 for a Gaussian point
   double normalized_residual = NAN;  // (y~_i - median relation at x_i) / s_i
+  // Where the fit sees the point: the mean of its draws in the fitted space, back in X's unit
+  // (mean of X for a linear relation, exp(mean of log X) for a power law); the median for a
+  // Gaussian point. The resampled weighted fit is centred on these, so the median relation
+  // runs through them; with skewed draws they can differ from value.median.
+  double fit_centre = NAN;
 };
 
 struct RelationGap {
