@@ -351,15 +351,15 @@ std::string ScriptPreamble(const std::string& stem, const std::string& what, int
   // F points takes F x 72 / 96 of the picture's height that it takes in the PNG.
   const std::string pdf_font = " font 'Sans," + Num(std::round(font_size * 72.0 / 96.0 * 10) / 10) +
                                "' noenhanced";
+  s += "# pngcairo when this gnuplot has it (set terminal_name on the command line to choose).\n";
+  s += "if (!exists(\"terminal_name\")) "
+       "terminal_name = strstrt(GPVAL_TERMINALS, ' pngcairo ') > 0 ? 'pngcairo' : 'png'\n";
   s += "if (plot_format eq 'pdf') {\n";
   s += "  set terminal pdfcairo" + std::string(inches) + pdf_font + "\n";
   s += "} else {\n";
   s += "  if (plot_format eq 'svg') {\n";
   s += "    set terminal svg" + pixels + " fixed" + font + " background '#FFFFFF'\n";
   s += "  } else {\n";
-  s += "    # pngcairo when this gnuplot has it (set terminal_name on the command line to choose).\n";
-  s += "    if (!exists(\"terminal_name\")) "
-       "terminal_name = strstrt(GPVAL_TERMINALS, ' pngcairo ') > 0 ? 'pngcairo' : 'png'\n";
   s += "    if (terminal_name eq 'pngcairo') {\n";
   s += "      set terminal pngcairo" + pixels + font + "\n";
   s += "    } else {\n";

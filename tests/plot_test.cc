@@ -180,7 +180,7 @@ TEST(Plot, CornerWritesDataScriptAndPng) {
   for (const std::string& path : result.data_paths) EXPECT_TRUE(Exists(path)) << path;
   const std::string script = ReadText(result.script_path);
   EXPECT_NE(script.find("corner_samples.dat"), std::string::npos);
-  EXPECT_NE(script.find("if (!exists(\"outfile\")) outfile = 'corner.png'"), std::string::npos);
+  EXPECT_NE(script.find("if (!exists(\"outfile\")) outfile = 'corner.' . plot_format"), std::string::npos);
 
   // Fewer than 5000 samples: every one is kept, and reads back exactly.
   const std::vector<Block> samples = ReadBlocks(dir.File("corner_samples.dat"));

@@ -16,6 +16,10 @@
 DEFINE_string(config, "",
               "JSON configuration file (simulate: the simulation config; fit: FIT.json)");
 DEFINE_string(out, "", "Output folder; created if missing");
+DEFINE_string(plot_format, "png", "fit, trend, diagnose: format of the plots: png, pdf or svg");
+DEFINE_string(truth, "",
+              "fit, trend: truth.json of simulated data, drawn on the plots (default: a "
+              "truth.json in the folder holding all the inputs, if there is one)");
 DEFINE_string(sampling, "integrated",
               "Model sampling: integrated (exact pixel integral) or pixel_centre (the 2015 "
               "code's discretisation)");

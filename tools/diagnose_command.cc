@@ -10,10 +10,12 @@
 #include "ccdpsf/fit/fit_config.h"
 #include "ccdpsf/output_folder.h"
 #include "ccdpsf/provenance.h"
+#include "ccdpsf/plot.h"
 #include "command.h"
 #include "gflags/gflags.h"
 
 DECLARE_string(out);
+DECLARE_string(plot_format);
 DECLARE_uint64(seed);
 DECLARE_int32(threads);
 DECLARE_bool(strict);
@@ -60,6 +62,8 @@ int RunDiagnose(const std::vector<std::string>& files) {
   }
   fit::FitConfig config;
   std::string error;
+  PlotOptions plot;
+  if (!ParsePlotFormat(FLAGS_plot_format, &plot.format, &error)) return Fail(error);
   if (!ResolveFitConfig(&config, &error)) return Fail(error);
   config.model.through_focus = false;
   diagnose::DiagnoseOptions options;
@@ -214,7 +218,7 @@ int RunDiagnose(const std::vector<std::string>& files) {
                         {"software", SoftwareVersions()}};
   std::vector<std::string> warnings;
   if (!diagnose::WriteDiagnoseReport(out.partial(), *base, result, options, run, &warnings,
-                                     &error) ||
+                                     &error, plot) ||
       !out.Commit({}, &error)) {
     return Fail(error);
   }

@@ -12,12 +12,16 @@
 #include "ccdpsf/fit/fit_config.h"
 #include "ccdpsf/fit/fit_report.h"
 #include "ccdpsf/output_folder.h"
+#include "ccdpsf/plot.h"
 #include "ccdpsf/provenance.h"
+#include "ccdpsf/truth.h"
 #include "command.h"
 #include "gflags/gflags.h"
 
 DECLARE_string(config);
 DECLARE_string(out);
+DECLARE_string(plot_format);
+DECLARE_string(truth);
 DECLARE_string(sampling);
 DECLARE_string(defocus);
 DECLARE_int32(stamp_size);
@@ -143,7 +147,14 @@ int FitInto(const std::string& dir, const std::string& shown, const std::string&
                         {"seed", config.fit.mcmc.seed},
                         {"software", SoftwareVersions()}};
   std::vector<std::string> warnings;
-  if (!fit::WriteFitReport(dir, fitted, run, &warnings, &error)) return Fail(error);
+  fit::FitReportOptions report_options;
+  if (!ParsePlotFormat(FLAGS_plot_format, &report_options.plot.format, &error) ||
+      !FindTruth(FLAGS_truth, files, &report_options.truth, &error)) {
+    return Fail(error);
+  }
+  if (!fit::WriteFitReport(dir, fitted, run, &warnings, &error, report_options)) {
+    return Fail(error);
+  }
   for (const std::string& w : warnings) std::fprintf(stderr, "ccdpsf: warning: %s\n", w.c_str());
   const fit::FitResult& result = fitted.result;
   std::printf("%s: chi2/dof %.4g, %s; verdict %s; results in %s/fit.json (report.md, plots)\n",
@@ -192,6 +203,15 @@ int RunFit(const std::vector<std::string>& files) {
   fit::FitConfig config;
   std::string error;
   if (!ResolveFitConfig(&config, &error)) return Fail(error);
+  {
+    // Checked before any fitting, so that a typo fails at once.
+    PlotFormat format;
+    std::optional<TruthFile> truth;
+    if (!ParsePlotFormat(FLAGS_plot_format, &format, &error) ||
+        !FindTruth(FLAGS_truth, files, &truth, &error)) {
+      return Fail(error);
+    }
+  }
   std::vector<InputFile> inputs;
   Manifest manifest;
   if (files.empty() && !FlagGiven("manifest")) {

@@ -6,7 +6,9 @@
 
 #include "ccdpsf/atomic_file.h"
 #include "ccdpsf/output_folder.h"
+#include "ccdpsf/plot.h"
 #include "ccdpsf/provenance.h"
+#include "ccdpsf/truth.h"
 #include "ccdpsf/trend/campaign.h"
 #include "ccdpsf/trend/group_fit.h"
 #include "ccdpsf/trend/trend.h"
@@ -15,6 +17,8 @@
 #include "gflags/gflags.h"
 
 DECLARE_string(out);
+DECLARE_string(plot_format);
+DECLARE_string(truth);
 DECLARE_uint64(seed);
 DECLARE_int32(threads);
 DECLARE_bool(strict);
@@ -57,7 +61,13 @@ std::string RunSignature(const std::vector<std::string>& inputs) {
 int RunTrend(const std::vector<std::string>& inputs) {
   if (FLAGS_out.empty()) return Usage("trend needs --out=DIR");
   std::string error;
+  trend::TrendReportOptions report_options;
+  if (!ParsePlotFormat(FLAGS_plot_format, &report_options.plot.format, &error) ||
+      !FindTruth(FLAGS_truth, inputs, &report_options.truth, &error)) {
+    return Fail(error);
+  }
   trend::GroupFitOptions fit_options;
+  fit_options.plot_format = report_options.plot.format;
   // A campaign's relations need a few hundred independent draws per setting (the MC error of
   // a 68 % bound is then ~0.07 sd), not the 1000 of a single fit's default: 400 unless
   // FIT.json or --target_ess says otherwise. The chain must still exceed 50 taus.
@@ -147,7 +157,9 @@ int RunTrend(const std::vector<std::string>& inputs) {
                         {"seed", fit_options.seed},
                         {"software", SoftwareVersions()}};
   std::vector<std::string> warnings;
-  if (!trend::WriteTrendReport(out.partial(), trend_result, run, &warnings, &error) ||
+  report_options.reference_intensity_e = trend_options.reference_intensity_e;
+  if (!trend::WriteTrendReport(out.partial(), trend_result, run, &warnings, &error,
+                               report_options) ||
       !out.Commit({kStore}, &error)) {
     return Fail(error);
   }

@@ -28,6 +28,7 @@
 #include <vector>
 
 #include "ccdpsf/diagnose/diagnose.h"
+#include "ccdpsf/plot.h"
 #include "nlohmann/json.hpp"
 
 namespace ccdpsf::diagnose {
@@ -39,7 +40,7 @@ nlohmann::json DiagnoseJson(const fit::FitModel& base, const DiagnoseResult& res
 bool WriteDiagnoseReport(const std::string& out_dir, const fit::FitModel& base,
                          const DiagnoseResult& result, const DiagnoseOptions& options,
                          const nlohmann::json& run_record, std::vector<std::string>* warnings,
-                         std::string* error);
+                         std::string* error, const PlotOptions& plot = PlotOptions());
 
 }  // namespace ccdpsf::diagnose
 

@@ -9,20 +9,32 @@
 //                   [e-, e-, e-, sigma]; masked pixels are NaN
 //   chain.fits      binary table CHAIN: walker, step, log_prob, one column per parameter
 //                   (post burn-in marked by the BURNIN keyword)
-//   corner.png / residuals.png (+ their .gp scripts and .dat data, for restyling)
+//   corner.png / residuals.png, or .pdf / .svg (FitReportOptions::plot.format), with their
+//                   .gp scripts and .dat data, for restyling; with a truth (simulated data)
+//                   the corner plot marks the true values that map onto fitted parameters
 //   report.md       a readable summary linking the plots
 #ifndef CCDPSF_FIT_FIT_REPORT_H_
 #define CCDPSF_FIT_FIT_REPORT_H_
 
+#include <optional>
 #include <string>
 #include <vector>
 
 #include "ccdpsf/exposure.h"
 #include "ccdpsf/fit/fit.h"
 #include "ccdpsf/fit/fit_exposures.h"
+#include "ccdpsf/plot.h"
+#include "ccdpsf/truth.h"
 #include "nlohmann/json.hpp"
 
 namespace ccdpsf::fit {
+
+struct FitReportOptions {
+  PlotOptions plot;  // the plots' format (and how gnuplot is run)
+  // Known true values (truth.h), drawn on the corner plot where they map; report.md names
+  // the file.
+  std::optional<TruthFile> truth;
+};
 
 // The fit.json document.
 nlohmann::json FitJson(const ExposuresFit& fit);
@@ -32,7 +44,7 @@ nlohmann::json FitJson(const ExposuresFit& fit);
 // gnuplot) are not errors: they are listed in `warnings` and in report.md.
 bool WriteFitReport(const std::string& out_dir, const ExposuresFit& fit,
                     const nlohmann::json& run_record, std::vector<std::string>* warnings,
-                    std::string* error);
+                    std::string* error, const FitReportOptions& options = FitReportOptions());
 
 }  // namespace ccdpsf::fit
 
