@@ -185,8 +185,10 @@ struct XyPlotInput {
   TruthOverlay truth;
   // Series that share x values would hide each other's points and bars: with a fraction
   // f > 0, the b-th of the m series with points (and its upper limits) is drawn shifted
-  // along x by (b - (m - 1) / 2) f of the x axis' width (in log space on a log axis). The
-  // data file keeps each true x beside the drawn one; say so in the caption.
+  // along x by (b - (m - 1) / 2) f of the x axis' width before the shift (everything's span
+  // with the 5 % margins; in log space on a log axis); the axis then widens to show the
+  // shifted points. The data file keeps each true x beside the drawn one; say so in the
+  // caption. f is at most 0.05.
   double dodge_fraction = 0.0;
 };
 
