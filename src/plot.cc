@@ -325,8 +325,9 @@ bool WritePlotFiles(const std::string& dir, const std::string& stem,
 }
 
 // The opening of every script: how to run it, the output file and the terminal. `width` and
-// `height` are the picture's size in PNG / SVG pixels; the PDF has the same proportions and
-// looks the same at 96 pixels per inch, the resolution pngcairo draws its fonts for.
+// `height` are the picture's size in PNG / SVG pixels. pngcairo sets fonts as at 96 pixels
+// per inch, so the PDF page is width / 96 by height / 96 inches with the same font sizes: its
+// text then takes the same share of the picture as in the PNG (checked by rendering both).
 std::string ScriptPreamble(const std::string& stem, const std::string& what, int width, int height,
                            int font_size,
                            const std::vector<std::pair<std::string, std::string>>& data_files) {
@@ -347,15 +348,11 @@ std::string ScriptPreamble(const std::string& stem, const std::string& what, int
   const std::string pixels = " size " + std::to_string(width) + "," + std::to_string(height);
   char inches[64];
   std::snprintf(inches, sizeof(inches), " size %.3fin,%.3fin", width / 96.0, height / 96.0);
-  // pdfcairo sets fonts in points on a page measured in inches; at 96 px per inch a font of
-  // F points takes F x 72 / 96 of the picture's height that it takes in the PNG.
-  const std::string pdf_font = " font 'Sans," + Num(std::round(font_size * 72.0 / 96.0 * 10) / 10) +
-                               "' noenhanced";
   s += "# pngcairo when this gnuplot has it (set terminal_name on the command line to choose).\n";
   s += "if (!exists(\"terminal_name\")) "
        "terminal_name = strstrt(GPVAL_TERMINALS, ' pngcairo ') > 0 ? 'pngcairo' : 'png'\n";
   s += "if (plot_format eq 'pdf') {\n";
-  s += "  set terminal pdfcairo" + std::string(inches) + pdf_font + "\n";
+  s += "  set terminal pdfcairo" + std::string(inches) + font + "\n";
   s += "} else {\n";
   s += "  if (plot_format eq 'svg') {\n";
   s += "    set terminal svg" + pixels + " fixed" + font + " background '#FFFFFF'\n";
