@@ -387,7 +387,7 @@ double SortedQuantile(const std::vector<double>& sorted, double q) {
 
 // "median +up -down" with the digits the uncertainty supports: two significant digits of the
 // smaller of the two error sizes, the median rounded to the same decimal place. Scientific
-// notation beyond 1e6 or below 1e-3.
+// notation beyond 1e6 or below 1e-2.
 std::string ValueWithErrors(double median, double low, double high) {
   const double up = high - median, down = median - low;
   const double smaller = std::min(up, down) > 0 ? std::min(up, down) : std::max(up, down);
@@ -398,7 +398,7 @@ std::string ValueWithErrors(double median, double low, double high) {
   }
   const int error_exponent = static_cast<int>(std::floor(std::log10(smaller)));
   const double magnitude = std::fabs(median);
-  if (magnitude >= 1e6 || (magnitude > 0 && magnitude < 1e-3)) {
+  if (magnitude >= 1e6 || (magnitude > 0 && magnitude < 1e-2)) {
     const int median_exponent = static_cast<int>(std::floor(std::log10(magnitude)));
     const int digits = std::max(1, median_exponent - error_exponent + 1);
     std::snprintf(buffer, sizeof(buffer), "%.*e +%.1e -%.1e", digits, median, up, down);
