@@ -1389,8 +1389,8 @@ bool WriteXyPlot(const std::string& dir, const std::string& stem, const XyPlotIn
     std::string d;
     d += "# Upper limits of " + stem + ".gp: one block per series that has them (gnuplot index "
          "= block number - 1), each point drawn as a downward arrow.\n";
-    d += "# Columns: x_drawn [" + x_name + "; moved aside like the series' points], limit y [" +
-         y_name + "], arrow dy [" + y_name + "; negative], x [" + x_name + "]\n";
+    d += "# Columns: x [" + x_name + "], limit y [" + y_name + "], arrow dy [" + y_name +
+         "; negative], x_drawn [" + x_name + "; moved aside like the series' points]\n";
     for (size_t b = 0; b < with_limits.size(); ++b) {
       const size_t k = with_limits[b];
       const Series& series = input.series[k];
@@ -1400,8 +1400,8 @@ bool WriteXyPlot(const std::string& dir, const std::string& stem, const XyPlotIn
         const double y = series.limit_y[i];
         const double end = input.log_y ? y * std::pow(y_lo / y_hi, kArrowFraction)
                                        : y - kArrowFraction * (y_hi - y_lo);
-        d += Num(drawn_x(k, series.limit_x[i])) + " " + Num(y) + " " + Num(end - y) + " " +
-             Num(series.limit_x[i]) + "\n";
+        d += Num(series.limit_x[i]) + " " + Num(y) + " " + Num(end - y) + " " +
+             Num(drawn_x(k, series.limit_x[i])) + "\n";
       }
     }
     files.push_back({stem + "_limits.dat", d});
@@ -1467,7 +1467,7 @@ bool WriteXyPlot(const std::string& dir, const std::string& stem, const XyPlotIn
                                   ? std::string("notitle")
                                   : "title " + GpString(series.limit_label);
     plots.push_back(limits_file + " index " + std::to_string(b) +
-                    " using 1:2:(0):3 with vectors head filled size screen 0.008,30 ls " +
+                    " using 4:2:(0):3 with vectors head filled size screen 0.008,30 ls " +
                     std::to_string(with_limits[b] + 1) + " " + title);
   }
   for (size_t k = 0; k < input.curves.size(); ++k) {

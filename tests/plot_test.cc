@@ -583,7 +583,7 @@ TEST(Plot, XyPlotDrawsUpperLimitsAsDownwardArrows) {
       }
     }
     // Drawn in the owning series' line style (3 for the third series), with its key entry.
-    EXPECT_NE(script.find("'lim_limits.dat' index 1 using 1:2:(0):3 with vectors"),
+    EXPECT_NE(script.find("'lim_limits.dat' index 1 using 4:2:(0):3 with vectors"),
               std::string::npos);
     EXPECT_NE(script.find("ls 3 notitle"), std::string::npos);
     EXPECT_NE(script.find("'FWHM_x: upper limit'"), std::string::npos);
