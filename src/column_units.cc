@@ -15,11 +15,18 @@ std::string UnitOfName(const std::string& name) {
     base.resize(last);
   }
   // Longest suffixes first: _e_per_adu before _adu, _px_per_um before _um, _px2 before _px.
-  static const std::pair<const char*, const char*> kSuffixes[] = {
-      {"_e_per_adu", "electron/adu"}, {"_px_per_um", "pix/um"}, {"_arcsec2", "arcsec2"},
-      {"_adu2", "adu2"},              {"_adu", "adu"},          {"_px2", "pix2"},
-      {"_um2", "um2"},                {"_px", "pix"},           {"_um", "um"},
-      {"_nm", "nm"},                  {"_e", "electron"},       {"_s", "s"}};
+  static const std::pair<const char*, const char*> kSuffixes[] = {{"_e_per_adu", "electron/adu"},
+                                                                  {"_px_per_um", "pix/um"},
+                                                                  {"_arcsec2", "arcsec2"},
+                                                                  {"_adu2", "adu2"},
+                                                                  {"_adu", "adu"},
+                                                                  {"_px2", "pix2"},
+                                                                  {"_um2", "um2"},
+                                                                  {"_px", "pix"},
+                                                                  {"_um", "um"},
+                                                                  {"_nm", "nm"},
+                                                                  {"_e", "electron"},
+                                                                  {"_s", "s"}};
   for (const auto& [suffix, unit] : kSuffixes) {
     const std::string s = suffix;
     if (base.size() > s.size() && base.compare(base.size() - s.size(), s.size(), s) == 0) {

@@ -12,6 +12,7 @@
 #include <limits>
 #include <optional>
 #include <string>
+#include <tuple>
 #include <utility>
 #include <vector>
 
@@ -22,7 +23,6 @@ namespace ccdpsf {
 namespace {
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
-constexpr char kPngSignature[] = "\x89PNG\r\n\x1a\n";  // 8 bytes
 
 // ---------------------------------------------------------------------------------------------
 // Text helpers.
@@ -205,11 +205,25 @@ std::string SummariseOutput(const std::string& output) {
   return out;
 }
 
-bool StartsWithPngSignature(const std::string& path) {
+// Whether the file at `path` begins as a file of `format` does: the 8-byte PNG signature;
+// "%PDF-"; for SVG an XML declaration or the <svg> element, after any leading white space.
+bool StartsLikeFormat(const std::string& path, PlotFormat format) {
   std::ifstream in(path, std::ios::binary);
-  char head[8] = {};
-  in.read(head, 8);
-  return in.gcount() == 8 && std::equal(head, head + 8, kPngSignature);
+  char head[64] = {};
+  in.read(head, sizeof(head));
+  const std::string start(head, static_cast<size_t>(in.gcount()));
+  switch (format) {
+    case PlotFormat::kPng:
+      return start.compare(0, 8, std::string("\x89PNG\r\n\x1a\n", 8)) == 0;
+    case PlotFormat::kPdf:
+      return start.compare(0, 5, "%PDF-") == 0;
+    case PlotFormat::kSvg: {
+      const size_t first = start.find_first_not_of(" \t\r\n");
+      return first != std::string::npos &&
+             (start.compare(first, 5, "<?xml") == 0 || start.compare(first, 4, "<svg") == 0);
+    }
+  }
+  return false;
 }
 
 std::string FileName(const std::string& path) {
@@ -217,14 +231,22 @@ std::string FileName(const std::string& path) {
   return slash == std::string::npos ? path : path.substr(slash + 1);
 }
 
+std::string ImageName(const std::string& stem, PlotFormat format) {
+  return stem + "." + PlotFormatName(format);
+}
+
 // Runs STEM.gp in `dir` with the output redirected to a temporary name that is renamed onto
-// STEM.png once gnuplot has succeeded. Returns whether the PNG was made; *message says why
-// not (or carries gnuplot's warnings).
-bool RenderPng(const std::string& dir, const std::string& stem, const PlotOptions& options,
-               std::string* message) {
-  const std::string png_path = JoinPath(dir, stem + ".png");
-  const std::string manual = "; data and script are in " + dir + ": run 'gnuplot " + stem +
-                             ".gp' there to make " + stem + ".png";
+// STEM.EXT once gnuplot has succeeded. Returns whether the picture was made; *message says
+// why not (or carries gnuplot's warnings).
+bool RenderImage(const std::string& dir, const std::string& stem, const PlotOptions& options,
+                 std::string* message) {
+  const std::string format = PlotFormatName(options.format);
+  const std::string image_name = ImageName(stem, options.format);
+  const std::string image_path = JoinPath(dir, image_name);
+  const std::string manual =
+      "; data and script are in " + dir + ": run 'gnuplot " +
+      (options.format == PlotFormat::kPng ? "" : "-e \"plot_format='" + format + "'\" ") + stem +
+      ".gp' there to make " + image_name;
   const std::string gnuplot_name = ResolveGnuplotName(options.gnuplot_path);
   const std::optional<std::string> executable = internal::FindExecutable(gnuplot_name);
   bool written = false;
@@ -234,12 +256,13 @@ bool RenderPng(const std::string& dir, const std::string& stem, const PlotOption
     std::string warnings;
     std::string failure;
     const bool ok = WriteAtomically(
-        png_path,
+        image_path,
         [&](const std::string& temp_path, std::string* write_error) {
           // gnuplot runs inside `dir`, so the temporary file is named relative to it. Its
-          // name (stem + ".png.tmp.<pid>.<n>") holds no quote characters.
+          // name (STEM.EXT.tmp.<pid>.<n>) holds no quote characters.
           const std::vector<std::string> args = {
-              "-d", "-e", "outfile='" + FileName(temp_path) + "'", stem + ".gp"};
+              "-d", "-e", "plot_format='" + format + "'; outfile='" + FileName(temp_path) + "'",
+              stem + ".gp"};
           const internal::SubprocessOutcome run =
               internal::RunSubprocess(*executable, args, dir, options.timeout_s);
           const std::string said = SummariseOutput(run.output);
@@ -253,8 +276,9 @@ bool RenderPng(const std::string& dir, const std::string& stem, const PlotOption
           } else if (run.exit_code != 0) {
             *write_error = "gnuplot failed (exit status " + std::to_string(run.exit_code) + ")" +
                            (said.empty() ? "" : ": " + said);
-          } else if (!StartsWithPngSignature(temp_path)) {
-            *write_error = "gnuplot made no PNG" + (said.empty() ? "" : ": " + said);
+          } else if (!StartsLikeFormat(temp_path, options.format)) {
+            *write_error =
+                "gnuplot made no " + format + " file" + (said.empty() ? "" : ": " + said);
           } else {
             warnings = said;
             return true;
@@ -270,12 +294,13 @@ bool RenderPng(const std::string& dir, const std::string& stem, const PlotOption
       *message = failure + manual;
     }
   }
-  if (!written) ::unlink(png_path.c_str());  // a PNG of earlier data must not pass for this one
+  // A picture of earlier data must not pass for this one.
+  if (!written) ::unlink(image_path.c_str());
   return written;
 }
 
-// Writes the data files and the script, then makes the PNG. False only when a file cannot be
-// written.
+// Writes the data files and the script, then makes the picture. False only when a file
+// cannot be written.
 bool WritePlotFiles(const std::string& dir, const std::string& stem,
                     const std::vector<std::pair<std::string, std::string>>& data_files,
                     const std::string& script, const PlotOptions& options, PlotResult* result,
@@ -286,7 +311,7 @@ bool WritePlotFiles(const std::string& dir, const std::string& stem,
   }
   if (!MakeDirectories(dir, error)) return false;
   PlotResult local;
-  local.png_path = JoinPath(dir, stem + ".png");
+  local.image_path = JoinPath(dir, ImageName(stem, options.format));
   local.script_path = JoinPath(dir, stem + ".gp");
   for (const auto& [name, contents] : data_files) {
     const std::string path = JoinPath(dir, name);
@@ -294,12 +319,15 @@ bool WritePlotFiles(const std::string& dir, const std::string& stem,
     local.data_paths.push_back(path);
   }
   if (!WriteTextFileAtomically(local.script_path, script, error)) return false;
-  local.png_written = RenderPng(dir, stem, options, &local.message);
+  local.image_written = RenderImage(dir, stem, options, &local.message);
   if (result != nullptr) *result = std::move(local);
   return true;
 }
 
-// The opening of every script: how to run it, the output file and the terminal.
+// The opening of every script: how to run it, the output file and the terminal. `width` and
+// `height` are the picture's size in PNG / SVG pixels. pngcairo sets fonts as at 96 pixels
+// per inch, so the PDF page is width / 96 by height / 96 inches with the same font sizes: its
+// text then takes the same share of the picture as in the PNG (checked by rendering both).
 std::string ScriptPreamble(const std::string& stem, const std::string& what, int width, int height,
                            int font_size,
                            const std::vector<std::pair<std::string, std::string>>& data_files) {
@@ -309,19 +337,34 @@ std::string ScriptPreamble(const std::string& stem, const std::string& what, int
   s += "# " + stem + ".gp: " + OneLine(what) + "\n";
   s += "# Written by ccdpsf. Reads " + files + " from this folder.\n";
   s += "# To restyle, edit this file and run `gnuplot " + stem + ".gp` here to remake " + stem +
-       ".png.\n";
-  s += "# (ccdpsf runs it as gnuplot -d -e \"outfile='...'\" to write under a temporary name.)\n";
-  s += "if (!exists(\"outfile\")) outfile = '" + stem + ".png'\n";
-  const std::string size = " size " + std::to_string(width) + "," + std::to_string(height) +
-                           " font 'Sans," + std::to_string(font_size) + "' noenhanced";
+       ".png;\n";
+  s += "# `gnuplot -e \"plot_format='pdf'\" " + stem + ".gp` makes " + stem +
+       ".pdf (or 'svg': " + stem + ".svg).\n";
+  s += "# (ccdpsf runs it as gnuplot -d -e \"plot_format='...'; outfile='...'\" to write under a"
+       " temporary name.)\n";
+  s += "if (!exists(\"plot_format\")) plot_format = 'png'\n";
+  s += "if (!exists(\"outfile\")) outfile = '" + stem + ".' . plot_format\n";
+  const std::string font = " font 'Sans," + std::to_string(font_size) + "' noenhanced";
+  const std::string pixels = " size " + std::to_string(width) + "," + std::to_string(height);
+  char inches[64];
+  std::snprintf(inches, sizeof(inches), " size %.3fin,%.3fin", width / 96.0, height / 96.0);
   s += "# pngcairo when this gnuplot has it (set terminal_name on the command line to choose).\n";
   s += "if (!exists(\"terminal_name\")) "
        "terminal_name = strstrt(GPVAL_TERMINALS, ' pngcairo ') > 0 ? 'pngcairo' : 'png'\n";
-  s += "if (terminal_name eq 'pngcairo') {\n";
-  s += "  set terminal pngcairo" + size + "\n";
+  s += "if (plot_format eq 'pdf') {\n";
+  s += "  set terminal pdfcairo" + std::string(inches) + font + "\n";
   s += "} else {\n";
-  s += "  # libgd's png: truecolor, else palette changes between panels recolour earlier ones.\n";
-  s += "  set terminal png truecolor" + size + "\n";
+  s += "  if (plot_format eq 'svg') {\n";
+  s += "    set terminal svg" + pixels + " fixed" + font + " background '#FFFFFF'\n";
+  s += "  } else {\n";
+  s += "    if (terminal_name eq 'pngcairo') {\n";
+  s += "      set terminal pngcairo" + pixels + font + "\n";
+  s += "    } else {\n";
+  s += "      # libgd's png: truecolor, else palette changes between panels recolour earlier "
+       "ones.\n";
+  s += "      set terminal png truecolor" + pixels + font + "\n";
+  s += "    }\n";
+  s += "  }\n";
   s += "}\n";
   s += "set output outfile\n";
   s += "set encoding utf8\n";
@@ -330,6 +373,43 @@ std::string ScriptPreamble(const std::string& stem, const std::string& what, int
 
 // ---------------------------------------------------------------------------------------------
 // Corner plot.
+
+// The posterior quantiles marked on the corner plot's histograms: the median and the central
+// 68.27 % interval (1 sigma of a Gaussian; the same levels as fit.json's lo68 / hi68).
+constexpr double kQuantileLow = 0.158655, kQuantileHigh = 0.841345;
+
+// Quantile q of `sorted` (ascending) by linear interpolation between order statistics.
+double SortedQuantile(const std::vector<double>& sorted, double q) {
+  const double position = q * (sorted.size() - 1);
+  const size_t below = static_cast<size_t>(std::floor(position));
+  const size_t above = std::min(below + 1, sorted.size() - 1);
+  return sorted[below] + (position - below) * (sorted[above] - sorted[below]);
+}
+
+// "median +up -down" with the digits the uncertainty supports: two significant digits of the
+// smaller of the two error sizes, the median rounded to the same decimal place. Scientific
+// notation beyond 1e6 or below 1e-2.
+std::string ValueWithErrors(double median, double low, double high) {
+  const double up = high - median, down = median - low;
+  const double smaller = std::min(up, down) > 0 ? std::min(up, down) : std::max(up, down);
+  char buffer[128];
+  if (!(smaller > 0) || !std::isfinite(smaller)) {
+    std::snprintf(buffer, sizeof(buffer), "%.4g", median);
+    return buffer;
+  }
+  const int error_exponent = static_cast<int>(std::floor(std::log10(smaller)));
+  const double magnitude = std::fabs(median);
+  if (magnitude >= 1e6 || (magnitude > 0 && magnitude < 1e-2)) {
+    const int median_exponent = static_cast<int>(std::floor(std::log10(magnitude)));
+    const int digits = std::max(1, median_exponent - error_exponent + 1);
+    std::snprintf(buffer, sizeof(buffer), "%.*e +%.1e -%.1e", digits, median, up, down);
+    return buffer;
+  }
+  const int decimals = std::max(0, 1 - error_exponent);
+  std::snprintf(buffer, sizeof(buffer), "%.*f +%.*f -%.*f", decimals, median, decimals, up,
+                decimals, down);
+  return buffer;
+}
 
 constexpr int kMaxScatterPoints = 5000;
 // Mahalanobis radii of the 2-D Gaussian regions holding 68% and 95%: sqrt(-2 ln(1 - p)).
@@ -385,6 +465,29 @@ bool ValidateCorner(const CornerPlotInput& in, std::string* error) {
 }
 
 }  // namespace
+
+const char* PlotFormatName(PlotFormat format) {
+  switch (format) {
+    case PlotFormat::kPng:
+      return "png";
+    case PlotFormat::kPdf:
+      return "pdf";
+    case PlotFormat::kSvg:
+      return "svg";
+  }
+  return "png";
+}
+
+bool ParsePlotFormat(const std::string& text, PlotFormat* format, std::string* error) {
+  for (PlotFormat f : {PlotFormat::kPng, PlotFormat::kPdf, PlotFormat::kSvg}) {
+    if (text == PlotFormatName(f)) {
+      *format = f;
+      return true;
+    }
+  }
+  *error = "unknown plot format '" + OneLine(text) + "': use png, pdf or svg";
+  return false;
+}
 
 bool GnuplotAvailable(const std::string& gnuplot_path) {
   const std::optional<std::string> executable =
@@ -524,18 +627,33 @@ bool WriteCornerPlot(const std::string& dir, const std::string& stem, const Corn
     }
   }
 
+  // Median and central 68 % interval of all samples, per parameter.
+  std::vector<double> q_low(dim), q_median(dim), q_high(dim);
+  for (int k = 0; k < dim; ++k) {
+    std::vector<double> sorted(n);
+    for (int i = 0; i < n; ++i) sorted[i] = sample(i, k);
+    std::sort(sorted.begin(), sorted.end());
+    q_low[k] = SortedQuantile(sorted, kQuantileLow);
+    q_median[k] = SortedQuantile(sorted, 0.5);
+    q_high[k] = SortedQuantile(sorted, kQuantileHigh);
+  }
+
   std::string summary_dat;
   summary_dat +=
       "# Per parameter: MAP, Laplace sd (NaN: undefined), true value (NaN: not"
       " given) and the plotted axis range,\n";
   summary_dat +=
       "# all in the parameter's unit. Columns: index name map laplace_sd truth"
-      " axis_lo axis_hi\n";
+      " axis_lo axis_hi q15.87 q50 q84.13\n";
+  summary_dat +=
+      "# (the last three: the samples' 15.87, 50 and 84.13 % quantiles, linear interpolation"
+      " between order statistics)\n";
   for (int k = 0; k < dim; ++k) {
     std::string name = OneLine(input.names[k]);
     std::replace(name.begin(), name.end(), ' ', '_');
     summary_dat += std::to_string(k) + " " + name + " " + Num(map(k)) + " " + Num(sd[k]) + " " +
-                   Num(truth(k)) + " " + Num(lo[k]) + " " + Num(hi[k]) + "\n";
+                   Num(truth(k)) + " " + Num(lo[k]) + " " + Num(hi[k]) + " " + Num(q_low[k]) + " " +
+                   Num(q_median[k]) + " " + Num(q_high[k]) + "\n";
   }
 
   std::vector<std::pair<std::string, std::string>> files = {{stem + "_samples.dat", samples_dat},
@@ -547,7 +665,10 @@ bool WriteCornerPlot(const std::string& dir, const std::string& stem, const Corn
   // else in an extra right margin.
   const double panel = dim <= 10 ? 200.0 : std::max(110.0, 2000.0 / dim);
   const double gap = 6.0, left = 100.0, bottom = 100.0;
-  const double top = input.title.empty() && no_sd.empty() ? 40.0 : 70.0;
+  // Above the grid: the title lines, then the first column's two-line summary (name, median
+  // and 68 % interval), which every column has above its histogram.
+  constexpr double kColumnTitle = 34.0;
+  const double top = (input.title.empty() && no_sd.empty() ? 40.0 : 70.0) + kColumnTitle;
   const double right = dim >= 3 ? 25.0 : 330.0;
   const double grid = dim * panel + (dim - 1) * gap;
   const int width = static_cast<int>(left + grid + right);
@@ -563,6 +684,9 @@ bool WriteCornerPlot(const std::string& dir, const std::string& stem, const Corn
   s += "set style line 4 lw 1.3 dt 2 lc rgb '#E36464'\n";
   s += "set style line 5 lw 1.2 dt 1 lc rgb '#1F5FD0'\n";
   s += "set style line 6 lc rgb '#A8A8A8'\n";
+  s += "# 7 the samples' 15.87 / 84.13 % quantiles, 8 their median (on the histograms).\n";
+  s += "set style line 7 lw 1.2 dt 2 lc rgb '#202020'\n";
+  s += "set style line 8 lw 1.2 dt 1 lc rgb '#202020'\n";
   s += "set style fill solid 1.0 noborder\n";
   s += "gauss(x, m, s) = exp(-0.5 * ((x - m) / s)**2) / (s * sqrt(2 * pi))\n";
   s += "set samples 1000\n";
@@ -618,10 +742,22 @@ bool WriteCornerPlot(const std::string& dir, const std::string& stem, const Corn
           plots.push_back("gauss(x, " + Num(map(c)) + ", " + Num(sd[c]) +
                           ") with lines ls 3 notitle");
         }
+        for (const auto& [q, style] :
+             {std::pair<double, int>{q_low[c], 7}, {q_median[c], 8}, {q_high[c], 7}}) {
+          s += "set arrow from first " + Num(q) + ", graph 0 to first " + Num(q) +
+               ", graph 1 nohead ls " + std::to_string(style) + " front\n";
+        }
         if (std::isfinite(map(c))) {
           s += "set arrow from first " + Num(map(c)) + ", graph 0 to first " + Num(map(c)) +
                ", graph 1 nohead ls 2 front\n";
         }
+        // The column's summary above its histogram: name, then median +- the 68 % interval.
+        s += "set label 1003 " + GpString(input.names[c]) + " at screen " +
+             Screen(x0 + panel / 2, width) + "," + Screen(height - (y0 - 20), height) +
+             " center font ',9'\n";
+        s += "set label 1004 " + GpString(ValueWithErrors(q_median[c], q_low[c], q_high[c])) +
+             " at screen " + Screen(x0 + panel / 2, width) + "," +
+             Screen(height - (y0 - 7), height) + " center font ',9'\n";
         if (std::isfinite(truth(c))) {
           s += "set arrow from first " + Num(truth(c)) + ", graph 0 to first " + Num(truth(c)) +
                ", graph 1 nohead ls 5 front\n";
@@ -660,6 +796,7 @@ bool WriteCornerPlot(const std::string& dir, const std::string& stem, const Corn
         plots.push_back(
             "keyentry with points pt 7 ps 0.6 lc rgb '#303030' title " +
             GpString("samples (" + std::to_string(n) + ", " + std::to_string(kept) + " plotted)"));
+        plots.push_back("keyentry with lines ls 8 title 'median, 68 % interval (15.87-84.13 %)'");
         if (!input.map.empty()) plots.push_back("keyentry with linespoints ls 2 title 'MAP'");
         if (!input.laplace_covariance.empty()) {
           if (dim == 1) {
@@ -735,6 +872,49 @@ std::pair<double, double> FiniteRange(std::initializer_list<const Image*> images
 // Non-finite values are written as NaN (undrawn).
 std::string MapValue(double v) { return std::isfinite(v) ? Num(v) : "NaN"; }
 
+// A gnuplot tic list for a colour axis that shows asinh(value / b) over the values
+// [lo, hi]: zero and +-1, 2, 5 x 10^k inside the range, labelled with the values themselves,
+// leaving out any tick closer than 7 % of the axis to one already kept (largest magnitudes
+// first, so the decades survive).
+std::string AsinhTicks(double lo, double hi, double b) {
+  const double t_lo = std::asinh(lo / b), t_hi = std::asinh(hi / b);
+  const double min_gap = 0.07 * (t_hi - t_lo);
+  std::vector<double> candidates;
+  const double largest = std::max(std::fabs(lo), std::fabs(hi));
+  for (int e = static_cast<int>(std::floor(std::log10(largest))); e >= -12; --e) {
+    const double decade = std::pow(10.0, e);
+    if (decade < 0.1 * b) break;
+    for (double m : {5.0, 2.0, 1.0}) {
+      for (double sign : {1.0, -1.0}) {
+        const double v = sign * m * decade;
+        if (v >= lo && v <= hi) candidates.push_back(v);
+      }
+    }
+  }
+  std::vector<double> kept;
+  if (lo <= 0 && hi >= 0) kept.push_back(0.0);
+  // Powers of ten first (m = 1), then 2 and 5, each from the largest magnitude down.
+  for (int pass = 0; pass < 2; ++pass) {
+    for (double v : candidates) {
+      const double mantissa = std::fabs(v) / std::pow(10.0, std::floor(std::log10(std::fabs(v))));
+      const bool power_of_ten = std::fabs(mantissa - 1.0) < 1e-9;
+      if (power_of_ten != (pass == 0)) continue;
+      const double t = std::asinh(v / b);
+      bool clear = true;
+      for (double k : kept) clear = clear && std::fabs(std::asinh(k / b) - t) >= min_gap;
+      if (clear) kept.push_back(v);
+    }
+  }
+  std::sort(kept.begin(), kept.end());
+  std::string out = "(";
+  for (size_t i = 0; i < kept.size(); ++i) {
+    char label[32];
+    std::snprintf(label, sizeof(label), "%g", kept[i]);
+    out += (i ? ", " : "") + GpString(label) + " " + Num(std::asinh(kept[i] / b));
+  }
+  return out + ")";
+}
+
 }  // namespace
 
 bool WriteResidualMaps(const std::string& dir, const std::string& stem,
@@ -777,14 +957,18 @@ bool WriteResidualMaps(const std::string& dir, const std::string& stem,
   std::string s =
       ScriptPreamble(stem, "data, model and residual maps per exposure", width, height, 10, files);
   s += "\n# Colour maps (used as `set palette @name`): sequential for data and model, diverging\n";
-  s += "# for residuals. data_log = 1 (here, or gnuplot -e 'data_log = 1' " + stem +
-       ".gp) shows data and model\n";
-  s += "# on a logarithmic scale.\n";
+  s += "# for residuals (white at zero). Data and model are shown on an asinh stretch,\n";
+  s += "# colour = asinh(value / asinh_b); data_stretch = 'linear' or 'log' (here, or gnuplot -e\n";
+  s += "# \"data_stretch = 'log'\" " + stem +
+       ".gp) shows them on that scale; data_log = 1 means 'log'.\n";
   s += "palette_data = \"defined (0 '#440154', 0.25 '#3B528B', 0.5 '#21918C', 0.75 '#5EC962',"
        " 1 '#FDE725')\"\n";
   s += "palette_residual = \"defined (0 '#2166AC', 0.25 '#92C5DE', 0.5 '#F7F7F7', 0.75 '#F4A582',"
        " 1 '#B2182B')\"\n";
   s += "if (!exists(\"data_log\")) data_log = 0\n";
+  s += "if (!exists(\"data_stretch\")) data_stretch = data_log ? 'log' : 'asinh'\n";
+  s += "data_log = data_stretch eq 'log'\n";
+  s += "data_asinh = data_stretch eq 'asinh'\n";
   s += "# On the log scale, values below the range (noise, negative pixels) get its lowest "
        "colour.\n";
   s += "clamp_log(v) = v > data_log_lo ? v : data_log_lo\n";
@@ -812,6 +996,9 @@ bool WriteResidualMaps(const std::string& dir, const std::string& stem,
     PadRange(0.0, &data_lo, &data_hi);
     const double data_pos_lo = data_hi > 0 ? data_hi * 1e-4 : 1e-4;
     const double log_hi = data_hi > 0 ? data_hi : 1.0;
+    const double asinh_b = std::isfinite(p.asinh_softening) && p.asinh_softening > 0
+                               ? p.asinh_softening
+                               : 1e-3 * std::max(std::fabs(data_lo), std::fabs(data_hi));
     const auto [res_lo, res_hi] = FiniteRange({&p.residual});
     double res_max = std::isnan(res_lo) ? 0.0 : std::max(std::fabs(res_lo), std::fabs(res_hi));
     if (!(res_max > 0)) res_max = 1.0;
@@ -822,6 +1009,11 @@ bool WriteResidualMaps(const std::string& dir, const std::string& stem,
     s += "data_lo = " + Num(data_lo) + "; data_hi = " + Num(data_hi) +
          "; data_log_lo = " + Num(data_pos_lo) + "; data_log_hi = " + Num(log_hi) + "\n";
     s += "residual_max = " + Num(res_max) + "\n";
+    s += "asinh_b = " + Num(asinh_b) +
+         "; asinh_lo = asinh(data_lo / asinh_b); asinh_hi = "
+         "asinh(data_hi / asinh_b)\n";
+    s += "asinh_label = " +
+         GpString("asinh stretch, b = " + FormatTick(asinh_b, asinh_b / 10, 1) + " " + unit) + "\n";
     // About five labelled ticks on the linear colour boxes.
     s += "data_cbstep = " + Num(NiceStep(data_hi - data_lo, 5)) +
          "; residual_cbstep = " + Num(NiceStep(2 * res_max, 5)) + "\n";
@@ -860,9 +1052,13 @@ bool WriteResidualMaps(const std::string& dir, const std::string& stem,
       if (c < 2) {
         s += "set palette @palette_data\n";
         s += "if (data_log) { set logscale cb; set cbrange [data_log_lo:data_log_hi] } "
-             "else { unset logscale cb; set cbrange [data_lo:data_hi] }\n";
-        s += "if (data_log) { set cbtics autofreq } else { set cbtics data_cbstep }\n";
+             "else { unset logscale cb; if (data_asinh) { set cbrange [asinh_lo:asinh_hi] } "
+             "else { set cbrange [data_lo:data_hi] } }\n";
+        s += "if (data_asinh) { set cbtics " + AsinhTicks(data_lo, data_hi, asinh_b) +
+             "; set cblabel asinh_label offset -0.8,0 } else { unset cblabel; "
+             "if (data_log) { set cbtics autofreq } else { set cbtics data_cbstep } }\n";
       } else if (c == 2) {
+        s += "unset cblabel\n";
         s += "set palette @palette_residual\n";
         s += "unset logscale cb; set cbrange [-residual_max:residual_max];"
              " set cbtics residual_cbstep\n";
@@ -875,7 +1071,8 @@ bool WriteResidualMaps(const std::string& dir, const std::string& stem,
       // second layer draws it as a grey box (half-widths 0.5 px).
       const std::string n = std::to_string(c + 3);
       if (c < 2) {
-        s += "plot file using 1:2:(data_log ? clamp_log($" + n + ") : $" + n + ") with image, \\\n";
+        s += "plot file using 1:2:(data_log ? clamp_log($" + n + ") : data_asinh ? asinh($" + n +
+             " / asinh_b) : $" + n + ") with image, \\\n";
       } else {
         s += "plot file using 1:2:" + n + " with image, \\\n";
       }
@@ -967,6 +1164,46 @@ bool ValidateXy(const XyPlotInput& in, std::string* error) {
     if (!std::isfinite(y)) return fail(name + " is not finite");
     if (in.log_y && !(y > 0)) return fail(name + " is <= 0 on a log y axis");
   }
+  for (size_t k = 0; k < in.curves.size(); ++k) {
+    const Curve& c = in.curves[k];
+    const std::string name = "curve " + std::to_string(k);
+    if (c.y_lo.empty() != c.y_hi.empty()) return fail(name + " has y_lo or y_hi but not both");
+    if (c.y_lo.empty()) continue;
+    if (c.y_lo.size() != c.x.size() || c.y_hi.size() != c.x.size()) {
+      return fail(name + " has a band of " + std::to_string(c.y_lo.size()) + " / " +
+                  std::to_string(c.y_hi.size()) + " values for " + std::to_string(c.x.size()) +
+                  " points");
+    }
+    for (size_t i = 0; i < c.x.size(); ++i) {
+      if (!std::isfinite(c.y_lo[i]) || !std::isfinite(c.y_hi[i]) ||
+          !(c.y_lo[i] <= c.y[i] && c.y[i] <= c.y_hi[i])) {
+        return fail(name + " point " + std::to_string(i) +
+                    " has a band that is not finite or does not hold the curve");
+      }
+    }
+  }
+  const std::pair<const std::vector<Curve>*, const char*> truth_lists[] = {
+      {&in.truth.curves, "truth curve "}, {&in.truth.points, "truth points "}};
+  for (const auto& [list, what] : truth_lists) {
+    for (size_t k = 0; k < list->size(); ++k) {
+      const Curve& c = (*list)[k];
+      const std::string name = what + std::to_string(k);
+      if (c.x.size() != c.y.size() || c.x.empty()) {
+        return fail(name + " has " + std::to_string(c.x.size()) + " x and " +
+                    std::to_string(c.y.size()) + " y values");
+      }
+      for (size_t i = 0; i < c.x.size(); ++i) {
+        if (!std::isfinite(c.x[i]) || !std::isfinite(c.y[i]) || (in.log_x && !(c.x[i] > 0)) ||
+            (in.log_y && !(c.y[i] > 0))) {
+          return fail(name + " point " + std::to_string(i) +
+                      " is not finite or not positive on a log axis");
+        }
+      }
+    }
+  }
+  if (!(in.dodge_fraction >= 0.0 && in.dodge_fraction <= 0.05)) {
+    return fail("dodge_fraction " + Num(in.dodge_fraction) + " is outside [0, 0.05]");
+  }
   if (!any) return fail("nothing to plot (no series or curves)");
   return true;
 }
@@ -1033,64 +1270,121 @@ bool WriteXyPlot(const std::string& dir, const std::string& stem, const XyPlotIn
                  PlotResult* result, std::string* error, const PlotOptions& options) {
   if (!ValidateStem(stem, error) || !ValidateXy(input, error)) return false;
 
-  std::vector<double> xs, ys;
-  std::vector<std::pair<std::string, std::string>> files;
   const std::string x_name = input.x_label.empty() ? "x" : OneLine(input.x_label);
   const std::string y_name = input.y_label.empty() ? "y" : OneLine(input.y_label);
   std::vector<size_t> with_points;  // series with points, in order (the series file's indexes)
+  std::vector<size_t> with_limits;  // series with limits, in order (the limits file's indexes)
   for (size_t k = 0; k < input.series.size(); ++k) {
     if (!input.series[k].x.empty()) with_points.push_back(k);
+    if (!input.series[k].limit_x.empty()) with_limits.push_back(k);
   }
+
+  // Axis ranges over everything drawn: true positions first, then (below) the dodged ones.
+  std::vector<double> xs, ys;
+  for (const Series& series : input.series) {
+    for (size_t i = 0; i < series.x.size(); ++i) {
+      xs.push_back(series.x[i]);
+      ys.push_back(series.y[i]);
+      if (!series.y_lo.empty()) ys.insert(ys.end(), {series.y_lo[i], series.y_hi[i]});
+    }
+    xs.insert(xs.end(), series.limit_x.begin(), series.limit_x.end());
+    ys.insert(ys.end(), series.limit_y.begin(), series.limit_y.end());
+  }
+  for (const std::vector<Curve>* list : {&input.curves, &input.truth.curves, &input.truth.points}) {
+    for (const Curve& curve : *list) {
+      xs.insert(xs.end(), curve.x.begin(), curve.x.end());
+      ys.insert(ys.end(), curve.y.begin(), curve.y.end());
+    }
+  }
+  for (const Curve& curve : input.curves) {
+    // On a log axis a band's lower edge <= 0 runs to the bottom (AxisRange skips it).
+    ys.insert(ys.end(), curve.y_lo.begin(), curve.y_lo.end());
+    ys.insert(ys.end(), curve.y_hi.begin(), curve.y_hi.end());
+  }
+  for (const HorizontalLine& line : input.requirements) ys.push_back(line.y);
+  auto [x_lo, x_hi] = AxisRange(xs, input.log_x);
+  const auto [y_lo, y_hi] = AxisRange(ys, input.log_y);
+
+  // Dodge: series b of m moves by (b - (m - 1) / 2) f of the axis width.
+  std::vector<double> shift(input.series.size(), 0.0);  // [axis units, log10 on a log axis]
+  if (input.dodge_fraction > 0 && with_points.size() > 1) {
+    const double axis_width = input.log_x ? std::log10(x_hi / x_lo) : x_hi - x_lo;
+    const double m = static_cast<double>(with_points.size());
+    for (size_t b = 0; b < with_points.size(); ++b) {
+      shift[with_points[b]] = (b - (m - 1) / 2) * input.dodge_fraction * axis_width;
+    }
+  }
+  auto drawn_x = [&](size_t k, double x) {
+    return input.log_x ? x * std::pow(10.0, shift[k]) : x + shift[k];
+  };
+  {
+    std::vector<double> dodged = xs;
+    for (size_t k = 0; k < input.series.size(); ++k) {
+      for (double x : input.series[k].x) dodged.push_back(drawn_x(k, x));
+      for (double x : input.series[k].limit_x) dodged.push_back(drawn_x(k, x));
+    }
+    std::tie(x_lo, x_hi) = AxisRange(dodged, input.log_x);
+  }
+
+  std::vector<std::pair<std::string, std::string>> files;
   if (!with_points.empty()) {
     std::string d;
     d += "# Point series of " + stem +
          ".gp, one block per series that has points (gnuplot index = block"
          " number - 1).\n";
     d += "# Columns: x [" + x_name + "], y [" + y_name + "], y_lo, y_hi [" + y_name +
-         "; absolute bounds, equal to y when the series has no error bars]\n";
+         "; absolute bounds, equal to y when the series has no error bars], x_drawn [" + x_name +
+         "; x moved aside so that series at the same x stay apart; equal to x when not]\n";
     for (size_t b = 0; b < with_points.size(); ++b) {
       const size_t k = with_points[b];
       const Series& series = input.series[k];
       d += (b ? "\n\n" : "") + std::string("# series ") + std::to_string(k + 1) + ": " +
            OneLine(series.label) + "\n";
       for (size_t i = 0; i < series.x.size(); ++i) {
-        const double y_lo = series.y_lo.empty() ? series.y[i] : series.y_lo[i];
-        const double y_hi = series.y_hi.empty() ? series.y[i] : series.y_hi[i];
-        d += Num(series.x[i]) + " " + Num(series.y[i]) + " " + Num(y_lo) + " " + Num(y_hi) + "\n";
-        xs.push_back(series.x[i]);
-        ys.insert(ys.end(), {series.y[i], y_lo, y_hi});
+        const double lo = series.y_lo.empty() ? series.y[i] : series.y_lo[i];
+        const double hi = series.y_hi.empty() ? series.y[i] : series.y_hi[i];
+        d += Num(series.x[i]) + " " + Num(series.y[i]) + " " + Num(lo) + " " + Num(hi) + " " +
+             Num(drawn_x(k, series.x[i])) + "\n";
       }
     }
     files.push_back({stem + "_series.dat", d});
   }
-  // Upper limits: their arrows' length depends on the y range, so the file is written below.
-  std::vector<size_t> with_limits;  // series with limits, in order (the limits file's indexes)
-  for (size_t k = 0; k < input.series.size(); ++k) {
-    const Series& series = input.series[k];
-    if (series.limit_x.empty()) continue;
-    with_limits.push_back(k);
-    xs.insert(xs.end(), series.limit_x.begin(), series.limit_x.end());
-    ys.insert(ys.end(), series.limit_y.begin(), series.limit_y.end());
-  }
   if (!input.curves.empty()) {
     std::string d;
     d += "# Curves of " + stem + ".gp, one block per curve (gnuplot index = curve number - 1).\n";
-    d += "# Columns: x [" + x_name + "], y [" + y_name + "]\n";
+    d += "# Columns: x [" + x_name + "], y [" + y_name + "], band_lo, band_hi [" + y_name +
+         "; the shaded band; NaN: none]\n";
     for (size_t k = 0; k < input.curves.size(); ++k) {
       const Curve& curve = input.curves[k];
       d += (k ? "\n\n" : "") + std::string("# curve ") + std::to_string(k + 1) + ": " +
            OneLine(curve.label) + "\n";
       for (size_t i = 0; i < curve.x.size(); ++i) {
-        d += Num(curve.x[i]) + " " + Num(curve.y[i]) + "\n";
-        xs.push_back(curve.x[i]);
-        ys.push_back(curve.y[i]);
+        d += Num(curve.x[i]) + " " + Num(curve.y[i]) + " " +
+             Num(curve.y_lo.empty() ? kNaN : curve.y_lo[i]) + " " +
+             Num(curve.y_hi.empty() ? kNaN : curve.y_hi[i]) + "\n";
       }
     }
     files.push_back({stem + "_curves.dat", d});
   }
-  for (const HorizontalLine& line : input.requirements) ys.push_back(line.y);
-  const auto [x_lo, x_hi] = AxisRange(xs, input.log_x);
-  const auto [y_lo, y_hi] = AxisRange(ys, input.log_y);
+  const size_t num_truths = input.truth.curves.size() + input.truth.points.size();
+  if (num_truths > 0) {
+    std::string d;
+    d += "# True values (simulated data) in " + stem +
+         ".gp: one block per truth curve, then one per set of truth points (gnuplot index = "
+         "block number - 1).\n";
+    d += "# Columns: x [" + x_name + "], y [" + y_name + "]\n";
+    size_t block = 0;
+    for (const std::vector<Curve>* list : {&input.truth.curves, &input.truth.points}) {
+      for (const Curve& curve : *list) {
+        d += (block++ ? "\n\n" : "") + std::string("# ") +
+             (list == &input.truth.curves ? "curve: " : "points: ") + OneLine(curve.label) + "\n";
+        for (size_t i = 0; i < curve.x.size(); ++i) {
+          d += Num(curve.x[i]) + " " + Num(curve.y[i]) + "\n";
+        }
+      }
+    }
+    files.push_back({stem + "_truth.dat", d});
+  }
   if (!with_limits.empty()) {
     // 4 % of the height: less than the 5 % margin below the lowest value (4.5 % of the height),
     // so no arrow leaves the plot.
@@ -1099,16 +1393,18 @@ bool WriteXyPlot(const std::string& dir, const std::string& stem, const XyPlotIn
     d += "# Upper limits of " + stem + ".gp: one block per series that has them (gnuplot index "
          "= block number - 1), each point drawn as a downward arrow.\n";
     d += "# Columns: x [" + x_name + "], limit y [" + y_name + "], arrow dy [" + y_name +
-         "; negative]\n";
+         "; negative], x_drawn [" + x_name + "; moved aside like the series' points]\n";
     for (size_t b = 0; b < with_limits.size(); ++b) {
-      const Series& series = input.series[with_limits[b]];
-      d += (b ? "\n\n" : "") + std::string("# series ") + std::to_string(with_limits[b] + 1) +
-           ": " + OneLine(series.limit_label) + "\n";
+      const size_t k = with_limits[b];
+      const Series& series = input.series[k];
+      d += (b ? "\n\n" : "") + std::string("# series ") + std::to_string(k + 1) + ": " +
+           OneLine(series.limit_label) + "\n";
       for (size_t i = 0; i < series.limit_x.size(); ++i) {
         const double y = series.limit_y[i];
         const double end = input.log_y ? y * std::pow(y_lo / y_hi, kArrowFraction)
                                        : y - kArrowFraction * (y_hi - y_lo);
-        d += Num(series.limit_x[i]) + " " + Num(y) + " " + Num(end - y) + "\n";
+        d += Num(series.limit_x[i]) + " " + Num(y) + " " + Num(end - y) + " " +
+             Num(drawn_x(k, series.limit_x[i])) + "\n";
       }
     }
     files.push_back({stem + "_limits.dat", d});
@@ -1124,6 +1420,11 @@ bool WriteXyPlot(const std::string& dir, const std::string& stem, const XyPlotIn
          kColours[k % std::size(kColours)] + "'\n";
   }
   s += "set style line 100 lw 1.5 dt 2 lc rgb '#D62728'\n";
+  s += "# Truth (simulated data): 101 curves, 102 points.\n";
+  s += "set style line 101 lw 1.5 dt (6,4) lc rgb '#000000'\n";
+  s += "set style line 102 lw 1.2 pt 12 ps 1.6 lc rgb '#000000'\n";
+  s += "# Bands: the curve's colour, this opacity.\n";
+  s += "band_opacity = 0.18\n";
   if (!input.title.empty()) s += "set title " + GpString(input.title) + " font ',13'\n";
   if (!input.x_label.empty()) s += "set xlabel " + GpString(input.x_label) + "\n";
   if (!input.y_label.empty()) s += "set ylabel " + GpString(input.y_label) + "\n";
@@ -1155,10 +1456,10 @@ bool WriteXyPlot(const std::string& dir, const std::string& stem, const XyPlotIn
     const std::string title =
         series.label.empty() ? std::string("notitle") : "title " + GpString(series.label);
     if (series.y_lo.empty()) {
-      plots.push_back(series_file + " index " + std::to_string(b) + " using 1:2 with points ls " +
+      plots.push_back(series_file + " index " + std::to_string(b) + " using 5:2 with points ls " +
                       std::to_string(k + 1) + " " + title);
     } else {
-      plots.push_back(series_file + " index " + std::to_string(b) + " using 1:2:" + low_column +
+      plots.push_back(series_file + " index " + std::to_string(b) + " using 5:2:" + low_column +
                       ":4 with yerrorbars ls " + std::to_string(k + 1) + " " + title);
     }
   }
@@ -1169,7 +1470,7 @@ bool WriteXyPlot(const std::string& dir, const std::string& stem, const XyPlotIn
                                   ? std::string("notitle")
                                   : "title " + GpString(series.limit_label);
     plots.push_back(limits_file + " index " + std::to_string(b) +
-                    " using 1:2:(0):3 with vectors head filled size screen 0.008,30 ls " +
+                    " using 4:2:(0):3 with vectors head filled size screen 0.008,30 ls " +
                     std::to_string(with_limits[b] + 1) + " " + title);
   }
   for (size_t k = 0; k < input.curves.size(); ++k) {
@@ -1178,6 +1479,29 @@ bool WriteXyPlot(const std::string& dir, const std::string& stem, const XyPlotIn
         curve.label.empty() ? std::string("notitle") : "title " + GpString(curve.label);
     plots.push_back(curves_file + " index " + std::to_string(k) + " using 1:2 with lines ls " +
                     std::to_string(k + 1) + " " + title);
+  }
+  // Bands go first, so that points, bars and lines are drawn over them.
+  std::vector<std::string> bands;
+  const std::string band_low = input.log_y ? "($3 > 0 ? $3 : " + Num(y_lo) + ")" : "3";
+  for (size_t k = 0; k < input.curves.size(); ++k) {
+    if (input.curves[k].y_lo.empty()) continue;
+    bands.push_back(curves_file + " index " + std::to_string(k) + " using 1:" + band_low +
+                    ":4 with filledcurves fillstyle transparent solid band_opacity noborder"
+                    " lc rgb '" +
+                    kColours[k % std::size(kColours)] + "' notitle");
+  }
+  plots.insert(plots.begin(), bands.begin(), bands.end());
+  const std::string truth_file = GpString(stem + "_truth.dat");
+  size_t truth_block = 0;
+  for (const Curve& curve : input.truth.curves) {
+    plots.push_back(
+        truth_file + " index " + std::to_string(truth_block++) + " using 1:2 with lines ls 101 " +
+        (curve.label.empty() ? std::string("notitle") : "title " + GpString(curve.label)));
+  }
+  for (const Curve& curve : input.truth.points) {
+    plots.push_back(
+        truth_file + " index " + std::to_string(truth_block++) + " using 1:2 with points ls 102 " +
+        (curve.label.empty() ? std::string("notitle") : "title " + GpString(curve.label)));
   }
   s += "plot ";
   for (size_t p = 0; p < plots.size(); ++p) s += (p ? ", \\\n     " : "") + plots[p];

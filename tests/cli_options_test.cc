@@ -112,8 +112,7 @@ TEST(CliOptions, EachCommandListsAndTakesOnlyItsOwnOptions) {
         if (help[c].count(name) > 0) continue;
         const RunResult r = RunCcdpsf(c + " " + ProbeArgument(name, o));
         EXPECT_EQ(r.exit_code, 2) << c << " --" << name << "\n" << r.output;
-        EXPECT_NE(r.output.find("--" + name + " does not apply to '" + c + "'"),
-                  std::string::npos)
+        EXPECT_NE(r.output.find("--" + name + " does not apply to '" + c + "'"), std::string::npos)
             << r.output;
       }
     }
@@ -129,12 +128,18 @@ TEST(CliOptions, EachCommandListsAndTakesOnlyItsOwnOptions) {
 // Where a run's config.json (every option it resolved) holds an option's value.
 std::optional<json> ResolvedValue(const json& config, const std::string& option) {
   const std::map<std::string, std::vector<std::string>> paths = {
-      {"sampling", {"sampling"}},          {"defocus", {"defocus"}},
-      {"likelihood", {"likelihood"}},      {"joint", {"joint"}},
-      {"flux", {"flux"}},                  {"seed", {"mcmc", "seed"}},
-      {"walkers", {"mcmc", "walkers"}},    {"max_steps", {"mcmc", "max_steps"}},
-      {"target_ess", {"mcmc", "target_ess"}}, {"threads", {"mcmc", "threads"}},
-      {"mcmc", {"mcmc", "enabled"}},       {"stamp_size", {"calibration", "stamp_size"}}};
+      {"sampling", {"sampling"}},
+      {"defocus", {"defocus"}},
+      {"likelihood", {"likelihood"}},
+      {"joint", {"joint"}},
+      {"flux", {"flux"}},
+      {"seed", {"mcmc", "seed"}},
+      {"walkers", {"mcmc", "walkers"}},
+      {"max_steps", {"mcmc", "max_steps"}},
+      {"target_ess", {"mcmc", "target_ess"}},
+      {"threads", {"mcmc", "threads"}},
+      {"mcmc", {"mcmc", "enabled"}},
+      {"stamp_size", {"calibration", "stamp_size"}}};
   // trend's --requirements names a file; config.json holds the list it read.
   if (option == "requirements") return std::nullopt;
   std::vector<std::string> path = {"flags", option};
@@ -173,7 +178,8 @@ void ExpectHelpDefaultsWereUsed(const std::string& command, const json& config,
 
 TEST(CliOptions, FitUsesTheDefaultsItsHelpShows) {
   const std::string out = FreshDir("options", "fit_defaults");
-  const RunResult r = RunCcdpsf("fit --nomcmc --out=" + out + " " + DemoSet() + "/exposure_000.fits");
+  const RunResult r =
+      RunCcdpsf("fit --nomcmc --out=" + out + " " + DemoSet() + "/exposure_000.fits");
   ASSERT_EQ(r.exit_code, 0) << r.output;
   ExpectHelpDefaultsWereUsed("fit", ReadJson(out + "/config.json"), {"mcmc"});
 }
@@ -189,8 +195,8 @@ TEST(CliOptions, DiagnoseUsesTheDefaultsItsHelpShowsAndItsConfigRepeatsIt) {
   EXPECT_EQ(config["flags"]["max_rounds"], 1);
   EXPECT_EQ(config["flags"]["predictive_sims"], 5);
   // The same diagnosis from the config alone.
-  const RunResult b = RunCcdpsf("diagnose --config=" + dir + "/a/config.json --out=" + dir +
-                                "/b " + files);
+  const RunResult b =
+      RunCcdpsf("diagnose --config=" + dir + "/a/config.json --out=" + dir + "/b " + files);
   ASSERT_EQ(b.exit_code, 0) << b.output;
   const json ja = ReadJson(dir + "/a/diagnose.json"), jb = ReadJson(dir + "/b/diagnose.json");
   ASSERT_TRUE(ja.is_object() && jb.is_object());
@@ -251,7 +257,7 @@ TEST(CliOptions, ExitCodesAreAsDocumented) {
   // The terminal says the file's verdict and convergence.
   EXPECT_NE(lenient.output.find("; verdict " + verdict), std::string::npos) << lenient.output;
   EXPECT_NE(lenient.output.find(fit["mcmc"]["converged"].get<bool>() ? "MCMC converged"
-                                                                      : "MCMC NOT converged"),
+                                                                     : "MCMC NOT converged"),
             std::string::npos);
   const RunResult strict = RunCcdpsf("fit --strict --out=" + dir + "/strict" + short_chain);
   EXPECT_EQ(strict.exit_code, 3) << strict.output;
@@ -266,8 +272,10 @@ TEST(CliOptions, ConfigJsonRepeatsAFit) {
   // value, --nooutliers) and one from a FIT.json given (a prior).
   std::ofstream(dir + "_given.json") << R"({"priors": {"airy_radius_px": [0.2, 1.4]}})";
   const RunResult a =
-      RunCcdpsf("fit --out=" + dir + "/a --config=" + dir + "_given.json --seed=5 --walkers=16 "
-                "--max_steps=300 --likelihood=poisson_normal --pixel_um=12 --nooutliers " + file);
+      RunCcdpsf("fit --out=" + dir + "/a --config=" + dir +
+                "_given.json --seed=5 --walkers=16 "
+                "--max_steps=300 --likelihood=poisson_normal --pixel_um=12 --nooutliers " +
+                file);
   ASSERT_EQ(a.exit_code, 0) << a.output;
   const json config = ReadJson(dir + "/a/config.json");
   ASSERT_TRUE(config.is_object());
@@ -293,7 +301,8 @@ TEST(CliOptions, ConfigJsonRepeatsAFit) {
   EXPECT_EQ(ReadJson(dir + "/c/config.json")["mcmc"]["seed"], 6);
   // A config's "flags" entry that the command does not have is refused with its name.
   std::ofstream(dir + "_bad.json") << R"({"flags": {"max_rounds": 2}})";
-  const RunResult d = RunCcdpsf("fit --nomcmc --out=" + dir + "/d --config=" + dir + "_bad.json " + file);
+  const RunResult d =
+      RunCcdpsf("fit --nomcmc --out=" + dir + "/d --config=" + dir + "_bad.json " + file);
   EXPECT_EQ(d.exit_code, 1) << d.output;
   EXPECT_NE(d.output.find("'flags.max_rounds' is not an option of 'fit'"), std::string::npos)
       << d.output;
@@ -344,15 +353,14 @@ TEST(CliOptions, TrendSummaryCountsTheReportsVerdicts) {
   }
   ASSERT_TRUE(std::isfinite(fwhm)) << t1["requirements"].dump();
   json requirements = json::array();
-  for (const auto& [name, limit] :
-       std::vector<std::pair<std::string, double>>{{"loose", 10 * fwhm}, {"tight", fwhm / 10},
-                                                   {"at_value", fwhm}}) {
-    requirements.push_back({{"name", name}, {"metric", "fwhm_um"},
-                            {"at", {{"wavelength_nm", 800}}}, {"max", limit}});
+  for (const auto& [name, limit] : std::vector<std::pair<std::string, double>>{
+           {"loose", 10 * fwhm}, {"tight", fwhm / 10}, {"at_value", fwhm}}) {
+    requirements.push_back(
+        {{"name", name}, {"metric", "fwhm_um"}, {"at", {{"wavelength_nm", 800}}}, {"max", limit}});
   }
   std::ofstream(dir + "/requirements.json") << requirements.dump();
-  const RunResult second = RunCcdpsf("trend --requirements=" + dir + "/requirements.json --out=" +
-                                     dir + "/second" + options);
+  const RunResult second = RunCcdpsf("trend --requirements=" + dir +
+                                     "/requirements.json --out=" + dir + "/second" + options);
   ASSERT_EQ(second.exit_code, 0) << second.output;
   const json t2 = ReadJson(dir + "/second/trend.json");
   const std::map<std::string, int> verdicts = VerdictCounts(t2["requirements"]);
@@ -385,16 +393,17 @@ TEST(CliOptions, ConfigJsonRepeatsATrend) {
                       "/campaign_small.json --out=" + dir + "/data")
                 .exit_code,
             0);
-  const RunResult a = RunCcdpsf("trend --nomcmc --reference_intensity_e=150000 --seed=4 --out=" +
-                                dir + "/a " + dir + "/data");
+  const RunResult a =
+      RunCcdpsf("trend --nomcmc --reference_intensity_e=150000 --seed=4 --out=" + dir + "/a " +
+                dir + "/data");
   ASSERT_EQ(a.exit_code, 0) << a.output;
   const json config = ReadJson(dir + "/a/config.json");
   ASSERT_TRUE(config.is_object());
   // trend's own default, not fit's.
   ExpectHelpDefaultsWereUsed("trend", config, {"mcmc", "seed", "reference_intensity_e"});
   EXPECT_EQ(config["flags"]["reference_intensity_e"], 150000.0);
-  const RunResult b = RunCcdpsf("trend --config=" + dir + "/a/config.json --out=" + dir + "/b " +
-                                dir + "/data");
+  const RunResult b =
+      RunCcdpsf("trend --config=" + dir + "/a/config.json --out=" + dir + "/b " + dir + "/data");
   ASSERT_EQ(b.exit_code, 0) << b.output;
   const json ja = ReadJson(dir + "/a/trend.json"), jb = ReadJson(dir + "/b/trend.json");
   ASSERT_TRUE(ja.contains("groups"));

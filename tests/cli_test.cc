@@ -12,8 +12,8 @@
 #include "ccdpsf/fits_io.h"
 #include "fitsio.h"
 #include "gtest/gtest.h"
-#include "support/run_ccdpsf.h"
 #include "nlohmann/json.hpp"
+#include "support/run_ccdpsf.h"
 
 namespace ccdpsf {
 namespace {
@@ -171,8 +171,7 @@ TEST(Cli, FitWritesTheDocumentedOutputs) {
       const int code = testing_support::Shell("fitsverify -q '" + out + "/" + file + "'", &report);
       EXPECT_EQ(code, 0) << file << ": " << report;
       // With -q fitsverify prints "verification OK" only when it found no warning and no error.
-      EXPECT_NE(report.find("verification OK"), std::string::npos)
-          << file << ": " << report;
+      EXPECT_NE(report.find("verification OK"), std::string::npos) << file << ": " << report;
     }
   }
   // fit.json: the Laplace covariance of the constrained parameters, symmetric, its diagonal

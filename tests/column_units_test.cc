@@ -21,8 +21,8 @@ TEST(ColumnUnits, UnitFromTheNamesSuffix) {
   EXPECT_EQ(UnitOfName("variance_adu2"), "adu2");
   EXPECT_EQ(UnitOfName("gain_e_per_adu"), "electron/adu");
   EXPECT_EQ(UnitOfName("defocus_rate_px_per_um"), "pix/um");
-  for (const char* dimensionless : {"ellipticity", "log_prob", "flux_ratio.2", "flux_ratio_2", "chi2_per_dof",
-                                    "exposures", "focus_series", "e", "_px"}) {
+  for (const char* dimensionless : {"ellipticity", "log_prob", "flux_ratio.2", "flux_ratio_2",
+                                    "chi2_per_dof", "exposures", "focus_series", "e", "_px"}) {
     EXPECT_EQ(UnitOfName(dimensionless), "") << dimensionless;
   }
 }

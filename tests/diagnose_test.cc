@@ -297,8 +297,8 @@ TEST(Diagnose, EffectModelReproducesTheSimulatorAcrossIntensities) {
   set("ccd_sigma_y_px", c.ccd_sigma_y_px);
   for (int k = 0; k < 3; ++k) {
     set("flux_e." + std::to_string(k), c.exposures[k].flux_e);
-    set("x_px." + std::to_string(k), c.exposures[k].x_px);
-    set("y_px." + std::to_string(k), c.exposures[k].y_px);
+    set("x_px_" + std::to_string(k), c.exposures[k].x_px);
+    set("y_px_" + std::to_string(k), c.exposures[k].y_px);
   }
   for (EffectKind kind : spec.effects) {
     const model::EffectInfo& info = model::DescribeEffect(kind);
@@ -465,7 +465,7 @@ TEST(Diagnose, DefocusOffsetIsNotClaimed) {
   ASSERT_TRUE(o.ok) << o.error;
   EXPECT_TRUE(o.result.named.empty()) << Named(o.result);
   double x = NAN, sd = NAN;
-  ASSERT_TRUE(FinalParameter(o.result, "x_px.0", &x, &sd));
+  ASSERT_TRUE(FinalParameter(o.result, "x_px_0", &x, &sd));
   EXPECT_LT(std::fabs(x - (c.exposures[0].x_px + 0.1)), 3 * sd);
 }
 

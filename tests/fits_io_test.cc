@@ -552,8 +552,8 @@ TEST(FitsIo, TableRejectsInconsistentColumns) {
   EXPECT_FALSE(
       WriteFitsTable(path, {}, "T", {{"a", "", {1, 2}, false}, {"b", "", {1}, false}}, {}, &error));
   ExpectOneLineNaming(error, path);
-  EXPECT_FALSE(
-      WriteFitsTable(path, {}, "T", {{"a", "", {1, 2}, false}, {"A", "", {1, 2}, false}}, {}, &error));
+  EXPECT_FALSE(WriteFitsTable(path, {}, "T", {{"a", "", {1, 2}, false}, {"A", "", {1, 2}, false}},
+                              {}, &error));
   EXPECT_FALSE(WriteFitsTable(path, {}, "T", {{"n", "", {1, kNaN}, true}}, {}, &error));
   EXPECT_FALSE(WriteFitsTable(path, {}, "T", {}, {}, &error));
   // A name FITS readers treat unevenly (fitsverify warns on '.') is refused, not written.

@@ -1,6 +1,6 @@
 // Lab frames end to end: simulated exposures with ordinary lab defects added by a separate,
 // simple script (tests/support/lab_defects.py: numpy and astropy, no ccdpsf code), and the
-// real bench frames in the folder CCDPSF_REALDATA names, when it is set.
+// real bench frames (testing_support::RealFramesFolder) when they are present.
 //
 // The rule each defect is held to (issue "Real laboratory frames"): either the truth is
 // recovered within its interval, or the verdict is not "ok" and names the cause. Where the
@@ -264,24 +264,18 @@ TEST_F(LabDefects, MultiExtensionSegmentWithItsOwnOverscan) {
 }
 
 // ---------------------------------------------------------------------------------------
-// The real bench frames (not in the repository: CCDPSF_REALDATA names their folder's parent).
-
-std::string RealData() {
-  const char* env = std::getenv("CCDPSF_REALDATA");
-  const std::string root = env != nullptr ? env : std::string("(CCDPSF_REALDATA not set)");
-  return root + "/lpnhe_intensity";
-}
+// The real bench frames (not in the repository; testing_support::RealFramesFolder).
 
 class RealFrames : public ::testing::Test {
  protected:
   void SetUp() override {
-    if (!fs::exists(RealData() + "/pose_de_0.3s_20micron.fits")) {
-      GTEST_SKIP() << "the real frames are absent (" << RealData()
+    if (!fs::exists(testing_support::RealFramesFolder() + "/pose_de_0.3s_20micron.fits")) {
+      GTEST_SKIP() << "the real frames are absent (" << testing_support::RealFramesFolder()
                    << "; set CCDPSF_REALDATA to their folder's parent to run these tests)";
     }
   }
   static std::string File(const std::string& t) {
-    return RealData() + "/pose_de_" + t + "s_20micron.fits";
+    return testing_support::RealFramesFolder() + "/pose_de_" + t + "s_20micron.fits";
   }
   // What their headers lack, given as flags: the camera's pixel (4.65 um), a bias at the
   // clipped black level, and the gain `ccdpsf gain` estimates from these frames (41 +- 6.5

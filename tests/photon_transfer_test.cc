@@ -25,6 +25,7 @@
 
 #include "ccdpsf/fits_io.h"
 #include "support/fits_fixtures.h"
+#include "support/run_ccdpsf.h"
 
 namespace ccdpsf {
 namespace {
@@ -450,27 +451,21 @@ TEST(PhotonTransferTest, CsvHasUnitsAndOneRowPerBin) {
 }
 
 // ---------------------------------------------------------------------------------------
-// The real bench frames (not in the repository; CCDPSF_REALDATA names them): an 8-bit
+// The real bench frames (not in the repository; testing_support::RealFramesFolder): an 8-bit
 // camera with its black level clipped at 0 and one frame per exposure time, so the single-
 // frame estimator on the pupil's smooth background. No truth is known: the test checks
 // that an estimate comes only from levels clear of the clip, with the clipping said.
 
-std::string RealData() {
-  const char* env = std::getenv("CCDPSF_REALDATA");
-  const std::string root =
-      env != nullptr ? env : std::string("(CCDPSF_REALDATA not set)");
-  return root + "/lpnhe_intensity";
-}
-
 TEST(PhotonTransferRealFrames, EstimateFromLevelsClearOfTheClip) {
-  if (!std::filesystem::exists(RealData() + "/pose_de_0.3s_20micron.fits")) {
-    GTEST_SKIP() << "the real frames are absent (" << RealData()
+  if (!std::filesystem::exists(testing_support::RealFramesFolder() +
+                               "/pose_de_0.3s_20micron.fits")) {
+    GTEST_SKIP() << "the real frames are absent (" << testing_support::RealFramesFolder()
                  << "; set CCDPSF_REALDATA to their folder's parent to run this test)";
   }
   std::vector<std::string> paths;
   PhotonTransferOptions options;
   for (const char* t : {"0.1", "0.2", "0.3", "0.4", "0.5", "0.6", "0.7", "0.8", "0.9", "1.0"}) {
-    paths.push_back(RealData() + "/pose_de_" + t + "s_20micron.fits");
+    paths.push_back(testing_support::RealFramesFolder() + "/pose_de_" + t + "s_20micron.fits");
     options.exptime_s.push_back(std::atof(t));  // only in the file name
   }
   PhotonTransferResult r;

@@ -2,6 +2,7 @@
 
 #include <sys/stat.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <cstdlib>
@@ -97,13 +98,13 @@ PngInfo ReadPngInfo(const std::string& path) {
 void ExpectPng(const PlotResult& result, uint32_t min_width, uint32_t max_width,
                uint32_t min_height, uint32_t max_height) {
   if (!GnuplotAvailable()) {
-    EXPECT_FALSE(result.png_written);
+    EXPECT_FALSE(result.image_written);
     EXPECT_FALSE(result.message.empty());
     return;
   }
-  ASSERT_TRUE(result.png_written) << result.message;
-  const PngInfo png = ReadPngInfo(result.png_path);
-  ASSERT_TRUE(png.valid) << result.png_path;
+  ASSERT_TRUE(result.image_written) << result.message;
+  const PngInfo png = ReadPngInfo(result.image_path);
+  ASSERT_TRUE(png.valid) << result.image_path;
   EXPECT_GE(png.width, min_width);
   EXPECT_LE(png.width, max_width);
   EXPECT_GE(png.height, min_height);
@@ -175,12 +176,13 @@ TEST(Plot, CornerWritesDataScriptAndPng) {
   std::string error;
   ASSERT_TRUE(WriteCornerPlot(dir.path(), "corner", in, &result, &error)) << error;
   EXPECT_EQ(result.script_path, dir.File("corner.gp"));
-  EXPECT_EQ(result.png_path, dir.File("corner.png"));
+  EXPECT_EQ(result.image_path, dir.File("corner.png"));
   ASSERT_TRUE(Exists(result.script_path));
   for (const std::string& path : result.data_paths) EXPECT_TRUE(Exists(path)) << path;
   const std::string script = ReadText(result.script_path);
   EXPECT_NE(script.find("corner_samples.dat"), std::string::npos);
-  EXPECT_NE(script.find("if (!exists(\"outfile\")) outfile = 'corner.png'"), std::string::npos);
+  EXPECT_NE(script.find("if (!exists(\"outfile\")) outfile = 'corner.' . plot_format"),
+            std::string::npos);
 
   // Fewer than 5000 samples: every one is kept, and reads back exactly.
   const std::vector<Block> samples = ReadBlocks(dir.File("corner_samples.dat"));
@@ -529,7 +531,7 @@ TEST(Plot, XyPlotOnLogAxesAllowsLowerBoundsBelowZero) {
   std::string error;
   ASSERT_TRUE(WriteXyPlot(dir.path(), "fwhm_log", in, &result, &error)) << error;
   ExpectPng(result, 600, 1400, 400, 900);
-  EXPECT_TRUE(result.message.empty() || !result.png_written) << result.message;
+  EXPECT_TRUE(result.message.empty() || !result.image_written) << result.message;
 }
 
 // The y range the script sets: "set yrange [lo:hi]".
@@ -582,12 +584,12 @@ TEST(Plot, XyPlotDrawsUpperLimitsAsDownwardArrows) {
       }
     }
     // Drawn in the owning series' line style (3 for the third series), with its key entry.
-    EXPECT_NE(script.find("'lim_limits.dat' index 1 using 1:2:(0):3 with vectors"),
+    EXPECT_NE(script.find("'lim_limits.dat' index 1 using 4:2:(0):3 with vectors"),
               std::string::npos);
     EXPECT_NE(script.find("ls 3 notitle"), std::string::npos);
     EXPECT_NE(script.find("'FWHM_x: upper limit'"), std::string::npos);
     ExpectPng(result, 600, 1400, 400, 900);
-    EXPECT_TRUE(result.message.empty() || !result.png_written) << result.message;
+    EXPECT_TRUE(result.message.empty() || !result.image_written) << result.message;
   }
 }
 
@@ -656,7 +658,7 @@ TEST(Plot, MissingGnuplotStillWritesDataAndScript) {
   PlotOptions options;
   options.gnuplot_path = kMissingGnuplot;
   ASSERT_TRUE(WriteXyPlot(dir.path(), "fwhm", MakeXyInput(), &result, &error, options)) << error;
-  EXPECT_FALSE(result.png_written);
+  EXPECT_FALSE(result.image_written);
   EXPECT_NE(result.message.find("not found"), std::string::npos) << result.message;
   EXPECT_NE(result.message.find("gnuplot fwhm.gp"), std::string::npos) << result.message;
   EXPECT_EQ(result.message.find('\n'), std::string::npos);
@@ -669,12 +671,12 @@ TEST(Plot, MissingGnuplotStillWritesDataAndScript) {
   ASSERT_TRUE(
       WriteCornerPlot(dir.path(), "corner", MakeCornerInput(2, 50, 1), &result, &error, options))
       << error;
-  EXPECT_FALSE(result.png_written);
+  EXPECT_FALSE(result.image_written);
   EXPECT_TRUE(Exists(dir.File("corner.gp")));
   ASSERT_TRUE(
       WriteResidualMaps(dir.path(), "maps", {MakeStamp(9, 9, 0, 0, 1)}, &result, &error, options))
       << error;
-  EXPECT_FALSE(result.png_written);
+  EXPECT_FALSE(result.image_written);
   EXPECT_TRUE(Exists(dir.File("maps.gp")));
   EXPECT_TRUE(Exists(dir.File("maps_000.dat")));
   ExpectNoTemporaries(dir);
@@ -689,7 +691,7 @@ TEST(Plot, EnvironmentVariableChoosesTheGnuplotProgram) {
   const bool available = GnuplotAvailable();
   ::unsetenv("CCDPSF_GNUPLOT");
   ASSERT_TRUE(ok) << error;
-  EXPECT_FALSE(result.png_written);
+  EXPECT_FALSE(result.image_written);
   EXPECT_NE(result.message.find(kMissingGnuplot), std::string::npos) << result.message;
   EXPECT_FALSE(available);
 }
@@ -703,7 +705,7 @@ TEST(Plot, FailingGnuplotIsReportedNotAnError) {
   PlotResult result;
   std::string error;
   ASSERT_TRUE(WriteXyPlot(dir.path(), "xy", MakeXyInput(), &result, &error, options)) << error;
-  EXPECT_FALSE(result.png_written);
+  EXPECT_FALSE(result.image_written);
   EXPECT_NE(result.message.find("exit status 1"), std::string::npos) << result.message;
   EXPECT_FALSE(Exists(dir.File("xy.png")));
   ExpectNoTemporaries(dir);
@@ -721,7 +723,7 @@ TEST(Plot, HangingGnuplotIsStoppedAfterTheTimeLimit) {
   PlotResult result;
   std::string error;
   ASSERT_TRUE(WriteXyPlot(dir.File("out"), "xy", MakeXyInput(), &result, &error, options)) << error;
-  EXPECT_FALSE(result.png_written);
+  EXPECT_FALSE(result.image_written);
   EXPECT_NE(result.message.find("did not finish"), std::string::npos) << result.message;
 }
 
@@ -732,7 +734,7 @@ TEST(Plot, ScriptRemakesThePngWhenRunByHandInItsFolder) {
   std::string error;
   ASSERT_TRUE(WriteResidualMaps(dir.path(), "maps", {MakeStamp(21, 21, 0, 0, 4)}, &result, &error))
       << error;
-  ASSERT_EQ(std::remove(result.png_path.c_str()), 0);
+  ASSERT_EQ(std::remove(result.image_path.c_str()), 0);
   // `cd DIR && gnuplot maps.gp`, with no outfile given: the script's default name is used.
   const std::optional<std::string> gnuplot = internal::FindExecutable("gnuplot");
   ASSERT_TRUE(gnuplot.has_value());
@@ -745,6 +747,233 @@ TEST(Plot, ScriptRemakesThePngWhenRunByHandInItsFolder) {
       *gnuplot, {"-e", "data_log = 1; outfile = 'log.png'", "maps.gp"}, dir.path(), 60.0);
   ASSERT_TRUE(log_run.Succeeded()) << log_run.error << log_run.output;
   EXPECT_TRUE(ReadPngInfo(dir.File("log.png")).valid);
+}
+
+// Every number that follows `prefix` in `text` (e.g. the x of each "set arrow from first X").
+std::vector<double> NumbersAfter(const std::string& text, const std::string& prefix) {
+  std::vector<double> out;
+  for (size_t at = text.find(prefix); at != std::string::npos; at = text.find(prefix, at + 1)) {
+    out.push_back(std::strtod(text.c_str() + at + prefix.size(), nullptr));
+  }
+  return out;
+}
+
+// The quantile of `values` at level q, computed here on its own: the order statistic at
+// rank q (n - 1), interpolated linearly to the next (the definition fit.json uses).
+double QuantileOf(std::vector<double> values, double q) {
+  const double rank = q * (values.size() - 1);
+  const size_t below = static_cast<size_t>(rank);
+  std::nth_element(values.begin(), values.begin() + below, values.end());
+  const double low = values[below];
+  if (below + 1 >= values.size()) return low;
+  const double high = *std::min_element(values.begin() + below + 1, values.end());
+  return low + (rank - below) * (high - low);
+}
+
+TEST(Plot, EachFormatWritesAFileWithItsExtensionAndMagicBytes) {
+  if (!GnuplotAvailable()) GTEST_SKIP() << "gnuplot is not installed";
+  struct Case {
+    PlotFormat format;
+    const char* extension;
+  };
+  for (const Case& c : {Case{PlotFormat::kPng, ".png"}, Case{PlotFormat::kPdf, ".pdf"},
+                        Case{PlotFormat::kSvg, ".svg"}}) {
+    ScopedTempDir dir;
+    PlotOptions options;
+    options.format = c.format;
+    PlotResult xy, corner, maps;
+    std::string error;
+    ASSERT_TRUE(WriteXyPlot(dir.path(), "xy", MakeXyInput(), &xy, &error, options)) << error;
+    ASSERT_TRUE(
+        WriteCornerPlot(dir.path(), "corner", MakeCornerInput(3, 500, 5), &corner, &error, options))
+        << error;
+    std::vector<StampPanels> panels(1);
+    for (Image* image :
+         {&panels[0].data, &panels[0].model, &panels[0].residual, &panels[0].normalised}) {
+      *image = Image(8, 8);
+      for (int q = 0; q < 64; ++q)
+        image->data[q] = std::exp(-0.1 * ((q % 8 - 4) * (q % 8 - 4) + (q / 8 - 4) * (q / 8 - 4)));
+    }
+    ASSERT_TRUE(WriteResidualMaps(dir.path(), "maps", panels, &maps, &error, options)) << error;
+    for (const PlotResult* r : {&xy, &corner, &maps}) {
+      ASSERT_TRUE(r->image_written) << r->message;
+      ASSERT_GE(r->image_path.size(), 4u);
+      EXPECT_EQ(r->image_path.substr(r->image_path.size() - 4), c.extension);
+      const std::string bytes = ReadText(r->image_path);
+      if (c.format == PlotFormat::kPng) {
+        EXPECT_EQ(bytes.compare(0, 8, std::string("\x89PNG\r\n\x1a\n", 8)), 0);
+      } else if (c.format == PlotFormat::kPdf) {
+        EXPECT_EQ(bytes.compare(0, 4, "%PDF"), 0);
+      } else {
+        EXPECT_TRUE(bytes.compare(0, 5, "<?xml") == 0 || bytes.compare(0, 4, "<svg") == 0)
+            << bytes.substr(0, 40);
+        EXPECT_NE(bytes.find("</svg>"), std::string::npos);
+      }
+    }
+    // No file of another format is left under the same names.
+    for (const std::string& name : dir.List()) {
+      const size_t dot = name.rfind('.');
+      const std::string ext = name.substr(dot);
+      if (ext == ".png" || ext == ".pdf" || ext == ".svg") EXPECT_EQ(ext, c.extension) << name;
+    }
+  }
+}
+
+TEST(Plot, ParsePlotFormatAcceptsOnlyTheThreeNames) {
+  PlotFormat f = PlotFormat::kPng;
+  std::string error;
+  EXPECT_TRUE(ParsePlotFormat("pdf", &f, &error));
+  EXPECT_EQ(f, PlotFormat::kPdf);
+  EXPECT_TRUE(ParsePlotFormat("svg", &f, &error));
+  EXPECT_EQ(f, PlotFormat::kSvg);
+  EXPECT_FALSE(ParsePlotFormat("PDF", &f, &error));
+  ExpectOneLineError(error);
+  EXPECT_NE(error.find("png, pdf or svg"), std::string::npos);
+  EXPECT_FALSE(ParsePlotFormat("jpeg", &f, &error));
+}
+
+TEST(Plot, CornerDrawsTheSamplesQuantilesAndTitlesEachColumn) {
+  ScopedTempDir dir;
+  const int dim = 3, n = 3001;
+  CornerPlotInput in = MakeCornerInput(dim, n, 99);
+  // Skew parameter 2 so that the interval is asymmetric about the median.
+  for (int i = 0; i < n; ++i) {
+    double& v = in.samples[static_cast<size_t>(i) * dim + 2];
+    v = std::exp(v - 20.0);
+  }
+  in.map.clear();
+  in.laplace_covariance.clear();
+  in.truth.clear();
+  PlotResult result;
+  std::string error;
+  ASSERT_TRUE(WriteCornerPlot(dir.path(), "q", in, &result, &error)) << error;
+  const std::string script = ReadText(result.script_path);
+  const std::vector<Block> summary = ReadBlocks(dir.File("q_summary.dat"));
+  ASSERT_EQ(summary[0].size(), static_cast<size_t>(dim));
+  const std::vector<double> arrows = NumbersAfter(script, "set arrow from first ");
+  for (int k = 0; k < dim; ++k) {
+    std::vector<double> column;
+    for (int i = 0; i < n; ++i) column.push_back(in.samples[static_cast<size_t>(i) * dim + k]);
+    const double q16 = QuantileOf(column, 0.158655), q50 = QuantileOf(column, 0.5),
+                 q84 = QuantileOf(column, 0.841345);
+    // Columns: index name map sd truth lo hi q16 q50 q84. The data are written to round-trip
+    // exactly; 1e-12 relative allows only the last bit of the interpolation's rounding.
+    ASSERT_EQ(summary[0][k].size(), 10u);
+    EXPECT_NEAR(summary[0][k][7], q16, 1e-12 * std::fabs(q16));
+    EXPECT_NEAR(summary[0][k][8], q50, 1e-12 * std::fabs(q50));
+    EXPECT_NEAR(summary[0][k][9], q84, 1e-12 * std::fabs(q84));
+    // A vertical line at each of the three on the histogram (no MAP, no truth: nothing else).
+    for (double q : {q16, q50, q84}) {
+      bool found = false;
+      for (double a : arrows) found = found || std::fabs(a - q) <= 1e-12 * std::fabs(q);
+      EXPECT_TRUE(found) << "no line at " << q << " for parameter " << k;
+    }
+  }
+  EXPECT_EQ(arrows.size(), static_cast<size_t>(3 * dim));
+  // The title over the third column: median +(q84 - q50) -(q50 - q16), two significant
+  // digits of the smaller error.
+  std::vector<double> third;
+  for (int i = 0; i < n; ++i) third.push_back(in.samples[static_cast<size_t>(i) * dim + 2]);
+  const double m = QuantileOf(third, 0.5), up = QuantileOf(third, 0.841345) - m,
+               down = m - QuantileOf(third, 0.158655);
+  const int decimals =
+      std::max(0, 1 - static_cast<int>(std::floor(std::log10(std::min(up, down)))));
+  char expected[128];
+  std::snprintf(expected, sizeof(expected), "'%.*f +%.*f -%.*f'", decimals, m, decimals, up,
+                decimals, down);
+  EXPECT_NE(script.find(expected), std::string::npos) << expected;
+}
+
+TEST(Plot, CornerDrawsTruthOnlyWhenGiven) {
+  ScopedTempDir dir;
+  CornerPlotInput in = MakeCornerInput(2, 400, 3);
+  PlotResult result;
+  std::string error;
+  ASSERT_TRUE(WriteCornerPlot(dir.path(), "with", in, &result, &error)) << error;
+  const std::string with = ReadText(result.script_path);
+  in.truth.clear();
+  ASSERT_TRUE(WriteCornerPlot(dir.path(), "without", in, &result, &error)) << error;
+  const std::string without = ReadText(result.script_path);
+  EXPECT_NE(with.find("title 'true value'"), std::string::npos);
+  EXPECT_NE(with.find("nohead ls 5"), std::string::npos);
+  EXPECT_EQ(without.find("title 'true value'"), std::string::npos);
+  EXPECT_EQ(without.find("nohead ls 5"), std::string::npos);
+}
+
+TEST(Plot, XyPlotDodgesSeriesThatShareXAndKeepsTheTrueX) {
+  ScopedTempDir dir;
+  XyPlotInput in;
+  in.title = "dodge";
+  for (int k = 0; k < 3; ++k) {
+    Series s;
+    s.label = "series " + std::to_string(k);
+    s.x = {600, 700, 800};
+    s.y = {1.0 + k * 1e-3, 2.0, 3.0};
+    s.y_lo = {0.9, 1.9, 2.9};
+    s.y_hi = {1.1, 2.1, 3.1};
+    in.series.push_back(s);
+  }
+  in.dodge_fraction = 0.01;
+  PlotResult result;
+  std::string error;
+  ASSERT_TRUE(WriteXyPlot(dir.path(), "d", in, &result, &error)) << error;
+  const std::string script = ReadText(result.script_path);
+  // The undodged axis: the data's span (600..800 nm) with a 5 % margin on each side.
+  const double x_lo = 600 - 0.05 * 200, x_hi = 800 + 0.05 * 200;
+  const std::vector<Block> series = ReadBlocks(dir.File("d_series.dat"));
+  ASSERT_EQ(series.size(), 3u);
+  for (size_t i = 0; i < 3; ++i) {
+    for (int k = 0; k < 3; ++k) {
+      EXPECT_EQ(series[k][i][0], in.series[k].x[i]);  // the true x is kept
+      // Series k is drawn at x + (k - 1) f (x_hi - x_lo); 1e-9 relative: rounding only.
+      const double expected = in.series[k].x[i] + (k - 1) * 0.01 * (x_hi - x_lo);
+      EXPECT_NEAR(series[k][i][4], expected, 1e-9 * std::fabs(expected));
+    }
+    // Distinct drawn positions, apart by more than a point's half width (~0.5 % of the axis).
+    EXPECT_GT(series[1][i][4] - series[0][i][4], 0.005 * (x_hi - x_lo));
+    EXPECT_GT(series[2][i][4] - series[1][i][4], 0.005 * (x_hi - x_lo));
+  }
+  EXPECT_NE(script.find("using 5:2:3:4 with yerrorbars"), std::string::npos);
+  // Without the option, drawn x = x.
+  in.dodge_fraction = 0.0;
+  ASSERT_TRUE(WriteXyPlot(dir.path(), "n", in, &result, &error)) << error;
+  for (const Block& b : ReadBlocks(dir.File("n_series.dat"))) {
+    for (const auto& row : b) EXPECT_EQ(row[4], row[0]);
+  }
+  in.dodge_fraction = 0.5;
+  EXPECT_FALSE(WriteXyPlot(dir.path(), "bad", in, &result, &error));
+  ExpectOneLineError(error);
+}
+
+TEST(Plot, XyPlotWritesBandsAndTruthsOnlyWhenGiven) {
+  ScopedTempDir dir;
+  XyPlotInput in = MakeXyInput();
+  in.curves[0].y_lo = in.curves[0].y;
+  in.curves[0].y_hi = in.curves[0].y;
+  for (size_t i = 0; i < in.curves[0].x.size(); ++i) {
+    in.curves[0].y_lo[i] -= 0.1;
+    in.curves[0].y_hi[i] += 0.2;
+  }
+  PlotResult result;
+  std::string error;
+  ASSERT_TRUE(WriteXyPlot(dir.path(), "b", in, &result, &error)) << error;
+  EXPECT_FALSE(Exists(dir.File("b_truth.dat")));
+  const std::vector<Block> curves = ReadBlocks(dir.File("b_curves.dat"));
+  for (size_t i = 0; i < curves[0].size(); ++i) {
+    EXPECT_EQ(curves[0][i][2], in.curves[0].y_lo[i]);
+    EXPECT_EQ(curves[0][i][3], in.curves[0].y_hi[i]);
+  }
+  EXPECT_NE(ReadText(result.script_path).find("with filledcurves"), std::string::npos);
+  Curve truth;
+  truth.label = "truth: FWHM";
+  truth.x = {600, 900};
+  truth.y = {9.0, 8.0};
+  in.truth.curves.push_back(truth);
+  ASSERT_TRUE(WriteXyPlot(dir.path(), "t", in, &result, &error)) << error;
+  const std::vector<Block> truths = ReadBlocks(dir.File("t_truth.dat"));
+  ASSERT_EQ(truths.size(), 1u);
+  EXPECT_EQ(truths[0][1][1], 8.0);
+  EXPECT_NE(ReadText(result.script_path).find("'truth: FWHM'"), std::string::npos);
 }
 
 TEST(Plot, SubprocessReportsAMissingWorkingFolder) {

@@ -18,6 +18,8 @@
 // The parser's flags read by several commands; their meanings are the commands' options.
 DEFINE_string(config, "", "");
 DEFINE_string(out, "", "");
+DEFINE_string(plot_format, "png", "");
+DEFINE_string(truth, "", "");
 DEFINE_string(sampling, "integrated", "");
 DEFINE_string(defocus, "gaussian", "");
 
@@ -147,8 +149,9 @@ void PrintCommandHelp(const Command& c) {
                   o.default_value.c_str(), o.description.c_str());
     }
   }
-  std::printf("  --help\n      This list\n  --version\n      The versions of ccdpsf and its "
-              "libraries\n");
+  std::printf(
+      "  --help\n      This list\n  --version\n      The versions of ccdpsf and its "
+      "libraries\n");
 }
 
 void PrintVersions() { std::printf("%s\n", SoftwareVersions().dump(2).c_str()); }

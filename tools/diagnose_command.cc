@@ -6,15 +6,17 @@
 #include "ccdpsf/diagnose/diagnose_report.h"
 #include "ccdpsf/exposure.h"
 #include "ccdpsf/exposure_set.h"
-#include "ccdpsf/fit/fit_quality.h"
 #include "ccdpsf/fit/fit_config.h"
+#include "ccdpsf/fit/fit_quality.h"
 #include "ccdpsf/output_folder.h"
+#include "ccdpsf/plot.h"
 #include "ccdpsf/provenance.h"
 #include "command.h"
 #include "gflags/gflags.h"
 
 DECLARE_string(config);
 DECLARE_string(out);
+DECLARE_string(plot_format);
 DECLARE_uint64(seed);
 DECLARE_int32(threads);
 DECLARE_bool(strict);
@@ -53,6 +55,8 @@ int RunDiagnose(const std::vector<std::string>& files) {
   if (FLAGS_out.empty()) return Usage("diagnose needs --out=DIR");
   fit::FitConfig config;
   std::string error;
+  PlotOptions plot;
+  if (!ParsePlotFormat(FLAGS_plot_format, &plot.format, &error)) return Fail(error);
   // The seed, threads and flux come from here too: flag, else FIT.json, else diagnose's
   // default.
   if (!ResolveFitConfig(&config, &error)) return Fail(error);
@@ -196,24 +200,24 @@ int RunDiagnose(const std::vector<std::string>& files) {
       }
     }
   }
-  nlohmann::json run = {{"command", "diagnose"},
-                        {"files", paths},
-                        {"options",
-                         {{"fit", fit::FitConfigJson(config)},
-                          {"max_rounds", options.max_rounds},
-                          {"predictive_sims", options.predictive.num_simulations},
-                          {"alpha", options.alpha},
-                          {"flux", config.flux_given ? fit::ToString(config.model.flux)
-                                                     : std::string("auto")},
-                          {"baseline", FLAGS_baseline},
-                          {"candidates", FLAGS_candidates},
-                          {"thresholds", options.compute_thresholds},
-                          {"threshold_sims", options.thresholds.num_simulations}}},
-                        {"seed", config.fit.mcmc.seed},
-                        {"software", SoftwareVersions()}};
+  nlohmann::json run = {
+      {"command", "diagnose"},
+      {"files", paths},
+      {"options",
+       {{"fit", fit::FitConfigJson(config)},
+        {"max_rounds", options.max_rounds},
+        {"predictive_sims", options.predictive.num_simulations},
+        {"alpha", options.alpha},
+        {"flux", config.flux_given ? fit::ToString(config.model.flux) : std::string("auto")},
+        {"baseline", FLAGS_baseline},
+        {"candidates", FLAGS_candidates},
+        {"thresholds", options.compute_thresholds},
+        {"threshold_sims", options.thresholds.num_simulations}}},
+      {"seed", config.fit.mcmc.seed},
+      {"software", SoftwareVersions()}};
   std::vector<std::string> warnings;
-  if (!diagnose::WriteDiagnoseReport(out.partial(), *base, result, options, run, &warnings,
-                                     &error) ||
+  if (!diagnose::WriteDiagnoseReport(out.partial(), *base, result, options, run, &warnings, &error,
+                                     plot) ||
       !WriteRunConfig(out.partial(), config, nlohmann::json::object(), &error) ||
       !out.Commit({}, &error)) {
     return Fail(error);
@@ -239,17 +243,16 @@ Command DiagnoseCommand() {
       {"config", "",
        "FIT.json with the baseline's options (priors, calibration, keyword map) and \"flags\" "
        "(e.g. max_rounds); a diagnosis's OUT/config.json repeats it; flags given override it"},
+      {"plot_format", "png", "Format of the plots: png, pdf or svg"},
       {"sampling", model::ToString(d.model.model.sampling),
        "Model sampling: integrated (exact pixel integral) or pixel_centre (the 2015 code's "
        "discretisation)"},
       {"defocus", model::ToString(d.model.model.defocus),
        "Defocus kernel of the baseline: gaussian or pillbox"},
-      {"seed", "1",
-       "Random seed of the predictive simulations and of the --thresholds study"},
+      {"seed", "1", "Random seed of the predictive simulations and of the --thresholds study"},
       {"threads", std::to_string(dd.map.num_threads),
        "Ceres threads, and predictive simulations run at a time"},
-      {"max_rounds", std::to_string(dd.max_rounds),
-       "Rounds of testing (each may name one effect)"},
+      {"max_rounds", std::to_string(dd.max_rounds), "Rounds of testing (each may name one effect)"},
       {"predictive_sims", std::to_string(dd.predictive.num_simulations),
        "Simulations of each fitted model for the predictive p-values (0: none)"},
       {"alpha", NumberText(dd.alpha),

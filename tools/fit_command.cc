@@ -7,17 +7,21 @@
 #include "ccdpsf/atomic_file.h"
 #include "ccdpsf/exposure.h"
 #include "ccdpsf/exposure_set.h"
-#include "ccdpsf/fit/fit_exposures.h"
 #include "ccdpsf/fit/fit.h"
 #include "ccdpsf/fit/fit_config.h"
+#include "ccdpsf/fit/fit_exposures.h"
 #include "ccdpsf/fit/fit_report.h"
 #include "ccdpsf/output_folder.h"
+#include "ccdpsf/plot.h"
 #include "ccdpsf/provenance.h"
+#include "ccdpsf/truth.h"
 #include "command.h"
 #include "gflags/gflags.h"
 
 DECLARE_string(config);
 DECLARE_string(out);
+DECLARE_string(plot_format);
+DECLARE_string(truth);
 DECLARE_string(sampling);
 DECLARE_string(defocus);
 DECLARE_int32(stamp_size);
@@ -149,7 +153,14 @@ int FitInto(const std::string& dir, const std::string& shown, const std::string&
                         {"seed", config.fit.mcmc.seed},
                         {"software", SoftwareVersions()}};
   std::vector<std::string> warnings;
-  if (!fit::WriteFitReport(dir, fitted, run, &warnings, &error)) return Fail(error);
+  fit::FitReportOptions report_options;
+  if (!ParsePlotFormat(FLAGS_plot_format, &report_options.plot.format, &error) ||
+      !FindTruth(FLAGS_truth, files, &report_options.truth, &error)) {
+    return Fail(error);
+  }
+  if (!fit::WriteFitReport(dir, fitted, run, &warnings, &error, report_options)) {
+    return Fail(error);
+  }
   for (const std::string& w : warnings) std::fprintf(stderr, "ccdpsf: warning: %s\n", w.c_str());
   const fit::FitResult& result = fitted.result;
   std::printf("%s: chi2/dof %.4g, %s; verdict %s; results in %s/fit.json (report.md, plots)\n",
@@ -198,6 +209,15 @@ int RunFit(const std::vector<std::string>& files) {
   fit::FitConfig config;
   std::string error;
   if (!ResolveFitConfig(&config, &error)) return Fail(error);
+  {
+    // Checked before any fitting, so that a typo fails at once.
+    PlotFormat format;
+    std::optional<TruthFile> truth;
+    if (!ParsePlotFormat(FLAGS_plot_format, &format, &error) ||
+        !FindTruth(FLAGS_truth, files, &truth, &error)) {
+      return Fail(error);
+    }
+  }
   std::vector<InputFile> inputs;
   Manifest manifest;
   if (files.empty() && !FlagGiven("manifest")) {
@@ -303,6 +323,10 @@ Command FitCommand() {
       {"config", "",
        "FIT.json with the fit's options (priors, MAP starts, MCMC settings, calibration, "
        "keyword map, \"flags\"); a run's OUT/config.json repeats it; flags given override it"},
+      {"plot_format", "png", "Format of the plots: png, pdf or svg"},
+      {"truth", "",
+       "truth.json of simulated data, drawn on the plots (not given: a truth.json in the folder "
+       "holding all the inputs, if there is one)"},
       {"joint", d.joint ? "true" : "false",
        "One joint fit of all files (CCD widths, intensity, defocus and Airy radius shared; a "
        "position per exposure) instead of one fit per file"},
@@ -327,8 +351,7 @@ Command FitCommand() {
        "Effective sample size every parameter must reach for the MCMC to have converged"},
       {"threads", std::to_string(d.fit.mcmc.num_threads),
        "Threads of the MCMC (the chain is the same for any number)"},
-      {"mcmc", d.fit.run_mcmc ? "true" : "false",
-       "Run the MCMC (--nomcmc: MAP and Laplace only)"},
+      {"mcmc", d.fit.run_mcmc ? "true" : "false", "Run the MCMC (--nomcmc: MAP and Laplace only)"},
       {"flux", "auto",
        "How the exposures of a joint fit share the light: auto (chosen from the data and "
        "said), shared, per_exposure or exptime_scaled"},
@@ -344,10 +367,9 @@ Command FitCommand() {
        "each MCMC from its last checkpoint, ending with the chain of an uninterrupted run"},
       {"checkpoint_s", "30", "Seconds between MCMC checkpoints (for --resume)"}};
   for (const Option& o : InputOptions()) options.push_back(o);
-  return {"fit",
-          "ccdpsf fit --out=DIR [--joint] [--config=FIT.json] [options] FILE.fits...",
-          "Fit the spot model: MAP (Ceres), Laplace covariance, MCMC credible intervals.",
-          options, RunFit};
+  return {"fit", "ccdpsf fit --out=DIR [--joint] [--config=FIT.json] [options] FILE.fits...",
+          "Fit the spot model: MAP (Ceres), Laplace covariance, MCMC credible intervals.", options,
+          RunFit};
 }
 
 }  // namespace ccdpsf::tools

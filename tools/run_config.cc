@@ -21,14 +21,20 @@ using nlohmann::json;
 // Flags whose value FIT.json's own keys hold (fit::FitConfigJson): in "flags" they would be a
 // second place for one setting, so they are refused there.
 const std::map<std::string, std::string>& HeldByFitJson() {
-  static const std::map<std::string, std::string> held = {
-      {"sampling", "sampling"},       {"defocus", "defocus"},
-      {"likelihood", "likelihood"},   {"joint", "joint"},
-      {"through_focus", "through_focus"}, {"flux", "flux"},
-      {"seed", "mcmc.seed"},          {"walkers", "mcmc.walkers"},
-      {"max_steps", "mcmc.max_steps"}, {"target_ess", "mcmc.target_ess"},
-      {"threads", "mcmc.threads"},    {"mcmc", "mcmc.enabled"},
-      {"stamp_size", "calibration.stamp_size"}, {"keywords", "keywords"}};
+  static const std::map<std::string, std::string> held = {{"sampling", "sampling"},
+                                                          {"defocus", "defocus"},
+                                                          {"likelihood", "likelihood"},
+                                                          {"joint", "joint"},
+                                                          {"through_focus", "through_focus"},
+                                                          {"flux", "flux"},
+                                                          {"seed", "mcmc.seed"},
+                                                          {"walkers", "mcmc.walkers"},
+                                                          {"max_steps", "mcmc.max_steps"},
+                                                          {"target_ess", "mcmc.target_ess"},
+                                                          {"threads", "mcmc.threads"},
+                                                          {"mcmc", "mcmc.enabled"},
+                                                          {"stamp_size", "calibration.stamp_size"},
+                                                          {"keywords", "keywords"}};
   return held;
 }
 
@@ -76,8 +82,7 @@ bool IsMetadataOrManifest(const std::string& name) {
 
 }  // namespace
 
-json RunConfigJson(const fit::FitConfig& config, const json& command_options,
-                   std::string* error) {
+json RunConfigJson(const fit::FitConfig& config, const json& command_options, std::string* error) {
   json j = fit::FitConfigJson(config);
   // The keyword map in use: FIT.json's with --keywords laid over it. A default name switched
   // off is written as "" (off), since FIT.json's map is laid over the default one.
@@ -117,8 +122,7 @@ bool WriteRunConfig(const std::string& dir, const fit::FitConfig& config,
   return WriteTextFileAtomically(dir + "/config.json", j.dump(2) + "\n", error);
 }
 
-bool ApplyConfigFlags(const json& flags, const std::vector<std::string>& skip,
-                      std::string* error) {
+bool ApplyConfigFlags(const json& flags, const std::vector<std::string>& skip, std::string* error) {
   const Command& command = CurrentCommand();
   for (auto it = flags.begin(); it != flags.end(); ++it) {
     const std::string& name = it.key();

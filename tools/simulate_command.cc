@@ -71,7 +71,8 @@ int RunSimulate(const std::vector<std::string>& args) {
 }  // namespace
 
 Command SimulateCommand() {
-  return {"simulate", "ccdpsf simulate --config=SIM.json --out=DIR [--noiseless]",
+  return {"simulate",
+          "ccdpsf simulate --config=SIM.json --out=DIR [--noiseless]",
           "Simulate spot-projection exposures (the paper's 9-step procedure), or a whole "
           "campaign with a known truth.",
           {{"config", "",

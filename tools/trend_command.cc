@@ -1,22 +1,26 @@
 // ccdpsf trend: a characterisation campaign in, the CCD PSF's relations with wavelength and
 // intensity, the combined model and the requirement checks out.
 #include <cstdio>
-#include <map>
 #include <fstream>
+#include <map>
 #include <sstream>
 
 #include "ccdpsf/atomic_file.h"
 #include "ccdpsf/output_folder.h"
+#include "ccdpsf/plot.h"
 #include "ccdpsf/provenance.h"
 #include "ccdpsf/trend/campaign.h"
 #include "ccdpsf/trend/group_fit.h"
 #include "ccdpsf/trend/trend.h"
 #include "ccdpsf/trend/trend_report.h"
+#include "ccdpsf/truth.h"
 #include "command.h"
 #include "gflags/gflags.h"
 
 DECLARE_string(config);
 DECLARE_string(out);
+DECLARE_string(plot_format);
+DECLARE_string(truth);
 DECLARE_uint64(seed);
 DECLARE_int32(threads);
 DECLARE_bool(strict);
@@ -93,7 +97,13 @@ std::string RunSignature(const std::vector<std::string>& inputs) {
 int RunTrend(const std::vector<std::string>& inputs) {
   if (FLAGS_out.empty()) return Usage("trend needs --out=DIR");
   std::string error;
+  trend::TrendReportOptions report_options;
+  if (!ParsePlotFormat(FLAGS_plot_format, &report_options.plot.format, &error) ||
+      !FindTruth(FLAGS_truth, inputs, &report_options.truth, &error)) {
+    return Fail(error);
+  }
   trend::GroupFitOptions fit_options;
+  fit_options.plot_format = report_options.plot.format;
   if (!ResolveFitConfig(&fit_options.config, &error)) return Fail(error);
   fit_options.seed = fit_options.config.fit.mcmc.seed;
   fit_options.flux_given = fit_options.config.flux_given;
@@ -185,7 +195,9 @@ int RunTrend(const std::vector<std::string>& inputs) {
                         {"seed", fit_options.seed},
                         {"software", SoftwareVersions()}};
   std::vector<std::string> warnings;
-  if (!trend::WriteTrendReport(out.partial(), trend_result, run, &warnings, &error) ||
+  report_options.reference_intensity_e = trend_options.reference_intensity_e;
+  if (!trend::WriteTrendReport(out.partial(), trend_result, run, &warnings, &error,
+                               report_options) ||
       !WriteRunConfig(out.partial(), fit_options.config,
                       {{"requirements", trend::RequirementsToJson(trend_options.requirements)}},
                       &error) ||
@@ -212,6 +224,10 @@ Command TrendCommand() {
        "FIT.json with the options of every group's fit (priors, MCMC settings, calibration, "
        "keyword map) and \"flags\" (e.g. trend's requirement list); a trend's OUT/config.json "
        "repeats it; flags given override it"},
+      {"plot_format", "png", "Format of the plots: png, pdf or svg"},
+      {"truth", "",
+       "truth.json of simulated data, drawn on the plots (not given: a truth.json in the folder "
+       "holding all the inputs, if there is one)"},
       {"sampling", model::ToString(d.model.model.sampling),
        "Model sampling of every group's fit: integrated (exact pixel integral) or pixel_centre "
        "(the 2015 code's discretisation)"},

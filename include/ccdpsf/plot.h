@@ -5,17 +5,21 @@
 //               and their units; blocks separated by two blank lines are gnuplot's `index`es;
 //               "NaN" marks a missing value;
 //   STEM.gp     a self-contained gnuplot script that reads the .dat files by relative path, so
-//               `cd DIR && gnuplot STEM.gp` remakes STEM.png after a user edits the styles
-//               (line styles, palettes and sizes are set near its top);
-//   STEM.png    made by running that script (pngcairo terminal when gnuplot has it, else png).
+//               `cd DIR && gnuplot STEM.gp` remakes the picture after a user edits the styles
+//               (line styles, palettes and sizes are set near its top; `gnuplot -e
+//               "plot_format='pdf'" STEM.gp` makes another format);
+//   STEM.EXT    the picture, made by running that script, in the format of
+//               PlotOptions::format: .png (pngcairo terminal when gnuplot has it, else png),
+//               .pdf (pdfcairo) or .svg (svg). Its first bytes are checked against the format
+//               (PNG signature, "%PDF", "<svg" or "<?xml") before it is kept.
 //
 // Failure has two tiers. Bad input (sizes that disagree, empty names, a stem that is not a
 // plain file name, a folder that cannot be created or written) returns false with a one-line
 // reason in *error and may leave nothing behind. A missing or failing gnuplot is not an error:
 // the data and script are still written, the function returns true, and PlotResult says that
-// the PNG was not made and why, for the caller to pass on as a warning. A PNG left by an
-// earlier run under the same name is then removed, so that it is never mistaken for a picture
-// of the new data.
+// the picture was not made and why, for the caller to pass on as a warning. A picture left by
+// an earlier run under the same name is then removed, so that it is never mistaken for a
+// picture of the new data.
 //
 // Text (titles, labels, parameter names) is printed literally: gnuplot's "enhanced" markup is
 // off, so x_px_0 shows as typed.
@@ -29,28 +33,39 @@
 
 namespace ccdpsf {
 
+// The picture's file format.
+enum class PlotFormat { kPng, kPdf, kSvg };
+
+// "png", "pdf", "svg": the file extension and the name the --plot_format flag takes.
+const char* PlotFormatName(PlotFormat format);
+
+// Reads a --plot_format value (exactly "png", "pdf" or "svg"); false with a one-line reason
+// naming the accepted values otherwise.
+bool ParsePlotFormat(const std::string& text, PlotFormat* format, std::string* error);
+
 // How gnuplot is run.
 struct PlotOptions {
+  PlotFormat format = PlotFormat::kPng;
   // The gnuplot program: a name looked up on $PATH, or a path containing '/'. Empty means
   // $CCDPSF_GNUPLOT when that environment variable is set, else "gnuplot". Tests (and users
   // without a working gnuplot) point it at a program that does not exist to exercise the
   // "no PNG" path.
   std::string gnuplot_path;
-  // Longest time one gnuplot run may take before it is killed and the PNG reported as not
-  // made [s].
+  // Longest time one gnuplot run may take before it is killed and the picture reported as
+  // not made [s].
   double timeout_s = 120.0;
 };
 
 // What a plot call produced. Paths are `dir + "/" + file name`.
 struct PlotResult {
-  bool png_written = false;
-  std::string png_path;  // set whether or not the PNG was made
+  bool image_written = false;
+  std::string image_path;  // STEM.png / .pdf / .svg; set whether or not it was made
   std::string script_path;
   std::vector<std::string> data_paths;  // the .dat files the script reads
-  // When png_written is false: one line saying why (gnuplot not found, its exit status and
-  // last error lines, a time-out) and how to make the PNG by hand, e.g. "gnuplot ('gnuplot')
-  // was not found; data and script are in DIR: run 'gnuplot corner.gp' there to make
-  // corner.png". When true: empty, or "gnuplot warnings: ..." if it printed any.
+  // When image_written is false: one line saying why (gnuplot not found, its exit status and
+  // last error lines, a time-out) and how to make the picture by hand, e.g. "gnuplot
+  // ('gnuplot') was not found; data and script are in DIR: run 'gnuplot corner.gp' there to
+  // make corner.png". When true: empty, or "gnuplot warnings: ..." if it printed any.
   std::string message;
 };
 
@@ -94,11 +109,14 @@ bool WriteCornerPlot(const std::string& dir, const std::string& stem, const Corn
 // ---------------------------------------------------------------------------------------------
 // Data / model / residual / normalised-residual maps, one row of four panels per exposure
 // (~250 px per panel), each with its colour box. Axes are pixel coordinates (pixel centres at
-// integers, y upwards, as ds9 shows FITS). Data and model share one linear colour range per
-// exposure; the residual has a symmetric range (+- its largest absolute value) and the
-// normalised residual the fixed range -5..5, both on a blue-white-red palette. Non-finite
-// pixels (masked) are left undrawn and show the grey panel background. Setting
-// `data_log = 1` near the top of the script shows data and model on a logarithmic scale.
+// integers, y upwards, as ds9 shows FITS). Data and model share one colour range per exposure
+// on an asinh stretch, colour = asinh(value / b) with softening b (linear within a few b of
+// zero, logarithmic above, so the faint wings show beside the peak; the colour bar is
+// labelled in the image's unit and names the stretch and b). The residual has a symmetric
+// range (+- its largest absolute value) and the normalised residual the fixed range -5..5,
+// both on a diverging blue-white-red palette with white at zero. Non-finite pixels (masked)
+// are drawn grey. Setting `data_stretch = 'linear'` or `'log'` near the top of the script (or
+// `data_log = 1`, as before) shows data and model on that scale instead.
 struct StampPanels {
   std::string title;  // e.g. "exposure 0: spot_800nm_01.fits"
   Image data;         // all four the same size, in `unit` except `normalised`
@@ -109,6 +127,10 @@ struct StampPanels {
   // Frame coordinates of stamp pixel (0, 0), so that the axes show frame pixels.
   int origin_x = 0;
   int origin_y = 0;
+  // The asinh softening b [unit]: the noise sd of an empty pixel is a good choice (noise then
+  // spans about one colour step, and everything brighter is on a log-like scale). Not finite
+  // or <= 0: 1e-3 of the largest data or model value.
+  double asinh_softening = NAN;
 };
 
 // Writes STEM_000.dat, STEM_001.dat, ... (one per exposure: x_px, y_px, data, model,
@@ -139,6 +161,16 @@ struct Series {
 struct Curve {
   std::string label;  // key entry; empty: none
   std::vector<double> x, y;
+  // Empty, or a band per point (y_lo <= y <= y_hi), e.g. the relation's 68 % interval: filled
+  // in the curve's colour, translucent, behind the points. It has no key entry of its own;
+  // say what it is in the curve's label.
+  std::vector<double> y_lo, y_hi;
+};
+// Known true values (simulated data), drawn in black whatever the series' colours: curves
+// dashed, points as open diamonds.
+struct TruthOverlay {
+  std::vector<Curve> curves;  // bands ignored
+  std::vector<Curve> points;  // each one key entry (its label) and its points
 };
 struct HorizontalLine {
   std::string label;
@@ -150,10 +182,19 @@ struct XyPlotInput {
   std::vector<Series> series;
   std::vector<Curve> curves;
   std::vector<HorizontalLine> requirements;
+  TruthOverlay truth;
+  // Series that share x values would hide each other's points and bars: with a fraction
+  // f > 0, the b-th of the m series with points (and its upper limits) is drawn shifted
+  // along x by (b - (m - 1) / 2) f of the x axis' width before the shift (everything's span
+  // with the 5 % margins; in log space on a log axis); the axis then widens to show the
+  // shifted points. The data file keeps each true x beside the drawn one; say so in the
+  // caption. f is at most 0.05.
+  double dodge_fraction = 0.0;
 };
 
 // Writes STEM_series.dat (when there are series), STEM_limits.dat (when a series has upper
-// limits), STEM_curves.dat (when there are curves), STEM.gp and STEM.png into `dir`. At least one series or curve with points is required.
+// limits), STEM_curves.dat (when there are curves), STEM_truth.dat (when there are truths),
+// STEM.gp and the picture into `dir`. At least one series or curve with points is required.
 // `result` may be null.
 bool WriteXyPlot(const std::string& dir, const std::string& stem, const XyPlotInput& input,
                  PlotResult* result, std::string* error,

@@ -415,7 +415,7 @@ json DiagnoseJson(const fit::FitModel& base, const DiagnoseResult& result,
 
 namespace {
 
-std::string Markdown(const DiagnoseResult& result, const json& doc,
+std::string Markdown(const DiagnoseResult& result, const json& doc, const std::string& ext,
                      const std::vector<std::string>& plot_notes) {
   std::ostringstream md;
   md << "# ccdpsf diagnose\n\n";
@@ -538,13 +538,14 @@ std::string Markdown(const DiagnoseResult& result, const json& doc,
     for (const std::string& n : result.notes) md << "- " << n << "\n";
     for (const std::string& n : plot_notes) md << "- " << n << "\n";
   }
-  md << "\nPlots: stacked_residuals.png (one row per round)"
+  md << "\nPlots: stacked_residuals" << ext << " (one row per round)"
      << (result.rounds.front().statistics.by_intensity.size() > 1
-             ? ", stacked_residuals_by_intensity.png (one row per round and intensity class: "
-               "a signal-dependent effect leaves residuals of opposite sign at low and high "
-               "intensity, which cancel in the stack of all exposures)"
+             ? ", stacked_residuals_by_intensity" + ext +
+                   " (one row per round and intensity class: "
+                   "a signal-dependent effect leaves residuals of opposite sign at low and high "
+                   "intensity, which cancel in the stack of all exposures)"
              : "")
-     << ", radial_profile.png, flag_<effect>.png.\n";
+     << ", radial_profile" << ext << ", flag_<effect>" << ext << ".\n";
   return md.str();
 }
 
@@ -553,7 +554,7 @@ std::string Markdown(const DiagnoseResult& result, const json& doc,
 bool WriteDiagnoseReport(const std::string& out_dir, const fit::FitModel& base,
                          const DiagnoseResult& result, const DiagnoseOptions& options,
                          const json& run_record, std::vector<std::string>* warnings,
-                         std::string* error) {
+                         std::string* error, const PlotOptions& plot) {
   if (result.rounds.empty()) {
     *error = "no diagnosis to write";
     return false;
@@ -563,7 +564,7 @@ bool WriteDiagnoseReport(const std::string& out_dir, const fit::FitModel& base,
   const std::string dir = out.staging_dir();
   std::vector<std::string> plot_notes;
   auto note_plot = [&](const PlotResult& pr) {
-    if (!pr.png_written && !pr.message.empty()) {
+    if (!pr.image_written && !pr.message.empty()) {
       warnings->push_back(pr.message);
       plot_notes.push_back(pr.message);
     }
@@ -578,7 +579,7 @@ bool WriteDiagnoseReport(const std::string& out_dir, const fit::FitModel& base,
                                  result.rounds[i].statistics.stack));
     }
     PlotResult pr;
-    if (!WriteResidualMaps(dir, "stacked_residuals", rows, &pr, error)) return false;
+    if (!WriteResidualMaps(dir, "stacked_residuals", rows, &pr, error, plot)) return false;
     note_plot(pr);
   }
   // Split by intensity (statistics.h), one row per round and intensity class.
@@ -595,7 +596,8 @@ bool WriteDiagnoseReport(const std::string& out_dir, const fit::FitModel& base,
       }
     }
     PlotResult pr;
-    if (!WriteResidualMaps(dir, "stacked_residuals_by_intensity", rows, &pr, error)) return false;
+    if (!WriteResidualMaps(dir, "stacked_residuals_by_intensity", rows, &pr, error, plot))
+      return false;
     note_plot(pr);
   }
   // Radial profile per round.
@@ -621,7 +623,7 @@ bool WriteDiagnoseReport(const std::string& out_dir, const fit::FitModel& base,
     in.requirements.push_back({"0", 0.0});
     if (!in.series.empty()) {
       PlotResult pr;
-      if (!WriteXyPlot(dir, "radial_profile", in, &pr, error)) return false;
+      if (!WriteXyPlot(dir, "radial_profile", in, &pr, error, plot)) return false;
       note_plot(pr);
     }
   }
@@ -659,11 +661,14 @@ bool WriteDiagnoseReport(const std::string& out_dir, const fit::FitModel& base,
     }
     if (in.series.empty()) continue;
     PlotResult pr;
-    if (!WriteXyPlot(dir, "flag_" + before.adopted, in, &pr, error)) return false;
+    if (!WriteXyPlot(dir, "flag_" + before.adopted, in, &pr, error, plot)) return false;
     note_plot(pr);
   }
   const json doc = DiagnoseJson(base, result, options);
-  if (!WriteTextFileAtomically(out.Path("report.md"), Markdown(result, doc, plot_notes), error) ||
+  if (!WriteTextFileAtomically(
+          out.Path("report.md"),
+          Markdown(result, doc, std::string(".") + PlotFormatName(plot.format), plot_notes),
+          error) ||
       !WriteTextFileAtomically(out.Path("run.json"), run_record.dump(2) + "\n", error) ||
       !WriteTextFileAtomically(out.Path("diagnose.json"), doc.dump(2) + "\n", error)) {
     return false;

@@ -110,7 +110,8 @@ json FitJson(const ExposuresFit& fit) {
     for (int a : kept) {
       names.push_back(r.names[a]);
       json row = json::array();
-      for (int b : kept) row.push_back(have ? Num(r.laplace.covariance[a * model.dim() + b]) : json(nullptr));
+      for (int b : kept)
+        row.push_back(have ? Num(r.laplace.covariance[a * model.dim() + b]) : json(nullptr));
       matrix.push_back(row);
     }
     j["covariance"] = {{"names", names}, {"matrix", matrix}};
@@ -177,7 +178,9 @@ json FitJson(const ExposuresFit& fit) {
 }
 
 bool WriteFitReport(const std::string& out_dir, const ExposuresFit& fit, const json& run_record,
-                    std::vector<std::string>* warnings, std::string* error) {
+                    std::vector<std::string>* warnings, std::string* error,
+                    const FitReportOptions& options) {
+  const std::string extension = std::string(".") + PlotFormatName(options.plot.format);
   const FitModel& model = *fit.model;
   const FitResult& r = fit.result;
   StagedOutput out;
@@ -202,6 +205,8 @@ bool WriteFitReport(const std::string& out_dir, const ExposuresFit& fit, const j
     p.normalised = Image(s.nx(), s.ny());
     p.origin_x = s.origin_x;
     p.origin_y = s.origin_y;
+    // The asinh stretch is linear within about the noise of an empty pixel [e-].
+    p.asinh_softening = std::sqrt(noise.var0);
     for (size_t q = 0; q < m.size(); ++q) {
       const bool ok = s.valid[q];
       p.data.data[q] = ok ? s.electrons.data[q] : NAN;
@@ -237,8 +242,13 @@ bool WriteFitReport(const std::string& out_dir, const ExposuresFit& fit, const j
                         {"DOF", static_cast<long long>(r.map.dof), "pixels - parameters"}};
   if (!WriteFitsImagesF64(out.Path("residuals.fits"), primary, hdus, error)) return false;
   PlotResult plot;
-  if (!WriteResidualMaps(out.staging_dir(), "residuals", panels, &plot, error)) return false;
-  if (!plot.png_written) warnings->push_back("residuals.png not made: " + plot.message);
+  if (!WriteResidualMaps(out.staging_dir(), "residuals", panels, &plot, error, options.plot)) {
+    return false;
+  }
+  if (!plot.image_written) {
+    warnings->push_back("residuals" + extension + " not made: " + plot.message);
+  }
+  std::vector<std::string> truth_names;  // the parameters whose true value the corner shows
 
   // chain.fits and the corner plot.
   if (r.have_mcmc) {
@@ -277,14 +287,14 @@ bool WriteFitReport(const std::string& out_dir, const ExposuresFit& fit, const j
     }
     // In the table's own header, where astropy's Table.read and TOPCAT look; also in the
     // primary header for readers that look there.
-    FitsHeader ch = {{"BURNIN", static_cast<long long>(c.burn_in), "steps to discard"},
-                     {"WALKERS", static_cast<long long>(c.num_walkers), "ensemble size"},
-                     {"NSTEPS", static_cast<long long>(c.num_steps), "steps per walker"},
-                     {"NPARAM", static_cast<long long>(dim),
-                      "fitted parameters: the columns after log_prob"},
-                     {"NDERIVED", static_cast<long long>(derived_kept.size()),
-                      "derived quantities: the columns after them"},
-                     {"CONVERGD", c.converged, "sampler convergence criteria met"}};
+    FitsHeader ch = {
+        {"BURNIN", static_cast<long long>(c.burn_in), "steps to discard"},
+        {"WALKERS", static_cast<long long>(c.num_walkers), "ensemble size"},
+        {"NSTEPS", static_cast<long long>(c.num_steps), "steps per walker"},
+        {"NPARAM", static_cast<long long>(dim), "fitted parameters: the columns after log_prob"},
+        {"NDERIVED", static_cast<long long>(derived_kept.size()),
+         "derived quantities: the columns after them"},
+        {"CONVERGD", c.converged, "sampler convergence criteria met"}};
     if (!WriteFitsTable(out.Path("chain.fits"), ch, "CHAIN", cols, ch, error)) return false;
 
     // The corner plot shows the shared parameters (best_focus_um included in a through-focus
@@ -308,16 +318,36 @@ bool WriteFitReport(const std::string& out_dir, const ExposuresFit& fit, const j
         }
       }
     }
+    // Every post-burn-in state: the quantiles drawn on the histograms are then those of
+    // fit.json (the plot thins its scatter panels itself).
     const size_t kept = static_cast<size_t>(c.num_steps - c.burn_in) * c.num_walkers;
-    const size_t n = std::min<size_t>(kept, 5000);
-    for (size_t t = 0; t < n; ++t) {
-      const size_t s = static_cast<size_t>(c.burn_in) * c.num_walkers + t * kept / n;
+    for (size_t t = 0; t < kept; ++t) {
+      const size_t s = static_cast<size_t>(c.burn_in) * c.num_walkers + t;
       for (int i : picked) corner.samples.push_back(c.chain[s * dim + i]);
     }
-    corner.num_samples = static_cast<int>(n);
+    corner.num_samples = static_cast<int>(kept);
     corner.title = "posterior (MCMC), MAP and Laplace 68/95 % ellipses";
-    if (!WriteCornerPlot(out.staging_dir(), "corner", corner, &plot, error)) return false;
-    if (!plot.png_written) warnings->push_back("corner.png not made: " + plot.message);
+    if (options.truth) {
+      std::vector<std::string> sources;
+      for (const Stamp& s : model.stamps()) sources.push_back(s.info.source);
+      const std::vector<double> truth = FitParameterTruths(
+          options.truth->document, r.names, sources, model.options().flux == FluxMode::kShared);
+      bool any = false;
+      for (int i : picked) {
+        corner.truth.push_back(truth[i]);
+        if (std::isfinite(truth[i])) {
+          any = true;
+          truth_names.push_back(r.names[i]);
+        }
+      }
+      if (!any) corner.truth.clear();
+    }
+    if (!WriteCornerPlot(out.staging_dir(), "corner", corner, &plot, error, options.plot)) {
+      return false;
+    }
+    if (!plot.image_written) {
+      warnings->push_back("corner" + extension + " not made: " + plot.message);
+    }
   }
 
   // report.md: the numbers people come for, and the plots.
@@ -385,8 +415,30 @@ bool WriteFitReport(const std::string& out_dir, const ExposuresFit& fit, const j
   for (int i = 0; i < dim; ++i) row(r.names[i], r.parameters[i]);
   for (const auto& [name, s] : r.derived) row(name, s);
   md << "\nsd ratio = Laplace sd / half the MCMC 68 % interval (1 for a Gaussian posterior).\n\n";
-  md << "## Plots\n\n![residuals](residuals.png)\n\n";
-  if (r.have_mcmc) md << "![corner](corner.png)\n\n";
+  md << "## Plots\n\n";
+  md << "Residual maps: data and model on an asinh stretch (linear within about the noise of an "
+        "empty pixel, logarithmic above, so the wings show), residuals and normalised "
+        "residuals on a diverging scale with white at zero.\n\n";
+  md << "![residuals](residuals" << extension << ")\n\n";
+  if (r.have_mcmc) {
+    md << "Corner plot: histograms with the median and the central 68 % interval (dashed; the "
+          "numbers above each column), the MAP and the Laplace approximation in red";
+    if (!truth_names.empty()) md << ", true values in blue";
+    md << ".\n\n![corner](corner" << extension << ")\n\n";
+  }
+  if (options.truth) {
+    md << "Truth file: " << options.truth->path << " ("
+       << (truth_names.empty() ? std::string("none of its values maps onto a plotted parameter")
+                               : "true values drawn for " +
+                                     [&] {
+                                       std::string list;
+                                       for (const std::string& n : truth_names) {
+                                         list += (list.empty() ? "" : ", ") + n;
+                                       }
+                                       return list;
+                                     }())
+       << ").\n\n";
+  }
   if (!warnings->empty()) {
     md << "## Warnings\n\n";
     for (const auto& w : *warnings) md << "- " << w << "\n";

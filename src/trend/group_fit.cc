@@ -121,7 +121,13 @@ GroupResult FitOne(const CampaignGroup& group, int index, const GroupFitOptions&
                           {"seed", fo.mcmc.seed},
                           {"software", SoftwareVersions()}};
     std::vector<std::string> plot_warnings;
-    if (!fit::WriteFitReport(out.report_dir, fitted, run, &plot_warnings, &error)) {
+    fit::FitReportOptions report_options;
+    report_options.plot.format = options.plot_format;
+    std::string truth_error;
+    if (!FindTruth("", group.files, &report_options.truth, &truth_error)) {
+      plot_warnings.push_back("truth not drawn: " + truth_error);
+    }
+    if (!fit::WriteFitReport(out.report_dir, fitted, run, &plot_warnings, &error, report_options)) {
       out.warnings.push_back("fit report not written: " + error);
       out.report_dir.clear();
     }

@@ -344,6 +344,14 @@ std::optional<RelationFit> FitRelation(RelationKind kind, const std::vector<Rela
     ps.fit_sd = up.s;
     ps.gaussian = up.gaussian;
     ps.num_draws = static_cast<int>(up.y_draws.size());
+    if (up.gaussian) {
+      ps.fit_centre = up.value.median;
+    } else {
+      double sum = 0.0;
+      for (double y : up.y_draws) sum += y;
+      const double mean = sum / up.y_draws.size();
+      ps.fit_centre = kind == RelationKind::kPowerLaw ? std::exp(mean) : mean;
+    }
     fit.points.push_back(ps);
   }
   {

@@ -91,9 +91,9 @@ std::string RelationCsv(const std::string& relation_name, const RelationFit& fit
   const std::string metric = relation_name.substr(0, relation_name.size() - suffix.size());
   std::ostringstream csv;
   csv.precision(10);
-  csv << "group," << (wavelength ? "wavelength_nm" : "peak_e") << "," << metric << ","
-      << metric << "_lo68," << metric << "_hi68," << metric << "_sd,normalized_residual,used,"
-      << metric << "_upper_limit_95\n";
+  csv << "group," << (wavelength ? "wavelength_nm" : "peak_e") << "," << metric << "," << metric
+      << "_lo68," << metric << "_hi68," << metric << "_sd,normalized_residual,used," << metric
+      << "_upper_limit_95\n";
   for (const PointSummary& p : fit.points) {
     csv << p.label << "," << p.abscissa << "," << p.value.median << "," << p.value.lo68 << ","
         << p.value.hi68 << "," << p.value.sd << "," << p.normalized_residual << ",1,\n";
@@ -106,66 +106,142 @@ std::string RelationCsv(const std::string& relation_name, const RelationFit& fit
   return csv.str();
 }
 
-struct PlotLine {
-  std::string label;
-  const RelationFit* fit = nullptr;
+// What a plot needs besides its lines: the result, the truth and where the files go.
+struct PlotContext {
+  const TrendResult* result = nullptr;
+  const TrendReportOptions* options = nullptr;
+  std::string dir;
+  std::vector<std::string>* images = nullptr;       // file names of the pictures made
+  std::vector<std::string>* truth_drawn = nullptr;  // what the truth added, for report.md
+  std::vector<std::string>* warnings = nullptr;
 };
 
-// Points with 68 % bars and the median relation of each fit; requirement lines in red.
-void PlotFits(const std::string& dir, const std::string& stem, const std::string& title,
+struct PlotLine {
+  std::string label;
+  std::string relation;  // its name in TrendResult::relations, e.g. "fwhm_um_vs_intensity"
+  std::string metric;    // the metric it relates, e.g. "fwhm_um"
+};
+
+// The true relation `relation` from a campaign truth's "relations", as a curve over [lo, hi],
+// when it holds in the frame the trend plots it in (trend_report.h); else none.
+std::optional<Curve> TruthRelationCurve(const PlotContext& ctx, const std::string& relation,
+                                        double lo, double hi) {
+  if (!ctx.options->truth) return std::nullopt;
+  const nlohmann::json& doc = ctx.options->truth->document;
+  if (!doc.contains("relations") || !doc["relations"].is_object()) return std::nullopt;
+  const nlohmann::json& relations = doc["relations"];
+  if (!relations.contains(relation) || !relations[relation].is_object()) return std::nullopt;
+  const nlohmann::json& rel = relations[relation];
+  auto number = [](const nlohmann::json& j, const char* key) {
+    return j.contains(key) && j[key].is_number() ? j[key].get<double>() : NAN;
+  };
+  const bool power =
+      relation.size() > 14 && relation.compare(relation.size() - 14, 14, "_vs_wavelength") == 0;
+  if (power) {
+    // Holds at the truth's reference intensity: the trend's wavelength points are corrected
+    // to its own I0.
+    if (number(relations, "reference_intensity_e") != ctx.options->reference_intensity_e) {
+      return std::nullopt;
+    }
+  } else if (number(relations, "reference_wavelength_nm") != ctx.result->intensity_wavelength_nm) {
+    return std::nullopt;  // the truth's intensity relation holds at its reference wavelength
+  }
+  const double c0 = number(rel, power ? "a" : "intercept");
+  const double c1 = number(rel, power ? "alpha" : "slope");
+  if (!std::isfinite(c0) || !std::isfinite(c1) || !(hi > lo)) return std::nullopt;
+  Curve c;
+  for (int i = 0; i <= 60; ++i) {
+    const double x = lo + (hi - lo) * i / 60.0;
+    c.x.push_back(x);
+    c.y.push_back(power ? c0 * std::pow(x, c1) : c0 + c1 * x);
+  }
+  return c;
+}
+
+// True values of `metric` of the groups at the intensity relations' wavelength, at their
+// nominal peak intensity (the setting the simulation made), from a campaign truth's
+// "groups"; empty when there are none.
+Curve TruthGroupPoints(const PlotContext& ctx, const std::string& metric) {
+  Curve c;
+  if (!ctx.options->truth) return c;
+  const nlohmann::json& doc = ctx.options->truth->document;
+  if (!doc.contains("groups") || !doc["groups"].is_array()) return c;
+  for (const nlohmann::json& g : doc["groups"]) {
+    if (!g.is_object() || g.value("focus_series", false)) continue;
+    const double wavelength = g.value("wavelength_nm", NAN);
+    const double peak = g.value("nominal_peak_e", NAN);
+    const double value =
+        g.contains(metric) && g[metric].is_number() ? g[metric].get<double>() : NAN;
+    if (wavelength != ctx.result->intensity_wavelength_nm || !std::isfinite(peak) ||
+        !std::isfinite(value)) {
+      continue;
+    }
+    c.x.push_back(peak);
+    c.y.push_back(value);
+  }
+  return c;
+}
+
+// Per relation: each setting's point where the fit sees it (fit_centre: the mean of its
+// draws in the fitted space, through which the median relation runs) with the central 68 %
+// interval of its draws as bars; the relation's pointwise median and 68 % band from its
+// resampled draws; requirement lines in red; truths in black.
+void PlotFits(const PlotContext& ctx, const std::string& stem, const std::string& title,
               const std::string& x_label, const std::string& y_label,
               const std::vector<PlotLine>& lines, const std::vector<HorizontalLine>& limits,
-              std::vector<std::string>* pngs, std::vector<std::string>* warnings) {
+              bool intensity) {
   XyPlotInput in;
   in.title = title;
   in.x_label = x_label;
   in.y_label = y_label;
+  const std::string extension = std::string(".") + PlotFormatName(ctx.options->plot.format);
+  double x_lo = NAN, x_hi = NAN;
   for (const PlotLine& line : lines) {
-    if (line.fit == nullptr || line.fit->points.empty()) continue;
+    auto found = ctx.result->relations.find(line.relation);
+    const RelationFit* fit = found == ctx.result->relations.end() ? nullptr : &found->second;
+    if (fit == nullptr || (fit->points.empty() && fit->gaps.empty())) continue;
     Series s;
     s.label = line.label;
-    for (const PointSummary& p : line.fit->points) {
-      if (!std::isfinite(p.value.median)) continue;
+    for (const PointSummary& p : fit->points) {
+      const double centre = std::isfinite(p.fit_centre) ? p.fit_centre : p.value.median;
+      if (!std::isfinite(centre)) continue;
       s.x.push_back(p.abscissa);
-      s.y.push_back(p.value.median);
-      s.y_lo.push_back(std::min(p.value.lo68, p.value.median));
-      s.y_hi.push_back(std::max(p.value.hi68, p.value.median));
+      s.y.push_back(centre);
+      s.y_lo.push_back(std::isfinite(p.value.lo68) ? std::min(p.value.lo68, centre) : centre);
+      s.y_hi.push_back(std::isfinite(p.value.hi68) ? std::max(p.value.hi68, centre) : centre);
     }
     // Bound-only settings as upper limits (the axes are linear).
-    for (const RelationGap& g : line.fit->gaps) {
+    for (const RelationGap& g : fit->gaps) {
       if (!std::isfinite(g.upper_limit_95) || !std::isfinite(g.abscissa)) continue;
       s.limit_x.push_back(g.abscissa);
       s.limit_y.push_back(g.upper_limit_95);
     }
     if (!s.limit_x.empty()) s.limit_label = line.label + ": 95 % upper limit (bound only)";
     Curve c;
-    c.label = line.fit->fitted ? line.label + " fit" : "";
-    if (line.fit->fitted) {
-      // The median relation: through the value at the pivot with the median slope (or
-      // exponent), a smooth curve even where the draws are broad.
-      const RelationFit& f = *line.fit;
-      const Coefficient* at_pivot = f.Find("value_at_pivot");
-      const Coefficient* shape = f.Find(f.kind == RelationKind::kPowerLaw ? "alpha" : "slope");
-      const double v0 = at_pivot ? at_pivot->estimate.median : NAN;
-      const double k = shape ? shape->estimate.median : NAN;
-      const double lo = f.MinAbscissa(), hi = f.MaxAbscissa();
-      for (int i = 0; i <= 40 && std::isfinite(v0) && std::isfinite(k); ++i) {
+    if (fit->fitted) {
+      c.label = line.label + " fit, 68 % band";
+      const double lo = fit->MinAbscissa(), hi = fit->MaxAbscissa();
+      for (int i = 0; i <= 40; ++i) {
         const double x = lo + (hi - lo) * i / 40.0;
-        const double y = f.kind == RelationKind::kPowerLaw ? v0 * std::pow(x / f.pivot, k)
-                                                           : v0 + k * (x - f.pivot);
-        if (std::isfinite(y)) {
-          c.x.push_back(x);
-          c.y.push_back(y);
-        }
+        const Estimate e = SummarizeDraws(fit->ValueDraws(x));
+        if (!std::isfinite(e.median) || !std::isfinite(e.lo68) || !std::isfinite(e.hi68)) continue;
+        c.x.push_back(x);
+        c.y.push_back(e.median);
+        c.y_lo.push_back(std::min(e.lo68, e.median));
+        c.y_hi.push_back(std::max(e.hi68, e.median));
       }
     }
     // Series k and curve k share a colour, so they stay paired: a relation that was not
     // fitted gets a one-point curve (which draws nothing) and no key entry.
     if (s.x.empty() && s.limit_x.empty()) continue;
     if (c.x.empty()) {
-      c.label.clear();
+      c = Curve();
       c.x = {s.x.empty() ? s.limit_x[0] : s.x[0]};
       c.y = {s.x.empty() ? s.limit_y[0] : s.y[0]};
+    }
+    for (double x : s.x) {
+      x_lo = std::isnan(x_lo) ? x : std::min(x_lo, x);
+      x_hi = std::isnan(x_hi) ? x : std::max(x_hi, x);
     }
     in.series.push_back(std::move(s));
     in.curves.push_back(std::move(c));
@@ -174,14 +250,32 @@ void PlotFits(const std::string& dir, const std::string& stem, const std::string
   for (const Series& s : in.series) any = any || !s.x.empty() || !s.limit_x.empty();
   if (!any) return;
   in.requirements = limits;
+  in.dodge_fraction = in.series.size() > 1 ? 0.012 : 0.0;
+  // Truths: the true relation where the truth has it in this frame, else (intensity plots)
+  // the groups' true values.
+  for (const PlotLine& line : lines) {
+    const std::string label = "truth: " + line.label;
+    if (auto curve = TruthRelationCurve(ctx, line.relation, x_lo, x_hi)) {
+      curve->label = label + " relation";
+      in.truth.curves.push_back(std::move(*curve));
+      ctx.truth_drawn->push_back(stem + ": " + line.relation + " (true relation)");
+    } else if (intensity) {
+      Curve points = TruthGroupPoints(ctx, line.metric);
+      if (!points.x.empty()) {
+        points.label = label + " (at nominal peak)";
+        in.truth.points.push_back(std::move(points));
+        ctx.truth_drawn->push_back(stem + ": " + line.metric + " of the groups (true values)");
+      }
+    }
+  }
   PlotResult plot;
   std::string error;
-  if (!WriteXyPlot(dir, stem, in, &plot, &error)) {
-    warnings->push_back(stem + ".png not made: " + error);
-  } else if (!plot.png_written) {
-    warnings->push_back(stem + ".png not made: " + plot.message);
+  if (!WriteXyPlot(ctx.dir, stem, in, &plot, &error, ctx.options->plot)) {
+    ctx.warnings->push_back(stem + extension + " not made: " + error);
+  } else if (!plot.image_written) {
+    ctx.warnings->push_back(stem + extension + " not made: " + plot.message);
   } else {
-    pngs->push_back(stem + ".png");
+    ctx.images->push_back(stem + extension);
   }
 }
 
@@ -232,9 +326,9 @@ json TrendJson(const TrendResult& r, const std::string& out_dir) {
   return j;
 }
 
-bool WriteTrendReport(const std::string& out_dir, const TrendResult& r,
-                      const json& run_record, std::vector<std::string>* warnings,
-                      std::string* error) {
+bool WriteTrendReport(const std::string& out_dir, const TrendResult& r, const json& run_record,
+                      std::vector<std::string>* warnings, std::string* error,
+                      const TrendReportOptions& options) {
   StagedOutput out;
   if (!out.Begin(out_dir, error)) return false;
   const std::string dir = out.staging_dir();
@@ -273,41 +367,46 @@ bool WriteTrendReport(const std::string& out_dir, const TrendResult& r,
 
   // Plots like the paper's figures.
   std::vector<std::string> pngs;
+  std::vector<std::string> truth_drawn;
+  const PlotContext ctx{&r, &options, dir, &pngs, &truth_drawn, warnings};
   const double fwhm_limit = LimitOf(r, "fwhm_um");
   const double e_limit = LimitOf(r, "ellipticity");
   std::vector<HorizontalLine> fwhm_lines, e_lines;
-  if (std::isfinite(fwhm_limit)) fwhm_lines.push_back({"requirement", fwhm_limit});
-  if (std::isfinite(e_limit)) e_lines.push_back({"requirement", e_limit});
+  if (std::isfinite(fwhm_limit)) {
+    fwhm_lines.push_back({"FWHM requirement: <= " + Fmt(fwhm_limit) + " um", fwhm_limit});
+  }
+  if (std::isfinite(e_limit)) {
+    e_lines.push_back({"ellipticity requirement: <= " + Fmt(e_limit), e_limit});
+  }
   const std::string at_i = " at " + Fmt(r.intensity_wavelength_nm) + " nm";
-  PlotFits(dir, "fwhm_vs_wavelength", "CCD PSF FWHM vs wavelength (at I0)", "wavelength [nm]",
-           "FWHM [um]",
-           {{"FWHM_x", Find(r, "fwhm_x_um_vs_wavelength")},
-            {"FWHM_y", Find(r, "fwhm_y_um_vs_wavelength")},
-            {"FWHM", Find(r, "fwhm_um_vs_wavelength")}},
-           fwhm_lines, &pngs, warnings);
-  PlotFits(dir, "fwhm_vs_intensity", "CCD PSF FWHM vs intensity" + at_i,
-           "peak pixel [e-]", "FWHM [um]",
-           {{"FWHM_x", Find(r, "fwhm_x_um_vs_intensity")},
-            {"FWHM_y", Find(r, "fwhm_y_um_vs_intensity")},
-            {"FWHM", Find(r, "fwhm_um_vs_intensity")}},
-           fwhm_lines, &pngs, warnings);
-  PlotFits(dir, "r2_vs_wavelength", "CCD PSF R^2 vs wavelength (at I0)", "wavelength [nm]",
-           "R^2 [px^2]", {{"R^2", Find(r, "r2_px2_vs_wavelength")}}, {}, &pngs, warnings);
-  PlotFits(dir, "r2_vs_intensity", "CCD PSF R^2 vs intensity" + at_i, "peak pixel [e-]",
-           "R^2 [px^2]", {{"R^2", Find(r, "r2_px2_vs_intensity")}}, {}, &pngs, warnings);
-  PlotFits(dir, "ellipticity_vs_wavelength", "CCD PSF ellipticity vs wavelength (at I0)",
-           "wavelength [nm]", "e", {{"e", Find(r, "ellipticity_vs_wavelength")}}, e_lines,
-           &pngs, warnings);
-  PlotFits(dir, "ellipticity_vs_intensity", "CCD PSF ellipticity vs intensity" + at_i,
-           "peak pixel [e-]", "e", {{"e", Find(r, "ellipticity_vs_intensity")}}, e_lines, &pngs,
-           warnings);
-  PlotFits(dir, "total_fwhm_vs_wavelength",
+  const std::vector<PlotLine> fwhm_wavelength = {{"FWHM_x", "fwhm_x_um_vs_wavelength", "fwhm_x_um"},
+                                                 {"FWHM_y", "fwhm_y_um_vs_wavelength", "fwhm_y_um"},
+                                                 {"FWHM", "fwhm_um_vs_wavelength", "fwhm_um"}};
+  const std::vector<PlotLine> fwhm_intensity = {{"FWHM_x", "fwhm_x_um_vs_intensity", "fwhm_x_um"},
+                                                {"FWHM_y", "fwhm_y_um_vs_intensity", "fwhm_y_um"},
+                                                {"FWHM", "fwhm_um_vs_intensity", "fwhm_um"}};
+  PlotFits(ctx, "fwhm_vs_wavelength", "CCD PSF FWHM vs wavelength (at I0)", "wavelength [nm]",
+           "FWHM [um]", fwhm_wavelength, fwhm_lines, false);
+  PlotFits(ctx, "fwhm_vs_intensity", "CCD PSF FWHM vs intensity" + at_i, "peak pixel [e-]",
+           "FWHM [um]", fwhm_intensity, fwhm_lines, true);
+  PlotFits(ctx, "r2_vs_wavelength", "CCD PSF R^2 vs wavelength (at I0)", "wavelength [nm]",
+           "R^2 [px^2]", {{"R^2", "r2_px2_vs_wavelength", "r2_px2"}}, {}, false);
+  PlotFits(ctx, "r2_vs_intensity", "CCD PSF R^2 vs intensity" + at_i, "peak pixel [e-]",
+           "R^2 [px^2]", {{"R^2", "r2_px2_vs_intensity", "r2_px2"}}, {}, true);
+  PlotFits(ctx, "ellipticity_vs_wavelength", "CCD PSF ellipticity vs wavelength (at I0)",
+           "wavelength [nm]", "e", {{"e", "ellipticity_vs_wavelength", "ellipticity"}}, e_lines,
+           false);
+  PlotFits(ctx, "ellipticity_vs_intensity", "CCD PSF ellipticity vs intensity" + at_i,
+           "peak pixel [e-]", "e", {{"e", "ellipticity_vs_intensity", "ellipticity"}}, e_lines,
+           true);
+  // No requirement line on the totals: they include the defocus.
+  PlotFits(ctx, "total_fwhm_vs_wavelength",
            "identified (total) FWHM, defocus included, vs wavelength (at I0)", "wavelength [nm]",
-           "total FWHM [um]", {{"total FWHM", Find(r, "total_fwhm_um_vs_wavelength")}},
-           {}, &pngs, warnings);  // no requirement line: the total includes the defocus
-  PlotFits(dir, "total_fwhm_vs_intensity", "identified (total) FWHM vs intensity" + at_i,
+           "total FWHM [um]", {{"total FWHM", "total_fwhm_um_vs_wavelength", "total_fwhm_um"}}, {},
+           false);
+  PlotFits(ctx, "total_fwhm_vs_intensity", "identified (total) FWHM vs intensity" + at_i,
            "peak pixel [e-]", "total FWHM [um]",
-           {{"total FWHM", Find(r, "total_fwhm_um_vs_intensity")}}, {}, &pngs, warnings);
+           {{"total FWHM", "total_fwhm_um_vs_intensity", "total_fwhm_um"}}, {}, true);
 
   // report.md
   std::ostringstream md;
@@ -375,6 +474,23 @@ bool WriteTrendReport(const std::string& out_dir, const TrendResult& r,
     }
   }
   md << "\n## Plots\n\n";
+  md << "Points: each setting where the relation's fit sees it (the mean of its posterior "
+        "draws; for the wavelength relations, fitted in log space, their geometric mean), with "
+        "the central 68 % interval of the draws as bars; with skewed posteriors this differs "
+        "from the medians in the tables. Where several series share a setting they are moved "
+        "apart along x by about 1 % of the axis (the .dat files keep the true x). Lines: the "
+        "relation's pointwise median with its 68 % band from the resampled fits. Dashed red: "
+        "requirements.";
+  if (options.truth) {
+    md << " Black: true values from " << options.truth->path
+       << (truth_drawn.empty() ? " (none maps onto these plots)" : "") << ".";
+  }
+  md << "\n\n";
+  if (options.truth && !truth_drawn.empty()) {
+    md << "Truth drawn:\n\n";
+    for (const std::string& t : truth_drawn) md << "- " << t << "\n";
+    md << "\n";
+  }
   for (const std::string& png : pngs) md << "![" << png << "](" << png << ")\n\n";
   md << "## Groups\n\n| group | nm | peak e- | exposures | FWHM um | e | total FWHM um | chi2/dof | status |\n";
   md << "|---|---|---|---|---|---|---|---|---|\n";
@@ -408,7 +524,8 @@ bool WriteTrendReport(const std::string& out_dir, const TrendResult& r,
           "(docs/trust.md, single focus): with `integrated` sampling the groups' CCD-only widths "
           "above rest on the priors. A series through focus, fitted with defocus = rate x "
           "|z - z0| and one CCD kernel, identifies them:\n\n"
-          "| group | nm | CCD sigma_x px | CCD sigma_y px | FWHM um | e | defocus rate px/um | best focus um |\n"
+          "| group | nm | CCD sigma_x px | CCD sigma_y px | FWHM um | e | defocus rate px/um | "
+          "best focus um |\n"
           "|---|---|---|---|---|---|---|---|\n";
     for (const GroupResult& g : r.groups) {
       if (!g.ok || !g.group.focus_series) continue;

@@ -1,10 +1,10 @@
 #include "support/run_ccdpsf.h"
 
 #include <sys/wait.h>
-
 #include <unistd.h>
 
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 
 #include "gtest/gtest.h"
@@ -40,6 +40,13 @@ std::string FreshDir(const std::string& suite, const std::string& name) {
   std::filesystem::remove_all(dir);
   std::filesystem::create_directories(dir);
   return dir;
+}
+
+std::string RealFramesFolder() {
+  const char* env = std::getenv("CCDPSF_REALDATA");
+  const std::string root =
+      env != nullptr ? std::string(env) : std::string(CCDPSF_SOURCE_DIR) + "/../shared/realdata";
+  return root + "/lpnhe_intensity";
 }
 
 const std::string& DemoSet() {

@@ -29,6 +29,11 @@ std::string FreshDir(const std::string& suite, const std::string& name);
 // simulated by the binary once per process.
 const std::string& DemoSet();
 
+// The folder of the real bench frames (an 8-bit camera, one frame per exposure time; not in
+// the repository): $CCDPSF_REALDATA/lpnhe_intensity, else ../shared/realdata/lpnhe_intensity
+// beside the source tree. Tests that read it skip when it is absent.
+std::string RealFramesFolder();
+
 }  // namespace ccdpsf::testing_support
 
 #endif  // CCDPSF_TESTS_SUPPORT_RUN_CCDPSF_H_

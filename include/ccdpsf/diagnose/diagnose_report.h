@@ -7,11 +7,11 @@
 //                         Laplace sd; the named effects' parameters with 68 % and 99.7 %
 //                         Laplace intervals), detection_thresholds (computed: the simulated
 //                         studies of --thresholds, per strength as injected the detection rate
-//                         and the simulations whose fits failed, left out of it; not_named: for every effect not named, its
-//                         realistic strength, its status and reason in the last round tested,
-//                         and the weakest strength that would have been detected, simulated
-//                         for these data or else the reference value for paper-like data,
-//                         ReferenceThresholds in diagnose.h), notes. Written last.
+//                         and the simulations whose fits failed, left out of it; not_named: for
+//                         every effect not named, its realistic strength, its status and reason in
+//                         the last round tested, and the weakest strength that would have been
+//                         detected, simulated for these data or else the reference value for
+//                         paper-like data, ReferenceThresholds in diagnose.h), notes. Written last.
 //   report.md             a readable summary
 //   stacked_residuals.*   stacked data / model / residual / normalised residual, one row per
 //                         round (the gap before and after each named effect)
@@ -28,6 +28,7 @@
 #include <vector>
 
 #include "ccdpsf/diagnose/diagnose.h"
+#include "ccdpsf/plot.h"
 #include "nlohmann/json.hpp"
 
 namespace ccdpsf::diagnose {
@@ -39,7 +40,7 @@ nlohmann::json DiagnoseJson(const fit::FitModel& base, const DiagnoseResult& res
 bool WriteDiagnoseReport(const std::string& out_dir, const fit::FitModel& base,
                          const DiagnoseResult& result, const DiagnoseOptions& options,
                          const nlohmann::json& run_record, std::vector<std::string>* warnings,
-                         std::string* error);
+                         std::string* error, const PlotOptions& plot = PlotOptions());
 
 }  // namespace ccdpsf::diagnose
 

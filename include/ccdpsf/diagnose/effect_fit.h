@@ -19,7 +19,7 @@
 //   airy_radius_px, defocus_sigma_px (defocus_radius_px for a pillbox), ccd_sigma_x_px,
 //   ccd_sigma_y_px              shared; the CCD widths are those at zero signal when
 //                               brighter_fatter is in the model
-//   x_px.K, y_px.K [, flux_e.K] per exposure (flux_e.K with FluxMode::kPerExposure: a
+//   x_px_K, y_px_K [, flux_e.K] per exposure (flux_e.K with FluxMode::kPerExposure: a
 //                               multi-intensity set)
 //   <effect>.<parameter>        the catalogue's parameters of every effect in the spec except
 //                               jitter, in the spec's order (e.g. serial_cti.trail_fraction)
@@ -140,7 +140,7 @@ class EffectModel {
   std::vector<Block> blocks_;
   int shared_flux_ = -1;       // index of flux_e in kShared mode
   int shape_begin_ = 0;        // airy_radius_px, then defocus, sigma_x, sigma_y
-  int exposure_begin_ = 0;     // x_px.0
+  int exposure_begin_ = 0;     // x_px_0
   int exposure_size_ = 2;      // 2 or 3 (with flux_e.K)
   std::vector<std::pair<model::EffectKind, int>> effect_begin_;  // non-jitter effects
   std::vector<int> jitter_index_;  // per exposure: var_x index, or -1 for the reference

@@ -12,20 +12,32 @@
 //                   then the derived metrics of each draw but peak_e; units in TUNITn;
 //                   keywords BURNIN (steps to discard), WALKERS, NSTEPS, NPARAM, NDERIVED,
 //                   CONVERGD in the table's header (and the primary's)
-//   corner.png / residuals.png (+ their .gp scripts and .dat data, for restyling)
+//   corner.png / residuals.png, or .pdf / .svg (FitReportOptions::plot.format), with their
+//                   .gp scripts and .dat data, for restyling; with a truth (simulated data)
+//                   the corner plot marks the true values that map onto fitted parameters
 //   report.md       a readable summary linking the plots
 #ifndef CCDPSF_FIT_FIT_REPORT_H_
 #define CCDPSF_FIT_FIT_REPORT_H_
 
+#include <optional>
 #include <string>
 #include <vector>
 
 #include "ccdpsf/exposure.h"
 #include "ccdpsf/fit/fit.h"
 #include "ccdpsf/fit/fit_exposures.h"
+#include "ccdpsf/plot.h"
+#include "ccdpsf/truth.h"
 #include "nlohmann/json.hpp"
 
 namespace ccdpsf::fit {
+
+struct FitReportOptions {
+  PlotOptions plot;  // the plots' format (and how gnuplot is run)
+  // Known true values (truth.h), drawn on the corner plot where they map; report.md names
+  // the file.
+  std::optional<TruthFile> truth;
+};
 
 // The fit.json document.
 nlohmann::json FitJson(const ExposuresFit& fit);
@@ -35,7 +47,7 @@ nlohmann::json FitJson(const ExposuresFit& fit);
 // gnuplot) are not errors: they are listed in `warnings` and in report.md.
 bool WriteFitReport(const std::string& out_dir, const ExposuresFit& fit,
                     const nlohmann::json& run_record, std::vector<std::string>* warnings,
-                    std::string* error);
+                    std::string* error, const FitReportOptions& options = FitReportOptions());
 
 }  // namespace ccdpsf::fit
 

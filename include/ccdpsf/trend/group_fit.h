@@ -17,6 +17,7 @@
 
 #include "ccdpsf/fit/fit.h"
 #include "ccdpsf/fit/fit_config.h"
+#include "ccdpsf/plot.h"
 #include "ccdpsf/quality.h"
 #include "ccdpsf/trend/campaign.h"
 
@@ -29,8 +30,10 @@ struct GroupFitOptions {
   int parallel_groups = 2;
   // Posterior draws of each metric kept per group (evenly thinned from the chain).
   int draws = 2000;
-  // Where each group's full fit report goes (out_dir/<group name>/); empty: none.
+  // Where each group's full fit report goes (out_dir/<group name>/); empty: none. Its plots
+  // are in `plot_format`, with the truth.json of the group's folder when there is one.
   std::string reports_dir;
+  PlotFormat plot_format = PlotFormat::kPng;
   // Where finished groups are kept (group_store.h), and the run's signature that their keys
   // include; empty: not kept. A group kept there by an earlier run with the same signature,
   // group and files is taken from it instead of being fitted again.

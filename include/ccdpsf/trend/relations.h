@@ -10,9 +10,9 @@
 // group of exposures) with an abscissa x_i and the posterior draws of the metric X from that
 // fit (any number per point), or, when draws are absent, a Gaussian given by its median and
 // sd (flagged "gaussian_approximation"; in a power law's log space it enters as
-// N(log median, (sd / median)^2), to first order). The abscissae (wavelength, intensity) are treated as
-// EXACT: their errors (monochromator bandwidth, the spread of peak values within a setting)
-// are not propagated. A point whose fit failed is passed with a reason: it is excluded and
+// N(log median, (sd / median)^2), to first order). The abscissae (wavelength, intensity) are
+// treated as EXACT: their errors (monochromator bandwidth, the spread of peak values within a
+// setting) are not propagated. A point whose fit failed is passed with a reason: it is excluded and
 // listed among the gaps.
 //
 // Method. Both relations are fitted as a straight line in a transformed space, about a
@@ -175,6 +175,11 @@ struct PointSummary {
   bool gaussian = false;      // true: no draws, N(median, sd^2) used
   int num_draws = 0;          // 0 for a Gaussian point
   double normalized_residual = NAN;  // (y~_i - median relation at x_i) / s_i
+  // Where the fit sees the point: the mean of its draws in the fitted space, back in X's unit
+  // (mean of X for a linear relation, exp(mean of log X) for a power law); the median for a
+  // Gaussian point. The resampled weighted fit is centred on these, so the median relation
+  // runs through them; with skewed draws they can differ from value.median.
+  double fit_centre = NAN;
 };
 
 struct RelationGap {
