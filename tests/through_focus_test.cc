@@ -13,12 +13,13 @@
 
 #include "ccdpsf/fit/fit.h"
 #include "ccdpsf/fit/fit_config.h"
+#include "ccdpsf/fit/focus_points.h"
 #include "ccdpsf/fit/map_fit.h"
 #include "ceres/ceres.h"
 #include "ceres/gradient_checker.h"
 #include "gtest/gtest.h"
-#include "support/fit_helpers.h"
 #include "nlohmann/json.hpp"
+#include "support/fit_helpers.h"
 #include "support/run_ccdpsf.h"
 #include "support/simulated_stamps.h"
 
@@ -367,6 +368,36 @@ TEST(ThroughFocus, FitConfigKey) {
 // End to end: `ccdpsf simulate` writes a series with FOCUSPOS; `ccdpsf fit --joint` switches
 // the through-focus model on by itself (a one-line note on stderr) and fit.json carries
 // best_focus_um and finite Laplace sds for the CCD widths.
+// focus_points.h: each exposure fitted alone measures its total width
+// sqrt(defocus_k^2 + ccd_sigma^2), which the simulation knows. Tolerance: 4 Laplace sd (the
+// Laplace intervals of single fits are calibrated, Fit.LaplaceIntervalsAreCalibrated; a
+// Gaussian deviate passes 4 sd once in 16000, here 10 comparisons).
+TEST(ThroughFocus, EachExposureAloneMeasuresItsTotalWidth) {
+  const SimulationConfig c =
+      FocusSeriesConfig(kPositionsUm, kBestFocusUm, kRatePxPerUm, kSeriesFluxE, 5);
+  auto model = MustCreate(SimulateStamps(c, 6), FocusOptions());
+  ASSERT_NE(model, nullptr);
+  const std::vector<FocusPoint> points = FitEachFocusPosition(*model, MapOptions());
+  ASSERT_EQ(points.size(), kPositionsUm.size());
+  for (size_t k = 0; k < points.size(); ++k) {
+    const FocusPoint& p = points[k];
+    ASSERT_TRUE(p.failure.empty()) << p.failure;
+    EXPECT_EQ(p.exposure, static_cast<int>(k));
+    EXPECT_EQ(p.focus_um, kPositionsUm[k]);
+    const double defocus = kRatePxPerUm * std::fabs(kPositionsUm[k] - kBestFocusUm);
+    const double true_x = std::hypot(defocus, 0.291), true_y = std::hypot(defocus, 0.335);
+    ASSERT_TRUE(std::isfinite(p.total_sigma_x_px.laplace_sd)) << k;
+    ASSERT_TRUE(std::isfinite(p.total_sigma_y_px.laplace_sd)) << k;
+    EXPECT_NEAR(p.total_sigma_x_px.map, true_x, 4 * p.total_sigma_x_px.laplace_sd) << k;
+    EXPECT_NEAR(p.total_sigma_y_px.map, true_y, 4 * p.total_sigma_y_px.laplace_sd) << k;
+  }
+  // Not a through-focus model: nothing to check against a law.
+  FitModelOptions plain;
+  auto joint = MustCreate(SimulateStamps(c, 6), plain);
+  ASSERT_NE(joint, nullptr);
+  EXPECT_TRUE(FitEachFocusPosition(*joint, MapOptions()).empty());
+}
+
 TEST(ThroughFocus, CliFitsASimulatedSeries) {
   namespace fs = std::filesystem;
   const std::string dir =
@@ -422,6 +453,15 @@ TEST(ThroughFocus, CliFitsASimulatedSeries) {
   const nlohmann::json& sx = fit["parameters"]["ccd_sigma_x_px"];
   EXPECT_NEAR(sx["map"].get<double>(), 0.291, 4 * sx["laplace_sd"].get<double>());
   EXPECT_EQ(fit["exposures"][0]["focus_position_um"], -400.0);
+  // Each exposure alone (focus_points.h) in fit.json, and the through-focus plot's data with
+  // the simulation's true widths (truth.json beside the inputs).
+  for (const nlohmann::json& e : fit["exposures"]) {
+    EXPECT_TRUE(e["alone"]["total_sigma_x_px"]["map"].is_number()) << e.dump();
+    EXPECT_TRUE(e["alone"]["total_sigma_y_px"]["laplace_sd"].is_number()) << e.dump();
+  }
+  for (const char* file : {"focus.gp", "focus_series.dat", "focus_curves.dat", "focus_truth.dat"}) {
+    EXPECT_TRUE(fs::exists(dir + "/fit/" + file)) << file;
+  }
   // Told not to: one shared defocus, and the degeneracy is back.
   out.clear();
   ASSERT_EQ(

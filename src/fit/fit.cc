@@ -21,6 +21,11 @@ double Percentile(std::vector<double>& sorted, double q) {
   return sorted[lo] + (pos - lo) * (sorted[hi] - sorted[lo]);
 }
 
+// Index of the peak_e entry in DerivedNames().
+constexpr size_t kPeakIndex = 10;
+
+}  // namespace
+
 void FillPosterior(std::vector<double> values, Summary* s) {
   values.erase(
       std::remove_if(values.begin(), values.end(), [](double v) { return !std::isfinite(v); }),
@@ -33,11 +38,6 @@ void FillPosterior(std::vector<double> values, Summary* s) {
   s->lo997 = Percentile(values, 0.00135);
   s->hi997 = Percentile(values, 0.99865);
 }
-
-// Index of the peak_e entry in DerivedNames().
-constexpr size_t kPeakIndex = 10;
-
-}  // namespace
 
 const std::vector<std::string>& DerivedNames() {
   static const std::vector<std::string> names = {

@@ -339,6 +339,7 @@ bool FitExposures(const std::vector<Exposure>& exposures, const Quality& set_qua
                      f.exposure);
   }
   AssessFit(*model, out->result, options.quality, &out->quality);
+  out->focus_points = FitEachFocusPosition(*model, options.config.fit.map);
   out->model = std::move(model);
   return true;
 }

@@ -6,6 +6,7 @@
 
 #include "ccdpsf/atomic_file.h"
 #include "ccdpsf/column_units.h"
+#include "ccdpsf/fit/focus_plot.h"
 #include "ccdpsf/fits_io.h"
 #include "ccdpsf/plot.h"
 #include "ccdpsf/provenance.h"
@@ -167,6 +168,20 @@ json FitJson(const ExposuresFit& fit) {
     }
     // Through-focus fits: this exposure's defocus at the MAP, rate |z_k - z0| [px].
     if (model.through_focus()) e["map_defocus_sigma_px"] = model.DefocusFor(r.map.theta.data(), k);
+    // The exposure fitted alone (focus_points.h): its total widths, free of the focus law.
+    for (const FocusPoint& p : fit.focus_points) {
+      if (p.exposure != static_cast<int>(k)) continue;
+      if (!p.failure.empty()) {
+        e["alone"] = {{"failure", p.failure}};
+      } else {
+        e["alone"] = {{"total_sigma_x_px",
+                       {{"map", Num(p.total_sigma_x_px.map)},
+                        {"laplace_sd", Num(p.total_sigma_x_px.laplace_sd)}}},
+                      {"total_sigma_y_px",
+                       {{"map", Num(p.total_sigma_y_px.map)},
+                        {"laplace_sd", Num(p.total_sigma_y_px.laplace_sd)}}}};
+      }
+    }
     if (k < static_cast<int>(calibration.size())) {
       const CalibrationReport& c = calibration[k];
       e["calibration"] = CalibrationReportJson(c);
@@ -415,6 +430,20 @@ bool WriteFitReport(const std::string& out_dir, const ExposuresFit& fit, const j
   for (int i = 0; i < dim; ++i) row(r.names[i], r.parameters[i]);
   for (const auto& [name, s] : r.derived) row(name, s);
   md << "\nsd ratio = Laplace sd / half the MCMC 68 % interval (1 for a Gaussian posterior).\n\n";
+  // The through-focus plot: each exposure alone against the fitted defocus law.
+  bool focus_plot = false, focus_truth = false;
+  if (model.through_focus() && !fit.focus_points.empty()) {
+    PlotResult focus;
+    if (!WriteFocusPlot(out.staging_dir(), "focus", fit, options.truth, options.plot, &focus,
+                        &focus_truth, error)) {
+      return false;
+    }
+    focus_plot = true;
+    if (!focus.image_written) {
+      warnings->push_back("focus" + extension + " not made: " + focus.message);
+    }
+  }
+
   md << "## Plots\n\n";
   md << "Residual maps: data and model on an asinh stretch (linear within about the noise of an "
         "empty pixel, logarithmic above, so the wings show), residuals and normalised "
@@ -425,6 +454,14 @@ bool WriteFitReport(const std::string& out_dir, const ExposuresFit& fit, const j
           "numbers above each column), the MAP and the Laplace approximation in red";
     if (!truth_names.empty()) md << ", true values in blue";
     md << ".\n\n![corner](corner" << extension << ")\n\n";
+  }
+  if (focus_plot) {
+    md << "Through focus: the total Gaussian width sqrt(defocus^2 + ccd sigma^2) [px] against "
+          "the stage position, the fitted law "
+       << (r.have_mcmc ? "(posterior median and 68 % band)" : "(at the MAP)")
+       << " beside each exposure fitted alone (MAP +- Laplace sd; free of the law)"
+       << (focus_truth ? ", true widths in black" : "") << ".\n\n![focus](focus" << extension
+       << ")\n\n";
   }
   if (options.truth) {
     md << "Truth file: " << options.truth->path << " ("

@@ -42,6 +42,11 @@ struct Summary {
   double lo997 = NAN, hi997 = NAN;
 };
 
+// The posterior part of *s from draws of one quantity (non-finite draws dropped): median and
+// central 68.27 % and 99.73 % intervals, by linear interpolation between order statistics.
+// The MAP and Laplace sd are left as they are.
+void FillPosterior(std::vector<double> draws, Summary* s);
+
 struct FitResult {
   std::vector<std::string> names;
   MapResult map;

@@ -6,7 +6,9 @@
 //      three rounds; OutlierOptions says which pixels);
 //   3. Laplace and MCMC (fit.h);
 //   4. the verdict (quality.h): calibration's and the set checks' findings, the masking's,
-//      and the fit's own (fit_quality.h).
+//      and the fit's own (fit_quality.h);
+//   5. for a through-focus series, each exposure fitted alone (focus_points.h), the points the
+//      report's through-focus plot sets beside the fitted law.
 //
 // Outliers. A pixel is masked when its normalised residual |z| >= threshold_sd (8: a
 // Gaussian pixel goes there once in 10^15) and it is a transient or a spike, not part of a
@@ -41,6 +43,7 @@
 #include "ccdpsf/fit/fit.h"
 #include "ccdpsf/fit/fit_config.h"
 #include "ccdpsf/fit/fit_quality.h"
+#include "ccdpsf/fit/focus_points.h"
 #include "ccdpsf/quality.h"
 
 namespace ccdpsf::fit {
@@ -77,6 +80,7 @@ struct ExposuresFit {
   std::vector<OutlierMask> outliers;
   Quality quality;                  // the verdict
   std::vector<std::string> notes;   // choices made from the data, for the terminal and report
+  std::vector<FocusPoint> focus_points;  // step 5; empty unless through-focus
 };
 
 // The flux model for a joint set, from the light outside each stamp's 3 x 3 core over the
