@@ -468,6 +468,20 @@ TEST(TrendCli, RecoversThePaperRelationsOnASimulatedCampaign) {
     ++limits;
   }
   EXPECT_GT(limits, 0);
+  // The relation CSVs name their columns with units (TOPCAT and astropy read the names).
+  const std::pair<const char*, const char*> headers[] = {
+      {"fwhm_um_vs_wavelength.csv",
+       "group,wavelength_nm,fwhm_um,fwhm_um_lo68,fwhm_um_hi68,fwhm_um_sd,normalized_residual,"
+       "used,fwhm_um_upper_limit_95"},
+      {"ellipticity_vs_intensity.csv",
+       "group,peak_e,ellipticity,ellipticity_lo68,ellipticity_hi68,ellipticity_sd,"
+       "normalized_residual,used,ellipticity_upper_limit_95"}};
+  for (const auto& [file, header] : headers) {
+    std::ifstream csv(dir + "/trend/" + file);
+    std::string first;
+    ASSERT_TRUE(std::getline(csv, first)) << file;
+    EXPECT_EQ(first, header) << file;
+  }
 }
 
 TEST(TrendCli, BrokenGroupsAreReportedAndTheRunGoesOn) {
