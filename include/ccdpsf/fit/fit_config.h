@@ -6,7 +6,7 @@
 //               "ccd_sigma_x_px": [0.05, 1.5], "ccd_sigma_y_px": [0.05, 1.5],
 //               "position_halfwidth_px": 2.0, "flux_fraction": [0.2, 5.0]},
 //    "map":  {"start_airy_radii_px": [0.35, 0.6, 0.9], "start_defocus_shares": [0.25, 0.75],
-//             "max_iterations": 200, "start_ccd_variance_scales": [1.0, 0.5],
+//             "max_iterations": 1000, "start_ccd_variance_scales": [1.0, 0.5],
 //             "start_best_focus_fractions": [0.2, 0.5, 0.8]},
 //    "mcmc": {"enabled": true, "walkers": 0, "max_steps": 20000, "target_ess": 1000,
 //             "min_tau_multiple": 50, "seed": 1, "threads": 2, "marginal_defocus": true,
