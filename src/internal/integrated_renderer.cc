@@ -72,7 +72,30 @@ inline void AiryIntensity(double d, double k, double* value, double* d_dk) {
   *d_dk = k / (2.0 * M_PI) * (a * a + a * da * k * d);
 }
 
+// The Airy amplitude a(v) and, when damp is not null, da/dv at n points v >= 0 from the
+// table's quintic pieces (airy.h), as AiryAmplitudeAndDerivativeInline computes them; v at
+// or past kAiryTableMax reads the last piece and must be redone by the caller. (Scalar: AVX2
+// gathers of the coefficients measured slower on the development machine.)
+void TablePolynomial(const double* table, int n, const double* v, double* amp, double* damp) {
+  constexpr double kInvStep = 1.0 / model::kAiryTableStep;
+  const int last = static_cast<int>(std::lround(model::kAiryTableMax * kInvStep)) - 1;
+  for (int t = 0; t < n; ++t) {
+    const double sv = std::min(v[t], model::kAiryTableMax) * kInvStep;
+    const int i = std::min(static_cast<int>(sv), last);
+    const double u = sv - i;
+    const double* c = table + 6 * static_cast<long>(i);
+    amp[t] = c[0] + u * (c[1] + u * (c[2] + u * (c[3] + u * (c[4] + u * c[5]))));
+    if (damp != nullptr) {
+      damp[t] = (c[1] + u * (2 * c[2] + u * (3 * c[3] + u * (4 * c[4] + u * 5 * c[5])))) * kInvStep;
+    }
+  }
+}
+
 // S for the Gaussian-defocus model: the Airy pattern itself.
+// Each quadrant column is done in chunks, in separate vectorised loops: the distances
+// (square roots), then the table's polynomials (TablePolynomial), then the rare nodes past the
+// table's end (exact Bessel functions) fixed up one by one. The values are those of
+// AiryIntensity node by node.
 void FillAiryQuadrant(double k, double dk_dr, double hx, double hy, bool derivs,
                       Eigen::MatrixXd* q, Eigen::MatrixXd* q_dr) {
   // With equal spacings S(|i|, |j|) = S(|j|, |i|): compute the lower triangle, mirror the rest.
@@ -80,22 +103,40 @@ void FillAiryQuadrant(double k, double dk_dr, double hx, double hy, bool derivs,
   const bool mirror = hx == hy;
   const int rows = static_cast<int>(q->rows());
   const double norm = k * k / (4.0 * M_PI);
+  const double dnorm = k / (2.0 * M_PI) * dk_dr;  // d(norm a^2)/dr = dnorm (a^2 + a da k d)
+  constexpr int kChunk = 64;
+  double v[kChunk], amp[kChunk], damp[kChunk];
   for (int ju = 0; ju < q->cols(); ++ju) {
     const double y2 = (ju * hy) * (ju * hy);
     const int first = (mirror && ju < rows) ? ju : 0;
     double* col = q->data() + static_cast<size_t>(ju) * rows;
     double* col_dr = derivs ? q_dr->data() + static_cast<size_t>(ju) * rows : nullptr;
-    for (int iu = first; iu < rows; ++iu) {
-      const double d = std::sqrt((iu * hx) * (iu * hx) + y2);
+    for (int start = first; start < rows; start += kChunk) {
+      const int n = std::min(kChunk, rows - start);
+      for (int t = 0; t < n; ++t) {
+        const double x = (start + t) * hx;
+        v[t] = k * std::sqrt(x * x + y2);
+      }
+      // The table's polynomial where v is inside it (index clamped so the loop has no branch;
+      // entries past the end are redone below).
       if (!derivs) {
-        const double a = model::AiryAmplitudeInline(k * d, table);
-        col[iu] = norm * a * a;
+        TablePolynomial(table, n, v, amp, nullptr);
+        for (int t = 0; t < n; ++t) {
+          if (v[t] >= model::kAiryTableMax) amp[t] = model::AiryAmplitude(v[t]);
+        }
+        for (int t = 0; t < n; ++t) col[start + t] = norm * amp[t] * amp[t];
         continue;
       }
-      double v, dv_dk;
-      AiryIntensity(d, k, &v, &dv_dk);
-      col[iu] = v;
-      col_dr[iu] = dv_dk * dk_dr;
+      TablePolynomial(table, n, v, amp, damp);
+      for (int t = 0; t < n; ++t) {
+        if (v[t] >= model::kAiryTableMax) {
+          model::AiryAmplitudeAndDerivative(v[t], &amp[t], &damp[t]);
+        }
+      }
+      for (int t = 0; t < n; ++t) {
+        col[start + t] = norm * amp[t] * amp[t];
+        col_dr[start + t] = dnorm * (amp[t] * amp[t] + amp[t] * damp[t] * v[t]);
+      }
     }
   }
   if (!mirror) return;
@@ -218,6 +259,28 @@ inline void Axpy3(int n, double w0, double w1, double w2, const double* __restri
   }
 }
 
+// Four inputs at once ("register blocking"): each pass of the output then carries four
+// weighted inputs instead of one, so the output is loaded and stored a quarter as often.
+// out += w[0] x0 + w[1] x1 + w[2] x2 + w[3] x3.
+inline void Axpy4(int n, const double* w, const double* __restrict x0, const double* __restrict x1,
+                  const double* __restrict x2, const double* __restrict x3,
+                  double* __restrict out) {
+  const double a = w[0], b = w[1], c = w[2], d = w[3];
+  for (int i = 0; i < n; ++i) out[i] += a * x0[i] + b * x1[i] + c * x2[i] + d * x3[i];
+}
+// The three-weight form of Axpy3 over four inputs: out_r += sum_t w_r[t] x_t, r = 0, 1, 2.
+inline void Axpy3x4(int n, const double* w0, const double* w1, const double* w2,
+                    const double* __restrict x0, const double* __restrict x1,
+                    const double* __restrict x2, const double* __restrict x3,
+                    double* __restrict out0, double* __restrict out1, double* __restrict out2) {
+  for (int i = 0; i < n; ++i) {
+    const double v0 = x0[i], v1 = x1[i], v2 = x2[i], v3 = x3[i];
+    out0[i] += w0[0] * v0 + w0[1] * v1 + w0[2] * v2 + w0[3] * v3;
+    out1[i] += w1[0] * v0 + w1[1] * v1 + w1[2] * v2 + w1[3] * v3;
+    out2[i] += w2[0] * v0 + w2[1] * v1 + w2[2] * v2 + w2[3] * v3;
+  }
+}
+
 }  // namespace
 
 double QuadratureStep(double rho_c, double s, double tolerance) {
@@ -299,7 +362,27 @@ void RenderIntegrated(const model::ModelOptions& options, const model::SpotParam
   double* out = ws->row.data();
   for (int b = 0; b < ny; ++b) {
     std::fill(ws->row.begin(), ws->row.end(), 0.0);
-    for (int m = 0; m < wy_size; ++m) {
+    int m = 0;
+    for (; m + 4 <= wy_size; m += 4) {
+      size_t col[4];
+      double w0[4], w1[4], w2[4];
+      for (int t = 0; t < 4; ++t) {
+        col[t] = static_cast<size_t>(std::abs(j_lo + qy * b + m + t)) * nh;
+        w0[t] = wy.w(m + t, 0);
+        if (derivs) w1[t] = wy.w(m + t, 1), w2[t] = wy.w(m + t, 2);
+      }
+      if (!derivs) {
+        Axpy4(nh, w0, s_val + col[0], s_val + col[1], s_val + col[2], s_val + col[3], out);
+        continue;
+      }
+      Axpy3x4(nh, w0, w1, w2, s_val + col[0], s_val + col[1], s_val + col[2], s_val + col[3], out,
+              out + nh, out + 2 * nh);
+      Axpy4(nh, w0, s_dr + col[0], s_dr + col[1], s_dr + col[2], s_dr + col[3], out + 3 * nh);
+      if (pillbox) {
+        Axpy4(nh, w0, s_dR + col[0], s_dR + col[1], s_dR + col[2], s_dR + col[3], out + 4 * nh);
+      }
+    }
+    for (; m < wy_size; ++m) {
       const size_t col = static_cast<size_t>(std::abs(j_lo + qy * b + m)) * nh;
       const double* sv = s_val + col;
       const double w0 = wy.w(m, 0);
@@ -329,7 +412,26 @@ void RenderIntegrated(const model::ModelOptions& options, const model::SpotParam
   for (int a = 0; a < grid.nx; ++a) {
     std::fill(ws->acc.begin(), ws->acc.end(), 0.0);
     const int first = i_lo + qx * a;
-    for (int m = 0; m < wx_size; ++m) {
+    int m = 0;
+    for (; m + 4 <= wx_size; m += 4) {
+      const double* v[4];
+      double w0[4], w1[4], w2[4];
+      for (int t = 0; t < 4; ++t) {
+        v[t] = bt + static_cast<size_t>(std::abs(first + m + t)) * ny;
+        w0[t] = wx.w(m + t, 0);
+        if (derivs) w1[t] = wx.w(m + t, 1), w2[t] = wx.w(m + t, 2);
+      }
+      if (!derivs) {
+        Axpy4(ny, w0, v[0], v[1], v[2], v[3], acc);
+        continue;
+      }
+      Axpy3x4(ny, w0, w1, w2, v[0], v[1], v[2], v[3], acc, acc + ny, acc + 2 * ny);
+      for (int r = 1; r <= (pillbox ? 4 : 3); ++r) {
+        const size_t o = r * plane;
+        Axpy4(ny, w0, v[0] + o, v[1] + o, v[2] + o, v[3] + o, acc + (2 + r) * ny);
+      }
+    }
+    for (; m < wx_size; ++m) {
       const double* v = bt + static_cast<size_t>(std::abs(first + m)) * ny;
       const double w0 = wx.w(m, 0);
       // acc rows: value, d/dcx, d/dsX, d/dcy, d/dsY, d/dr, d/dR.
