@@ -1028,24 +1028,38 @@ bool WriteFitsTable(const std::string& path, const FitsHeader& primary_header,
           *write_error = WriteError(path, "cannot write keyword " + failed_key, status);
           return false;
         }
-        for (size_t i = 0; i < columns.size() && num_rows > 0; ++i) {
-          const int column_number = static_cast<int>(i) + 1;
-          if (columns[i].is_integer) {
-            std::vector<LONGLONG> values(num_rows);
-            for (size_t row = 0; row < num_rows; ++row) {
-              values[row] = std::llround(columns[i].values[row]);
+        // Row blocks of the size CFITSIO's buffers hold (fits_get_rowsize), every column of a
+        // block before the next: a table is stored row by row, so writing whole columns one
+        // after another would pass over the file once per column (for a 14 MB chain, ~460 000
+        // seeks and 2 s of system time).
+        long block_rows = 0;
+        if (fits_get_rowsize(file.get(), &block_rows, &status) || block_rows < 1) {
+          block_rows = 1;
+          status = 0;
+        }
+        std::vector<LONGLONG> integers;
+        std::vector<double> doubles;
+        for (size_t first = 0; first < num_rows; first += static_cast<size_t>(block_rows)) {
+          const size_t n = std::min(num_rows - first, static_cast<size_t>(block_rows));
+          for (size_t i = 0; i < columns.size(); ++i) {
+            const int column_number = static_cast<int>(i) + 1;
+            const double* v = columns[i].values.data() + first;
+            if (columns[i].is_integer) {
+              integers.resize(n);
+              for (size_t row = 0; row < n; ++row) integers[row] = std::llround(v[row]);
+              fits_write_col(file.get(), TLONGLONG, column_number, static_cast<LONGLONG>(first) + 1,
+                             1, static_cast<LONGLONG>(n), integers.data(), &status);
+            } else {
+              // CFITSIO may byte-swap the array it is given in place: pass a copy.
+              doubles.assign(v, v + n);
+              fits_write_col(file.get(), TDOUBLE, column_number, static_cast<LONGLONG>(first) + 1,
+                             1, static_cast<LONGLONG>(n), doubles.data(), &status);
             }
-            fits_write_col(file.get(), TLONGLONG, column_number, 1, 1,
-                           static_cast<LONGLONG>(num_rows), values.data(), &status);
-          } else {
-            std::vector<double> values = columns[i].values;
-            fits_write_col(file.get(), TDOUBLE, column_number, 1, 1,
-                           static_cast<LONGLONG>(num_rows), values.data(), &status);
-          }
-          if (status != 0) {
-            *write_error =
-                WriteError(path, "cannot write column '" + columns[i].name + "'", status);
-            return false;
+            if (status != 0) {
+              *write_error =
+                  WriteError(path, "cannot write column '" + columns[i].name + "'", status);
+              return false;
+            }
           }
         }
         return CloseWritten(&file, path, write_error);
