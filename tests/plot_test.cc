@@ -260,7 +260,7 @@ TEST(Plot, CornerWritesDataScriptAndPng) {
   ExpectNoTemporaries(dir);
 }
 
-TEST(Plot, CornerThinsTheScatterToAtMost5000Points) {
+TEST(Plot, CornerThinsTheScatterToAtMost2500Points) {
   ScopedTempDir dir;
   const int n = 12001;
   const CornerPlotInput in = MakeCornerInput(2, n, 3);
@@ -270,11 +270,11 @@ TEST(Plot, CornerThinsTheScatterToAtMost5000Points) {
   ASSERT_TRUE(WriteCornerPlot(dir.path(), "thin", in, nullptr, &error, options)) << error;
   const std::vector<Block> samples = ReadBlocks(dir.File("thin_samples.dat"));
   ASSERT_EQ(samples.size(), 1u);
-  // stride ceil(12001 / 5000) = 3: samples 0, 3, ..., 12000.
-  ASSERT_EQ(samples[0].size(), 4001u);
+  // stride ceil(12001 / 2500) = 5: samples 0, 5, ..., 12000.
+  ASSERT_EQ(samples[0].size(), 2401u);
   for (size_t i = 0; i < samples[0].size(); ++i) {
-    EXPECT_EQ(samples[0][i][0], in.samples[(3 * i) * 2]);
-    EXPECT_EQ(samples[0][i][1], in.samples[(3 * i) * 2 + 1]);
+    EXPECT_EQ(samples[0][i][0], in.samples[(5 * i) * 2]);
+    EXPECT_EQ(samples[0][i][1], in.samples[(5 * i) * 2 + 1]);
   }
   // The histograms still use every sample.
   double count = 0;
@@ -479,7 +479,8 @@ XyPlotInput MakeXyInput() {
   y.x = {600, 700, 800, 890};
   y.y = {8.6, 8.2, 7.9, 7.6};
   in.series.push_back(y);
-  Curve curve{"a lambda^alpha", {}, {}};
+  Curve curve;
+  curve.label = "a lambda^alpha";
   for (double l = 580; l <= 910; l += 10) {
     curve.x.push_back(l);
     curve.y.push_back(8.1 * std::pow(l / 600.0, -0.272));
@@ -814,7 +815,9 @@ TEST(Plot, EachFormatWritesAFileWithItsExtensionAndMagicBytes) {
     for (const std::string& name : dir.List()) {
       const size_t dot = name.rfind('.');
       const std::string ext = name.substr(dot);
-      if (ext == ".png" || ext == ".pdf" || ext == ".svg") EXPECT_EQ(ext, c.extension) << name;
+      if (ext == ".png" || ext == ".pdf" || ext == ".svg") {
+        EXPECT_EQ(ext, c.extension) << name;
+      }
     }
   }
 }

@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <cstdio>
+#include <future>
 #include <sstream>
 
 #include "ccdpsf/atomic_file.h"
@@ -111,8 +112,13 @@ json FitJson(const ExposuresFit& fit) {
     for (int a : kept) {
       names.push_back(r.names[a]);
       json row = json::array();
-      for (int b : kept)
-        row.push_back(have ? Num(r.laplace.covariance[a * model.dim() + b]) : json(nullptr));
+      for (int b : kept) {
+        // The mean of the two triangles: the Laplace inverse is symmetric only to rounding.
+        const int n = model.dim();
+        row.push_back(have ? Num(0.5 * (r.laplace.covariance[a * n + b] +
+                                        r.laplace.covariance[b * n + a]))
+                           : json(nullptr));
+      }
       matrix.push_back(row);
     }
     j["covariance"] = {{"names", names}, {"matrix", matrix}};
@@ -268,50 +274,6 @@ bool WriteFitReport(const std::string& out_dir, const ExposuresFit& fit, const j
   // chain.fits and the corner plot.
   if (r.have_mcmc) {
     const SamplerResult& c = r.chain;
-    const size_t states = static_cast<size_t>(c.num_steps) * c.num_walkers;
-    // Every state of the chain (burn-in included, flagged by BURNIN), with the derived
-    // quantities of each draw beside the parameters: FWHM, e, R^2 ... need no propagation by
-    // the reader. peak_e needs a render per draw and is left out (fit.json summarises it).
-    const std::vector<std::string>& derived_names = DerivedNames();
-    std::vector<size_t> derived_kept;
-    for (size_t j = 0; j < derived_names.size(); ++j) {
-      if (derived_names[j] != "peak_e") derived_kept.push_back(j);
-    }
-    std::vector<FitsColumn> cols = {{"walker", "", {}, true}, {"step", "", {}, true},
-                                    {"log_prob", "", {}, false}};
-    for (int i = 0; i < dim; ++i) {
-      cols.push_back({FitsColumnName(r.names[i]), UnitOfName(r.names[i]), {}, false});
-    }
-    for (size_t j : derived_kept) {
-      cols.push_back({FitsColumnName(derived_names[j]), UnitOfName(derived_names[j]), {}, false});
-    }
-    for (auto& col : cols) col.values.reserve(states);
-    for (int step = 0; step < c.num_steps; ++step) {
-      for (int w = 0; w < c.num_walkers; ++w) {
-        const size_t s = static_cast<size_t>(step) * c.num_walkers + w;
-        cols[0].values.push_back(w);
-        cols[1].values.push_back(step);
-        cols[2].values.push_back(c.log_prob[s]);
-        const double* theta = &c.chain[s * dim];
-        for (int i = 0; i < dim; ++i) cols[3 + i].values.push_back(theta[i]);
-        const std::vector<double> d = DerivedAt(model, theta);
-        for (size_t k = 0; k < derived_kept.size(); ++k) {
-          cols[3 + dim + k].values.push_back(d[derived_kept[k]]);
-        }
-      }
-    }
-    // In the table's own header, where astropy's Table.read and TOPCAT look; also in the
-    // primary header for readers that look there.
-    FitsHeader ch = {
-        {"BURNIN", static_cast<long long>(c.burn_in), "steps to discard"},
-        {"WALKERS", static_cast<long long>(c.num_walkers), "ensemble size"},
-        {"NSTEPS", static_cast<long long>(c.num_steps), "steps per walker"},
-        {"NPARAM", static_cast<long long>(dim), "fitted parameters: the columns after log_prob"},
-        {"NDERIVED", static_cast<long long>(derived_kept.size()),
-         "derived quantities: the columns after them"},
-        {"CONVERGD", c.converged, "sampler convergence criteria met"}};
-    if (!WriteFitsTable(out.Path("chain.fits"), ch, "CHAIN", cols, ch, error)) return false;
-
     // The corner plot shows the shared parameters (best_focus_um included in a through-focus
     // fit) and the first exposure's position: in a joint fit of many exposures a panel for
     // every pair of positions would bury the PSF.
@@ -357,11 +319,65 @@ bool WriteFitReport(const std::string& out_dir, const ExposuresFit& fit, const j
       }
       if (!any) corner.truth.clear();
     }
-    if (!WriteCornerPlot(out.staging_dir(), "corner", corner, &plot, error, options.plot)) {
+    // gnuplot draws the corner (the slowest plot) on its own thread while chain.fits is
+    // written; RunSubprocess may be called from several threads, and the two write different
+    // files.
+    PlotResult corner_plot;
+    std::string corner_error;
+    std::future<bool> corner_done = std::async(std::launch::async, [&] {
+      return WriteCornerPlot(out.staging_dir(), "corner", corner, &corner_plot, &corner_error,
+                             options.plot);
+    });
+    const size_t states = static_cast<size_t>(c.num_steps) * c.num_walkers;
+    // Every state of the chain (burn-in included, flagged by BURNIN), with the derived
+    // quantities of each draw beside the parameters: FWHM, e, R^2 ... need no propagation by
+    // the reader. peak_e needs a render per draw and is left out (fit.json summarises it).
+    const std::vector<std::string>& derived_names = DerivedNames();
+    std::vector<size_t> derived_kept;
+    for (size_t j = 0; j < derived_names.size(); ++j) {
+      if (derived_names[j] != "peak_e") derived_kept.push_back(j);
+    }
+    std::vector<FitsColumn> cols = {
+        {"walker", "", {}, true}, {"step", "", {}, true}, {"log_prob", "", {}, false}};
+    for (int i = 0; i < dim; ++i) {
+      cols.push_back({FitsColumnName(r.names[i]), UnitOfName(r.names[i]), {}, false});
+    }
+    for (size_t j : derived_kept) {
+      cols.push_back({FitsColumnName(derived_names[j]), UnitOfName(derived_names[j]), {}, false});
+    }
+    for (auto& col : cols) col.values.reserve(states);
+    for (int step = 0; step < c.num_steps; ++step) {
+      for (int w = 0; w < c.num_walkers; ++w) {
+        const size_t s = static_cast<size_t>(step) * c.num_walkers + w;
+        cols[0].values.push_back(w);
+        cols[1].values.push_back(step);
+        cols[2].values.push_back(c.log_prob[s]);
+        const double* theta = &c.chain[s * dim];
+        for (int i = 0; i < dim; ++i) cols[3 + i].values.push_back(theta[i]);
+        const std::vector<double> d = DerivedAt(model, theta);
+        for (size_t k = 0; k < derived_kept.size(); ++k) {
+          cols[3 + dim + k].values.push_back(d[derived_kept[k]]);
+        }
+      }
+    }
+    // In the table's own header, where astropy's Table.read and TOPCAT look; also in the
+    // primary header for readers that look there.
+    FitsHeader ch = {
+        {"BURNIN", static_cast<long long>(c.burn_in), "steps to discard"},
+        {"WALKERS", static_cast<long long>(c.num_walkers), "ensemble size"},
+        {"NSTEPS", static_cast<long long>(c.num_steps), "steps per walker"},
+        {"NPARAM", static_cast<long long>(dim), "fitted parameters: the columns after log_prob"},
+        {"NDERIVED", static_cast<long long>(derived_kept.size()),
+         "derived quantities: the columns after them"},
+        {"CONVERGD", c.converged, "sampler convergence criteria met"}};
+    const bool chain_written = WriteFitsTable(out.Path("chain.fits"), ch, "CHAIN", cols, ch, error);
+    if (!corner_done.get()) {
+      if (chain_written) *error = corner_error;
       return false;
     }
-    if (!plot.image_written) {
-      warnings->push_back("corner" + extension + " not made: " + plot.message);
+    if (!chain_written) return false;
+    if (!corner_plot.image_written) {
+      warnings->push_back("corner" + extension + " not made: " + corner_plot.message);
     }
   }
 
