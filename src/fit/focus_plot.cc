@@ -53,9 +53,10 @@ bool WriteFocusPlot(const std::string& dir, const std::string& stem, const Expos
   for (int a = 0; a < 2; ++a) {
     Curve law;
     law.x = z;
-    if (r.have_mcmc) {
-      const SamplerResult& c = r.chain;
-      const size_t kept = static_cast<size_t>(c.num_steps - c.burn_in) * c.num_walkers;
+    const SamplerResult& c = r.chain;
+    const size_t kept =
+        r.have_mcmc ? static_cast<size_t>(std::max(c.num_steps - c.burn_in, 0)) * c.num_walkers : 0;
+    if (kept > 0) {
       const size_t draws = std::min<size_t>(kept, kMaxFocusCurveDraws);
       std::vector<std::vector<double>> at(kGrid);
       for (size_t d = 0; d < draws; ++d) {
