@@ -502,6 +502,14 @@ bool ScreenFile(const FileBytes& bytes, const std::string& path, std::vector<Hdu
     if (!cards.conflict.empty()) {
       return corrupt(cards.conflict + " is given twice with different values");
     }
+    // A column name must be a quoted string (standard section 7.2.2), which fits a card in at
+    // most 68 characters. CFITSIO copies TTYPEn's value into a 70-byte field unchecked, so an
+    // unquoted value of 70 characters overflowed it (found by the fuzzer).
+    for (const auto& [name, value] : cards.values) {
+      if (IsIndexed(name, "TTYPE") && !value.quoted) {
+        return corrupt(name + " = '" + Printable(value.text) + "' is not a quoted string");
+      }
+    }
     // CFITSIO reads the mandatory keywords by position (standard section 4.4.1), and sizes
     // allocations from them even when it then fails: a NAXIS1 it could not parse, or a card
     // out of place, gave a calloc of 2^54 bytes from an unset variable. They must be where

@@ -1046,6 +1046,41 @@ TEST(FitsIoScreen, MalformedHeadersAreRefusedWithTheirReason) {
 }
 
 
+// Fuzzer regression: a binary table whose TTYPE1 is an unquoted 70-character value made
+// CFITSIO overflow its 70-byte column-name field (abort under _FORTIFY_SOURCE) while it
+// counted the HDUs. The screen refuses it; a quoted name of the longest length a card holds
+// (68 characters) is read as before.
+TEST(FitsIoScreen, UnquotedColumnNameIsRefusedNotACrash) {
+  ScopedTempDir dir;
+  auto file = [](const std::string& ttype) {
+    const std::string primary =
+        test_support::HeaderBlock({test_support::Card("SIMPLE", "T"),
+                                   test_support::Card("BITPIX", "16"),
+                                   test_support::Card("NAXIS", "2"),
+                                   test_support::Card("NAXIS1", "4"),
+                                   test_support::Card("NAXIS2", "4"),
+                                   test_support::Card("EXTEND", "T")}) +
+        std::string(2880, '\0');
+    const std::string table =
+        test_support::HeaderBlock(
+            {test_support::Card("XTENSION", "'BINTABLE'"), test_support::Card("BITPIX", "8"),
+             test_support::Card("NAXIS", "2"), test_support::Card("NAXIS1", "8"),
+             test_support::Card("NAXIS2", "1"), test_support::Card("PCOUNT", "0"),
+             test_support::Card("GCOUNT", "1"), test_support::Card("TFIELDS", "1"),
+             "TTYPE1  = " + ttype, test_support::Card("TFORM1", "'1D'")}) +
+        std::string(2880, '\0');
+    return primary + table;
+  };
+  EXPECT_NE(ScreenError(dir, "unquoted.fits", file(std::string(70, 'X')))
+                .find(": the header is corrupt (TTYPE1 = '" + std::string(70, 'X') +
+                      "' is not a quoted string)"),
+            std::string::npos);
+  const std::string quoted = dir.File("quoted.fits");
+  ASSERT_TRUE(test_support::WriteBytes(quoted, file("'" + std::string(68, 'X') + "'")));
+  std::string error;
+  EXPECT_TRUE(ReadFitsImage(quoted, &error).has_value()) << error;
+}
+
 // The position of the card named `name` in the header of extension 1 (after the first
 // 2880-byte block, the empty primary header), or npos.
 size_t ExtensionCard(const std::string& bytes, const std::string& name) {
