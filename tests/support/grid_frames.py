@@ -1,0 +1,457 @@
+#!/usr/bin/env python3
+"""Full-sensor spot-grid frames with known truth, to test `ccdpsf grid` on data it did not make.
+
+    /usr/bin/python3 tests/support/grid_frames.py OUTDIR [--size 4096] [--grid 7]
+        [--exposures 3] [--seed 1] [--flux_e 4e5] [--focus_um a,b,c,...]
+        [--defocus_px d1,d2,...] [--no_extras]
+
+Writes OUTDIR/frame_000.fits, frame_001.fits, ... (one per exposure), OUTDIR/truth.csv (one
+row per spot) and OUTDIR/truth.json. Shares no code with ccdpsf (numpy, scipy, astropy only):
+each spot is photon-shot by tests/support/reference_sensor.py's `simulate_exposure`, which
+follows single photons through the Airy pattern and the Gaussian defocus, single electrons
+through charge diffusion, and counts them in box pixels (see that script's docstring).
+
+Conventions (those of ccdpsf and reference_sensor.py): frame coordinates are 0-based with
+pixel centres at integers, x = column (NAXIS1), y = row, numpy index data[y, x]; the frame
+covers [-0.5, size - 0.5) on each axis. Lengths are in pixels unless a name says um.
+
+Detector (every frame): gain 3.1 e-/ADU (GAIN), read noise 4.5 e- rms (RDNOISE), bias
+1000 ADU (BIASLVL), 12 um pixels (PIXSIZE), SATURATE 65535 ADU, WAVELEN 800 nm, EXPTIME 1 s,
+and FOCUSPOS [um] when --focus_um is given. Per pixel: collected electrons (Poisson through
+photon shooting) + Normal(0, 4.5 e-) read noise on every pixel, / gain + bias, rounded to
+whole ADU (halves up), clipped to [0, 65535], written as 16-bit unsigned (BITPIX 16,
+BZERO 32768).
+
+Spots
+-----
+- Grid: grid x grid spots, one at the centre of each cell of a regular grid over the frame
+  (cell = size / grid px): column i, row j has its nominal centre at
+  (-0.5 + (i + 1/2) cell, -0.5 + (j + 1/2) cell), plus a sub-pixel offset uniform in
+  [-0.5, 0.5) px on each axis drawn once from the seed (the same in every exposure).
+- Extras (unless --no_extras; need --grid >= 2): sources a grid tool must refuse, with a reason.
+  "crowded": two spots 5.0 px apart along x, both with the grid's flux, centred on the corner
+  shared by cells (g/2 - 1, g/2 - 1) .. (g/2, g/2) (g = grid, integer halves), i.e. half a cell
+  diagonal from the nearest grid spots, plus a common sub-pixel offset from the seed.
+  "edge": one spot whose centre is 3 px from the frame's left edge (x = 2.5, so its 21 x 21
+  stamp would need columns -7 .. 13) on the row boundary of cells g/2 - 1 and g/2, plus a
+  sub-pixel offset in y.
+- Drift: in exposure k every spot sits at its exposure-0 position + (0.03 k, 0.02 k) px, a
+  projector's slow drift. truth gives the exposure-0 positions and the drift per exposure.
+- Widths, smooth over the sensor: with u = 2 (x + 0.5) / size - 1 and v = 2 (y + 0.5) / size - 1
+  in [-1, 1) at the spot's exposure-0 centre,
+      ccd_sigma_x_px = 0.29 + 0.05 u + 0.03 v^2      (0.24 .. 0.37)
+      ccd_sigma_y_px = 0.33 + 0.04 v - 0.02 u^2      (0.27 .. 0.37)
+  charge-diffusion widths (per spot, the same in every exposure: the drift is < 0.1 px).
+  Airy radius (first dark ring) 0.47 px everywhere; defocus a circular Gaussian of sigma
+  --defocus_px (one per exposure; default 0.41 px in every exposure).
+- Flux: --flux_e mean photo-electrons per spot (every spot; Poisson-drawn per exposure).
+  Each spot is photon-shot inside its own 41 x 41 px box centred on the pixel nearest its
+  centre and added into the frame; light landing beyond the box (the Airy wings beyond
+  ~20 px: about 0.33 % of the flux for r0 = 0.47, 2 r0 / (pi^2 Rz r) asymptotically) or beyond
+  the frame is lost; truth.json counts it per spot and exposure.
+- Saturation: the set is refused (exit 2, nothing written) if any pixel's electrons before
+  read noise come within 5 sd (Poisson + read noise) of SATURATE: bias + (e + 5 sqrt(e +
+  rn^2)) / gain >= 65535. With the defaults the brightest pixel holds ~1.5e5 e- (~4.9e4 ADU).
+
+Randomness (numpy default_rng, explicit seeds; the same options give the same bytes):
+  layout (sub-pixel offsets)      default_rng([seed, 0])
+  read noise of exposure k        default_rng([seed, 1, k])
+  photons of spot s, exposure k   reference_sensor.simulate_exposure with config seed
+                                  SeedSequence([seed, 2, k, s]).generate_state(1, uint64) >> 1
+
+truth.csv (one row per spot: grid spots first, row-major from the bottom-left, i.e. by y then
+x; then the crowded pair, then the edge spot)
+  spot                 0-based index
+  kind                 "grid", "crowded" or "edge"
+  x_px, y_px           centre in exposure 0 [px, frame coordinates]
+  ccd_sigma_x_px, ccd_sigma_y_px   the diffusion widths above [px]
+  airy_radius_px       0.47
+  flux_e               mean photo-electrons [e-]
+  defocus_px, total_sigma_x_px, total_sigma_y_px, total_fwhm_um
+                       only for a single-focus set (every exposure's defocus equal):
+                       total_sigma = sqrt(ccd_sigma^2 + defocus^2) per axis, total_fwhm_um =
+                       2 sqrt(2 ln 2) sqrt(total_sigma_x total_sigma_y) pixel_um
+  fwhm_um              2 sqrt(2 ln 2) sqrt(ccd_sigma_x ccd_sigma_y) pixel_um (always)
+  ellipticity          |sx^2 - sy^2| / (sx^2 + sy^2) of the CCD sigmas (always)
+Numbers are written with Python's repr (they read back to the same float64).
+
+truth.json: "spots" (the rows of truth.csv, same keys and values), "columns" (truth.csv's
+header), the seed and options, the detector, the optics and width law, the layout, and per
+exposure: file, focus_um (or null), defocus_px, drift_x_px / drift_y_px, exptime_s, the
+brightest pixel (electrons before noise) and, per spot, photons drawn and electrons
+collected / lost beyond the box or the frame.
+
+Errors (a bad option, a non-empty OUTDIR, a saturating set, an unwritable OUTDIR) are one line
+on stderr and exit code 2. OUTDIR is created if missing (and removed again if the set is then
+refused); every file is written under a temporary name and renamed when all are complete
+(truth.json last).
+"""
+
+import argparse
+import csv
+import io
+import json
+import math
+import os
+import sys
+
+import numpy as np
+from astropy.io import fits
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import reference_sensor  # noqa: E402  (the independent photon-shooting simulator)
+
+GAIN_E_PER_ADU = 3.1
+READ_NOISE_E = 4.5
+BIAS_ADU = 1000.0
+PIXEL_UM = 12.0
+SATURATION_ADU = 65535.0
+WAVELENGTH_NM = 800.0
+EXPTIME_S = 1.0
+ADU_MAX = 65535
+AIRY_RADIUS_PX = 0.47
+DEFAULT_DEFOCUS_PX = 0.41
+DRIFT_PER_EXPOSURE_PX = (0.03, 0.02)  # (x, y) [px] per exposure index
+CROWDED_SEPARATION_PX = 5.0
+EDGE_X_PX = 2.5  # 3 px from the frame's left edge at x = -0.5
+BOX_HALF_PX = 20  # photon-shooting box: 41 x 41 px
+SATURATION_MARGIN_SD = 5.0
+FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
+
+
+class UsageError(Exception):
+    """A bad option or an output problem: one line on stderr, exit code 2."""
+
+
+class QuietParser(argparse.ArgumentParser):
+    """argparse that reports a bad command line as one line (not usage + message)."""
+
+    def error(self, message):
+        raise UsageError(message)
+
+
+# --------------------------------------------------------------------------------------------
+# Options
+
+
+def number_list(text, name):
+    values = []
+    for item in text.split(","):
+        try:
+            value = float(item)
+        except ValueError:
+            raise UsageError(f"--{name}: {item!r} is not a number") from None
+        if not math.isfinite(value):
+            raise UsageError(f"--{name}: {item!r} is not finite")
+        values.append(value)
+    return values
+
+
+def parse_options(argv):
+    p = QuietParser(prog="grid_frames.py", add_help=True,
+                    description="Full-sensor spot-grid frames with known truth (see the docstring).")
+    p.add_argument("outdir")
+    p.add_argument("--size", type=int, default=4096, help="frame width = height [px], 64..4096")
+    p.add_argument("--grid", type=int, default=7, help="spots per row and column, 1..64")
+    p.add_argument("--exposures", type=int, default=None,
+                   help="number of frames (default 3, or the length of --focus_um/--defocus_px)")
+    p.add_argument("--seed", type=int, default=1, help="integer >= 0")
+    p.add_argument("--flux_e", type=float, default=4e5, help="mean photo-electrons per spot")
+    p.add_argument("--focus_um", default=None, help="FOCUSPOS per exposure [um], comma-separated")
+    p.add_argument("--defocus_px", default=None,
+                   help="Gaussian defocus sigma per exposure [px], comma-separated (default 0.41)")
+    p.add_argument("--no_extras", action="store_true", help="no crowded pair and no edge spot")
+    a = p.parse_args(argv)
+
+    if not 64 <= a.size <= 4096:
+        raise UsageError(f"--size {a.size} is out of range (64..4096)")
+    if not 1 <= a.grid <= 64:
+        raise UsageError(f"--grid {a.grid} is out of range (1..64)")
+    if a.size / a.grid < 2 * BOX_HALF_PX + 1:
+        raise UsageError(f"--grid {a.grid} is too fine for --size {a.size}: cells of "
+                         f"{a.size / a.grid:g} px < {2 * BOX_HALF_PX + 1} px")
+    if not a.no_extras and a.grid < 2:
+        raise UsageError("--grid 1 leaves no cell corner for the extra spots: use --grid >= 2 or --no_extras")
+    if a.seed < 0 or a.seed >= 2**63:
+        raise UsageError(f"--seed {a.seed} is out of range (0..2^63-1)")
+    if not math.isfinite(a.flux_e) or not 0.0 < a.flux_e <= reference_sensor.MAX_FLUX_E:
+        raise UsageError(f"--flux_e {a.flux_e:g} is out of range (> 0, <= {reference_sensor.MAX_FLUX_E:g})")
+
+    focus = number_list(a.focus_um, "focus_um") if a.focus_um is not None else None
+    defocus = number_list(a.defocus_px, "defocus_px") if a.defocus_px is not None else None
+    given = {name: len(v) for name, v in (("--focus_um", focus), ("--defocus_px", defocus)) if v is not None}
+    if a.exposures is not None:
+        given["--exposures"] = a.exposures
+    counts = set(given.values())
+    if len(counts) > 1:
+        raise UsageError("the exposure counts disagree: " + ", ".join(f"{k} {v}" for k, v in given.items()))
+    n = counts.pop() if counts else 3
+    if not 1 <= n <= 100:
+        raise UsageError(f"{n} exposures is out of range (1..100)")
+    if defocus is None:
+        defocus = [DEFAULT_DEFOCUS_PX] * n
+    for d in defocus:
+        if not 0.0 <= d <= 10.0:
+            raise UsageError(f"--defocus_px {d:g} is out of range (0..10 px)")
+    return {"outdir": a.outdir, "size": a.size, "grid": a.grid, "exposures": n, "seed": a.seed,
+            "flux_e": a.flux_e, "focus_um": focus, "defocus_px": defocus,
+            "extras": not a.no_extras}
+
+
+# --------------------------------------------------------------------------------------------
+# The scene
+
+
+def ccd_sigmas(x, y, size):
+    """Charge-diffusion widths (sigma_x, sigma_y) [px] at frame position (x, y)."""
+    u = 2.0 * (x + 0.5) / size - 1.0
+    v = 2.0 * (y + 0.5) / size - 1.0
+    return 0.29 + 0.05 * u + 0.03 * v * v, 0.33 + 0.04 * v - 0.02 * u * u
+
+
+def layout(opts):
+    """The spots [(kind, x_px, y_px)] of exposure 0, in truth.csv's order."""
+    size, grid = opts["size"], opts["grid"]
+    cell = size / grid
+    rng = np.random.default_rng([opts["seed"], 0])
+    spots = []
+    for j in range(grid):  # rows from the bottom, then columns from the left
+        for i in range(grid):
+            ox, oy = rng.random(2) - 0.5
+            spots.append(("grid", -0.5 + (i + 0.5) * cell + ox, -0.5 + (j + 0.5) * cell + oy))
+    if opts["extras"]:
+        corner = -0.5 + (grid // 2) * cell  # a cell boundary near the middle (both axes)
+        ox, oy = rng.random(2) - 0.5
+        half = 0.5 * CROWDED_SEPARATION_PX
+        spots.append(("crowded", corner - half + ox, corner + oy))
+        spots.append(("crowded", corner + half + ox, corner + oy))
+        spots.append(("edge", EDGE_X_PX, corner + rng.random() - 0.5))
+    return spots
+
+
+def truth_rows(opts, spots):
+    """truth.csv's rows (dicts, in column order) and its column names."""
+    defocus = opts["defocus_px"]
+    single_focus = all(d == defocus[0] for d in defocus)
+    rows = []
+    for index, (kind, x, y) in enumerate(spots):
+        sx, sy = ccd_sigmas(x, y, opts["size"])
+        row = {"spot": index, "kind": kind, "x_px": x, "y_px": y,
+               "ccd_sigma_x_px": sx, "ccd_sigma_y_px": sy,
+               "airy_radius_px": AIRY_RADIUS_PX, "flux_e": opts["flux_e"]}
+        if single_focus:
+            d = defocus[0]
+            tx, ty = math.sqrt(sx * sx + d * d), math.sqrt(sy * sy + d * d)
+            row.update({"defocus_px": d, "total_sigma_x_px": tx, "total_sigma_y_px": ty,
+                        "total_fwhm_um": FWHM_PER_SIGMA * math.sqrt(tx * ty) * PIXEL_UM})
+        row["fwhm_um"] = FWHM_PER_SIGMA * math.sqrt(sx * sy) * PIXEL_UM
+        row["ellipticity"] = abs(sx * sx - sy * sy) / (sx * sx + sy * sy)
+        rows.append(row)
+    return rows, list(rows[0].keys())
+
+
+def photon_seed(seed, exposure, spot):
+    """The config seed reference_sensor gets for one spot in one exposure (63-bit integer)."""
+    state = np.random.SeedSequence([seed, 2, exposure, spot]).generate_state(1, np.uint64)
+    return int(state[0]) >> 1
+
+
+def render_spot(opts, exposure, spot, x, y, sigma_x, sigma_y, airy):
+    """Photon-shoots one spot into a 41 x 41 box: (electrons [int64], box x0, box y0, record)."""
+    bx0, by0 = int(math.floor(x + 0.5)) - BOX_HALF_PX, int(math.floor(y + 0.5)) - BOX_HALF_PX
+    n = 2 * BOX_HALF_PX + 1
+    cfg = {
+        "seed": photon_seed(opts["seed"], exposure, spot),
+        # Noise-free unit-gain detector: the electrons are taken before noise and ADUs.
+        "detector": {"gain_e_per_adu": 1.0, "read_noise_e": 0.0, "bias_adu": 0.0,
+                     "pixel_um": PIXEL_UM, "saturation_adu": SATURATION_ADU, "nx": n, "ny": n},
+        "optics": {"airy_radius_px": AIRY_RADIUS_PX,
+                   "defocus": {"kind": "gaussian", "sigma_px": opts["defocus_px"][exposure]},
+                   "ccd_sigma_x_px": sigma_x, "ccd_sigma_y_px": sigma_y},
+        "pixel_response": {"kind": "box", "width_px": 1.0},
+        "brighter_fatter": {"strength": 0.0, "batches": 100},
+        "exposures": [{"flux_e": opts["flux_e"], "x_px": x - bx0, "y_px": y - by0,
+                       "exptime_s": EXPTIME_S, "wavelength_nm": WAVELENGTH_NM}],
+    }
+    electrons, _, t = reference_sensor.simulate_exposure(cfg, 0, airy)
+    return electrons, bx0, by0, {"photons": t["photons_drawn"], "in_box": t["electrons_collected"]}
+
+
+def add_box(frame, box, bx0, by0):
+    """Adds a box of electrons into the frame at (bx0, by0); returns the electrons that fell off."""
+    size = frame.shape[0]
+    n = box.shape[0]
+    x0, y0 = max(bx0, 0), max(by0, 0)
+    x1, y1 = min(bx0 + n, size), min(by0 + n, size)
+    part = box[y0 - by0:y1 - by0, x0 - bx0:x1 - bx0]
+    frame[y0:y1, x0:x1] += part
+    return int(box.sum() - part.sum())
+
+
+def render_exposure(opts, k, spots, rows, airy):
+    """Exposure k: (ADU frame [uint16], record for truth.json)."""
+    size = opts["size"]
+    dx, dy = DRIFT_PER_EXPOSURE_PX[0] * k, DRIFT_PER_EXPOSURE_PX[1] * k
+    electrons = np.zeros((size, size))
+    per_spot = []
+    for s, ((_, x, y), row) in enumerate(zip(spots, rows)):
+        box, bx0, by0, rec = render_spot(opts, k, s, x + dx, y + dy,
+                                         row["ccd_sigma_x_px"], row["ccd_sigma_y_px"], airy)
+        off_frame = add_box(electrons, box, bx0, by0)
+        per_spot.append({"spot": s, "photons_drawn": rec["photons"],
+                         "electrons_collected": rec["in_box"] - off_frame,
+                         "lost_beyond_box": rec["photons"] - rec["in_box"],
+                         "lost_beyond_frame": off_frame})
+
+    peak_y, peak_x = np.unravel_index(int(np.argmax(electrons)), electrons.shape)
+    peak = float(electrons[peak_y, peak_x])
+    worst_adu = BIAS_ADU + (peak + SATURATION_MARGIN_SD * math.sqrt(peak + READ_NOISE_E ** 2)) / GAIN_E_PER_ADU
+    if worst_adu >= SATURATION_ADU:
+        raise UsageError(f"--flux_e {opts['flux_e']:g} saturates: exposure {k} pixel ({peak_x}, {peak_y}) "
+                         f"holds {peak:.0f} e- (+5 sd -> {worst_adu:.0f} ADU >= SATURATE "
+                         f"{SATURATION_ADU:.0f}); lower --flux_e")
+
+    rng = np.random.default_rng([opts["seed"], 1, k])
+    electrons += rng.normal(0.0, READ_NOISE_E, size=electrons.shape)
+    adu = np.floor(electrons / GAIN_E_PER_ADU + BIAS_ADU + 0.5)
+    np.clip(adu, 0, ADU_MAX, out=adu)
+    record = {"index": k, "file": f"frame_{k:03d}.fits",
+              "focus_um": opts["focus_um"][k] if opts["focus_um"] is not None else None,
+              "defocus_px": opts["defocus_px"][k], "drift_x_px": dx, "drift_y_px": dy,
+              "exptime_s": EXPTIME_S,
+              "peak_pixel": {"x": int(peak_x), "y": int(peak_y), "electrons": peak},
+              "spots": per_spot}
+    return adu.astype(np.uint16), record
+
+
+def fits_hdu(adu, record, opts):
+    hdu = fits.PrimaryHDU(data=adu)  # uint16 -> BITPIX 16, BZERO 32768
+    h = hdu.header
+    h["GAIN"] = (GAIN_E_PER_ADU, "[e-/ADU]")
+    h["RDNOISE"] = (READ_NOISE_E, "[e-] read noise")
+    h["BIASLVL"] = (BIAS_ADU, "[ADU] bias level")
+    h["PIXSIZE"] = (PIXEL_UM, "[um]")
+    h["SATURATE"] = (SATURATION_ADU, "[ADU] saturation level")
+    h["WAVELEN"] = (WAVELENGTH_NM, "[nm]")
+    h["EXPTIME"] = (record["exptime_s"], "[s]")
+    if record["focus_um"] is not None:
+        h["FOCUSPOS"] = (record["focus_um"], "[um] focus stage position")
+    h["CREATOR"] = ("grid_frames.py", "spot-grid test frames (photon shooting)")
+    h["SIMSEED"] = (opts["seed"], "grid_frames.py --seed")
+    h["SIMINDEX"] = (record["index"], "exposure index")
+    return hdu
+
+
+# --------------------------------------------------------------------------------------------
+# Output
+
+
+def csv_text(rows, columns):
+    out = io.StringIO()
+    w = csv.writer(out, lineterminator="\n")
+    w.writerow(columns)
+    for row in rows:
+        w.writerow([repr(row[c]) if isinstance(row[c], float) else row[c] for c in columns])
+    return out.getvalue()
+
+
+def prepare_outdir(outdir):
+    if os.path.isdir(outdir):
+        if os.listdir(outdir):
+            raise UsageError(f"{outdir}: output folder is not empty (refusing to overwrite)")
+    elif os.path.exists(outdir):
+        raise UsageError(f"{outdir}: exists and is not a folder")
+    try:
+        os.makedirs(outdir, exist_ok=True)
+    except OSError as err:
+        raise UsageError(f"{outdir}: cannot create the output folder ({err.strerror})") from None
+    if not os.access(outdir, os.W_OK):
+        raise UsageError(f"{outdir}: output folder not writable")
+
+
+def temp_name(outdir, name):
+    return os.path.join(outdir, f".{name}.tmp.{os.getpid()}")
+
+
+def run(opts):
+    outdir = opts["outdir"]
+    created = not os.path.exists(outdir)
+    prepare_outdir(outdir)
+    try:
+        return write_set(opts)
+    except UsageError:
+        if created and os.path.isdir(outdir) and not os.listdir(outdir):
+            os.rmdir(outdir)  # leave no trace of a refused set
+        raise
+
+
+def write_set(opts):
+    outdir = opts["outdir"]
+    spots = layout(opts)
+    rows, columns = truth_rows(opts, spots)
+    airy = reference_sensor.AiryRadii(AIRY_RADIUS_PX)
+    temps = []  # (temporary path, final path), renamed only when all are written
+    try:
+        exposures = []
+        for k in range(opts["exposures"]):
+            adu, record = render_exposure(opts, k, spots, rows, airy)
+            tmp = temp_name(outdir, record["file"])
+            temps.append((tmp, os.path.join(outdir, record["file"])))
+            fits_hdu(adu, record, opts).writeto(tmp, output_verify="exception")
+            exposures.append(record)
+        truth = {
+            "generator": "tests/support/grid_frames.py (photon shooting by reference_sensor.py)",
+            "seed": opts["seed"],
+            "options": {key: opts[key] for key in
+                        ("size", "grid", "exposures", "flux_e", "focus_um", "defocus_px", "extras")},
+            "detector": {"gain_e_per_adu": GAIN_E_PER_ADU, "read_noise_e": READ_NOISE_E,
+                         "bias_adu": BIAS_ADU, "pixel_um": PIXEL_UM,
+                         "saturation_adu": SATURATION_ADU, "nx": opts["size"], "ny": opts["size"]},
+            "optics": {"airy_radius_px": AIRY_RADIUS_PX, "wavelength_nm": WAVELENGTH_NM,
+                       "defocus_kind": "gaussian",
+                       "ccd_sigma_x_px": "0.29 + 0.05 u + 0.03 v^2",
+                       "ccd_sigma_y_px": "0.33 + 0.04 v - 0.02 u^2",
+                       "u_v": "u = 2 (x + 0.5) / size - 1, v = 2 (y + 0.5) / size - 1 "
+                              "at the exposure-0 centre"},
+            "layout": {"cell_px": opts["size"] / opts["grid"],
+                       "render_box_px": 2 * BOX_HALF_PX + 1,
+                       "drift_px_per_exposure": list(DRIFT_PER_EXPOSURE_PX),
+                       "crowded_separation_px": CROWDED_SEPARATION_PX if opts["extras"] else None},
+            "exposures": exposures,
+            "columns": columns,
+            "spots": rows,
+        }
+        tmp = temp_name(outdir, "truth.csv")
+        temps.append((tmp, os.path.join(outdir, "truth.csv")))
+        with open(tmp, "w", encoding="utf-8", newline="") as f:
+            f.write(csv_text(rows, columns))
+        tmp = temp_name(outdir, "truth.json")
+        temps.append((tmp, os.path.join(outdir, "truth.json")))
+        with open(tmp, "w", encoding="utf-8") as f:
+            json.dump(truth, f, indent=1)
+            f.write("\n")
+        for tmp, final in temps:
+            os.replace(tmp, final)
+    except OSError as err:
+        raise UsageError(f"{outdir}: cannot write ({err.strerror or err})") from None
+    finally:
+        for tmp, _ in temps:
+            if os.path.exists(tmp):
+                os.remove(tmp)
+    return truth
+
+
+def main(argv):
+    try:
+        opts = parse_options(argv[1:])
+        truth = run(opts)
+    except UsageError as err:
+        print(f"grid_frames: {err}", file=sys.stderr)
+        return 2
+    print(json.dumps({"outdir": opts["outdir"], "frames": len(truth["exposures"]),
+                      "spots": len(truth["spots"])}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv))
