@@ -147,7 +147,23 @@ def number_list(text, name):
     return values
 
 
+def join_list_values(argv):
+    """'--focus_um -50,0,50' -> '--focus_um=-50,0,50': argparse takes a value starting with '-'
+    for an option unless it is a single negative number."""
+    out, i = [], 0
+    while i < len(argv):
+        if argv[i] in ("--focus_um", "--defocus_px") and i + 1 < len(argv) and argv[i + 1][:1] == "-" \
+                and argv[i + 1][1:2] in tuple("0123456789."):
+            out.append(f"{argv[i]}={argv[i + 1]}")
+            i += 2
+        else:
+            out.append(argv[i])
+            i += 1
+    return out
+
+
 def parse_options(argv):
+    argv = join_list_values(argv)
     p = QuietParser(prog="grid_frames.py", add_help=True,
                     description="Full-sensor spot-grid frames with known truth (see the docstring).")
     p.add_argument("outdir")
@@ -288,6 +304,19 @@ def add_box(frame, box, bx0, by0):
     return int(box.sum() - part.sum())
 
 
+def check_saturation(opts, k, electrons, x0, y0):
+    """The brightest pixel of an electron map placed at (x0, y0): (x, y, electrons); refuses the
+    set if it comes within 5 sd (Poisson + read noise) of SATURATE."""
+    j, i = np.unravel_index(int(np.argmax(electrons)), electrons.shape)
+    peak = float(electrons[j, i])
+    worst_adu = BIAS_ADU + (peak + SATURATION_MARGIN_SD * math.sqrt(peak + READ_NOISE_E ** 2)) / GAIN_E_PER_ADU
+    if worst_adu >= SATURATION_ADU:
+        raise UsageError(f"--flux_e {opts['flux_e']:g} saturates: exposure {k} pixel ({x0 + i}, {y0 + j}) "
+                         f"holds {peak:.0f} e- (+5 sd -> {worst_adu:.0f} ADU >= SATURATE "
+                         f"{SATURATION_ADU:.0f}); lower --flux_e")
+    return int(x0 + i), int(y0 + j), peak
+
+
 def render_exposure(opts, k, spots, rows, airy):
     """Exposure k: (ADU frame [uint16], record for truth.json)."""
     size = opts["size"]
@@ -297,19 +326,14 @@ def render_exposure(opts, k, spots, rows, airy):
     for s, ((_, x, y), row) in enumerate(zip(spots, rows)):
         box, bx0, by0, rec = render_spot(opts, k, s, x + dx, y + dy,
                                          row["ccd_sigma_x_px"], row["ccd_sigma_y_px"], airy)
+        check_saturation(opts, k, box, bx0, by0)  # early: a lone spot that saturates
         off_frame = add_box(electrons, box, bx0, by0)
         per_spot.append({"spot": s, "photons_drawn": rec["photons"],
                          "electrons_collected": rec["in_box"] - off_frame,
                          "lost_beyond_box": rec["photons"] - rec["in_box"],
                          "lost_beyond_frame": off_frame})
 
-    peak_y, peak_x = np.unravel_index(int(np.argmax(electrons)), electrons.shape)
-    peak = float(electrons[peak_y, peak_x])
-    worst_adu = BIAS_ADU + (peak + SATURATION_MARGIN_SD * math.sqrt(peak + READ_NOISE_E ** 2)) / GAIN_E_PER_ADU
-    if worst_adu >= SATURATION_ADU:
-        raise UsageError(f"--flux_e {opts['flux_e']:g} saturates: exposure {k} pixel ({peak_x}, {peak_y}) "
-                         f"holds {peak:.0f} e- (+5 sd -> {worst_adu:.0f} ADU >= SATURATE "
-                         f"{SATURATION_ADU:.0f}); lower --flux_e")
+    peak_x, peak_y, peak = check_saturation(opts, k, electrons, 0, 0)  # overlapping spots too
 
     rng = np.random.default_rng([opts["seed"], 1, k])
     electrons += rng.normal(0.0, READ_NOISE_E, size=electrons.shape)
