@@ -11,6 +11,19 @@ each spot is photon-shot by tests/support/reference_sensor.py's `simulate_exposu
 follows single photons through the Airy pattern and the Gaussian defocus, single electrons
 through charge diffusion, and counts them in box pixels (see that script's docstring).
 
+Options
+-------
+--size N        frame width = height [px], 64..4096 (default 4096)
+--grid G        G x G spots, 1..64, cells of size / G >= 41 px (default 7)
+--exposures K   number of frames, 1..100 (default 3, or the length of --focus_um /
+                --defocus_px; counts that disagree are an error)
+--seed S        integer 0..2^63-1 (default 1)
+--flux_e F      mean photo-electrons per spot (default 4e5)
+--focus_um      FOCUSPOS per exposure [um], comma-separated (default: no FOCUSPOS)
+--defocus_px    Gaussian defocus sigma per exposure [px], comma-separated, 0..10 (default 0.41
+                in every exposure). Both lists also take a leading minus: --focus_um -50,0,50.
+--no_extras     grid spots only (default: also the crowded pair and the edge spot)
+
 Conventions (those of ccdpsf and reference_sensor.py): frame coordinates are 0-based with
 pixel centres at integers, x = column (NAXIS1), y = row, numpy index data[y, x]; the frame
 covers [-0.5, size - 0.5) on each axis. Lengths are in pixels unless a name says um.
@@ -28,13 +41,14 @@ Spots
   (cell = size / grid px): column i, row j has its nominal centre at
   (-0.5 + (i + 1/2) cell, -0.5 + (j + 1/2) cell), plus a sub-pixel offset uniform in
   [-0.5, 0.5) px on each axis drawn once from the seed (the same in every exposure).
-- Extras (unless --no_extras; need --grid >= 2): sources a grid tool must refuse, with a reason.
-  "crowded": two spots 5.0 px apart along x, both with the grid's flux, centred on the corner
-  shared by cells (g/2 - 1, g/2 - 1) .. (g/2, g/2) (g = grid, integer halves), i.e. half a cell
-  diagonal from the nearest grid spots, plus a common sub-pixel offset from the seed.
-  "edge": one spot whose centre is 3 px from the frame's left edge (x = 2.5, so its 21 x 21
-  stamp would need columns -7 .. 13) on the row boundary of cells g/2 - 1 and g/2, plus a
-  sub-pixel offset in y.
+- Extras (unless --no_extras; need --grid >= 2 and cells >= 64 px): sources a grid tool must
+  refuse, with a reason. They sit on the cell boundary y = Y = -0.5 + floor(grid / 2) cell,
+  midway between two rows of grid spots, so each is >= cell / 2 - 1 px (>= 31 px) from every
+  grid spot in y (sub-pixel offsets <= 0.5 px each).
+  "crowded": two spots 5.0 px apart along x, both with the grid's flux, centred on (Y, Y) (the
+  corner shared by four cells near the middle) plus one common sub-pixel offset from the seed.
+  "edge": one spot whose centre is 3 px from the frame's left edge (x = 2.5: its 21 x 21 stamp
+  would need columns -7 .. 13), at y = Y plus a sub-pixel offset drawn from the seed.
 - Drift: in exposure k every spot sits at its exposure-0 position + (0.03 k, 0.02 k) px, a
   projector's slow drift. truth gives the exposure-0 positions and the drift per exposure.
 - Widths, smooth over the sensor: with u = 2 (x + 0.5) / size - 1 and v = 2 (y + 0.5) / size - 1
@@ -51,7 +65,9 @@ Spots
   the frame is lost; truth.json counts it per spot and exposure.
 - Saturation: the set is refused (exit 2, nothing written) if any pixel's electrons before
   read noise come within 5 sd (Poisson + read noise) of SATURATE: bias + (e + 5 sqrt(e +
-  rn^2)) / gain >= 65535. With the defaults the brightest pixel holds ~1.5e5 e- (~4.9e4 ADU).
+  rn^2)) / gain >= 65535. With the defaults the brightest pixel holds ~1.5e5 e- (~4.9e4 ADU);
+  at 4e5 e- a defocus of 0.3 px still fits (1.9e5 e-) and 0.25 px does not: a through-focus set
+  reaching best focus needs a lower --flux_e (e.g. 2e5).
 
 Randomness (numpy default_rng, explicit seeds; the same options give the same bytes):
   layout (sub-pixel offsets)      default_rng([seed, 0])
@@ -115,6 +131,7 @@ DRIFT_PER_EXPOSURE_PX = (0.03, 0.02)  # (x, y) [px] per exposure index
 CROWDED_SEPARATION_PX = 5.0
 EDGE_X_PX = 2.5  # 3 px from the frame's left edge at x = -0.5
 BOX_HALF_PX = 20  # photon-shooting box: 41 x 41 px
+MIN_CELL_WITH_EXTRAS_PX = 64  # extras >= 64 / 2 - 1 = 31 px from grid spots (21 x 21 stamps apart)
 SATURATION_MARGIN_SD = 5.0
 FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
 
@@ -188,6 +205,9 @@ def parse_options(argv):
                          f"{a.size / a.grid:g} px < {2 * BOX_HALF_PX + 1} px")
     if not a.no_extras and a.grid < 2:
         raise UsageError("--grid 1 leaves no cell corner for the extra spots: use --grid >= 2 or --no_extras")
+    if not a.no_extras and a.size / a.grid < MIN_CELL_WITH_EXTRAS_PX:
+        raise UsageError(f"cells of {a.size / a.grid:g} px leave the extra spots too close to grid spots: "
+                         f"need >= {MIN_CELL_WITH_EXTRAS_PX} px (fewer --grid) or --no_extras")
     if a.seed < 0 or a.seed >= 2**63:
         raise UsageError(f"--seed {a.seed} is out of range (0..2^63-1)")
     if not math.isfinite(a.flux_e) or not 0.0 < a.flux_e <= reference_sensor.MAX_FLUX_E:
@@ -236,7 +256,7 @@ def layout(opts):
             ox, oy = rng.random(2) - 0.5
             spots.append(("grid", -0.5 + (i + 0.5) * cell + ox, -0.5 + (j + 0.5) * cell + oy))
     if opts["extras"]:
-        corner = -0.5 + (grid // 2) * cell  # a cell boundary near the middle (both axes)
+        corner = -0.5 + (grid // 2) * cell  # Y: a cell boundary near the middle
         ox, oy = rng.random(2) - 0.5
         half = 0.5 * CROWDED_SEPARATION_PX
         spots.append(("crowded", corner - half + ox, corner + oy))

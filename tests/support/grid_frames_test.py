@@ -293,8 +293,8 @@ def test_truth_layout_and_columns(small):
     a, b, edge = spots[9], spots[10], spots[11]
     assert b["x_px"] - a["x_px"] == pytest.approx(5.0, abs=1e-12) and a["y_px"] == b["y_px"]
     assert edge["x_px"] - (-0.5) == 3.0  # its 21 x 21 stamp would need columns -7 .. 13
-    for extra in (a, b, edge):  # far from every grid spot (a 21 x 21 stamp and more)
-        assert min(max(abs(extra["x_px"] - g["x_px"]), abs(extra["y_px"] - g["y_px"])) for g in spots[:9]) > 40
+    for extra in (a, b, edge):  # on a cell boundary in y: >= cell / 2 - 1 px from grid spots
+        assert min(abs(extra["y_px"] - g["y_px"]) for g in spots[:9]) >= cell / 2 - 1
 
     fwhm = 2 * math.sqrt(2 * math.log(2))
     for s in spots:
@@ -377,6 +377,7 @@ def test_refuses_a_non_empty_outdir(tmp_path):
     (["--grid", "0"], "--grid 0 is out of range"),
     (["--size", "128", "--grid", "4"], "too fine"),
     (["--grid", "1"], "no cell corner"),
+    (["--size", "256", "--grid", "5"], "too close to grid spots"),
     (["--flux_e", "-1"], "--flux_e -1 is out of range"),
     (["--focus_um", "1,x,3"], "'x' is not a number"),
     (["--focus_um", "1,2", "--exposures", "3"], "exposure counts disagree"),
