@@ -48,19 +48,9 @@ void CheckMpi(int code, const char* what) {
 
 }  // namespace
 
-// Exit may come from a worker thread, which MPI_THREAD_FUNNELED forbids to call MPI: then
-// nothing is done here, and the launcher reports a rank that ended without MPI_Finalize.
-void ProcessGroup::FinalizeAtExit() {
-  ProcessGroup& group = Get();
-  if (group.mpi_state_ == MpiState::kJoined &&
-      std::this_thread::get_id() == group.mpi_thread_) {
-    group.Finalize();
-  }
-}
-
 ProcessGroup& ProcessGroup::Get() {
-  // Allocated once and never deleted: a destructor run among the static destructors could
-  // come after MPI_Finalize, or before the std::atexit fallback that still needs the object.
+  // Allocated once and never deleted: no destructor runs among the static destructors, where
+  // the order against MPI's own clean-up at exit is unknown.
   static ProcessGroup* const group = new ProcessGroup();
   return *group;
 }
@@ -77,8 +67,6 @@ ProcessGroup::ProcessGroup() {
   }
   mpi_state_ = MpiState::kJoined;
   mpi_thread_ = std::this_thread::get_id();
-  // Registered after MPI_Init_thread, so it runs before anything MPI registered itself.
-  std::atexit(FinalizeAtExit);
   if (provided < MPI_THREAD_FUNNELED) {
     std::fprintf(stderr,
                  "ccdpsf: the MPI library offers no thread support (MPI_THREAD_FUNNELED "
@@ -177,8 +165,8 @@ bool ProcessGroup::GatherToRoot(const std::string& text, std::vector<std::string
     }
     joined.resize(total);
   }
-  CheckMpi(MPI_Gatherv(text.data(), static_cast<int>(mine), MPI_BYTE, joined.data(),
-                       counts.data(), offsets.data(), MPI_BYTE, 0, MPI_COMM_WORLD),
+  CheckMpi(MPI_Gatherv(text.data(), static_cast<int>(mine), MPI_BYTE, joined.data(), counts.data(),
+                       offsets.data(), MPI_BYTE, 0, MPI_COMM_WORLD),
            "MPI_Gatherv");
   if (rank_ == 0) {
     texts->reserve(size_);

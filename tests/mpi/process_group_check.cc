@@ -55,8 +55,8 @@ void CheckGather(ccdpsf::ProcessGroup& group, int round, const std::vector<std::
   const std::string where = "GatherToRoot round " + std::to_string(round);
   Expect(ok, rank, where + " returned false: " + error);
   if (rank != 0) {
-    Expect(texts.empty(), rank, where + ": a non-root rank received " +
-                                    std::to_string(texts.size()) + " texts");
+    Expect(texts.empty(), rank,
+           where + ": a non-root rank received " + std::to_string(texts.size()) + " texts");
     return;
   }
   Expect(texts.size() == lengths.size(), rank,
@@ -92,8 +92,9 @@ int main() {
   Expect(group.distributed(), rank, "distributed() is false with two ranks");
   if (group.size() != 2 || rank < 0 || rank > 1) {
     // The checks below assume ranks 0 and 1; every rank sees the same size, so all stop here.
-    Expect(false, rank, "rank " + std::to_string(rank) + " of " + std::to_string(group.size()) +
-                            ", expected rank 0 or 1 of 2");
+    Expect(false, rank,
+           "rank " + std::to_string(rank) + " of " + std::to_string(group.size()) +
+               ", expected rank 0 or 1 of 2");
     group.Finalize();
     return 1;
   }
