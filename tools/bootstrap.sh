@@ -21,10 +21,12 @@ jobs="$(nproc 2>/dev/null || echo 2)"
 # reference_sensor.py) that share no code with the tool, and check those scripts themselves.
 # fitsverify (HEASARC's FITS validator): the tests check that every table and image the tool
 # writes is valid FITS, without warnings, for astropy, TOPCAT and DS9.
+# libopenmpi-dev and openmpi-bin: `mpirun -np N ccdpsf grid ...` shards a campaign across
+# processes and machines (src/process_group.cc).
 packages=(build-essential cmake pkg-config libceres-dev libeigen3-dev libgoogle-glog-dev
           libgflags-dev libcfitsio-dev libgtest-dev nlohmann-json3-dev libbenchmark-dev
           gnuplot-nox fitsverify python3-numpy python3-scipy python3-astropy
-          python3-pytest)
+          python3-pytest libopenmpi-dev openmpi-bin)
 # clang-14 and its sanitizer and libFuzzer runtimes: the test mode's short fuzzing run.
 if [ "$mode" = test ]; then packages+=(clang-14 libclang-rt-14-dev); fi
 missing=()
