@@ -80,12 +80,12 @@ class ProcessGroup {
   void Barrier();
 
   // On rank 0, `texts` becomes every rank's `text` in rank order; on the others it is
-  // cleared. False with the same reason on every rank if the texts together exceed what one
-  // MPI call can carry (2^31 - 1 bytes); nothing is sent then.
+  // cleared. In an MPI job, false with the same reason on every rank if the texts together
+  // exceed what one MPI call carries (2^31 - 1 bytes); nothing is sent then.
   bool GatherToRoot(const std::string& text, std::vector<std::string>* texts, std::string* error);
 
   // Rank 0's `text` replaces `text` on every other rank (rank 0's own is left as it is).
-  // False with the same reason on every rank if it exceeds 2^31 - 1 bytes.
+  // In an MPI job, false with the same reason on every rank if it exceeds 2^31 - 1 bytes.
   bool Broadcast(std::string* text, std::string* error);
 
   // The logical AND of `ok` over all ranks: false everywhere if any rank passes false.
