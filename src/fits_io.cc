@@ -577,20 +577,22 @@ struct OpenedFits {
   FitsFile file;
 };
 
-// Reads the 2-D image of the current HDU (number `hdu`, 1-based absolute).
-std::optional<FitsImage> ReadCurrentImage(const OpenedFits& opened, const std::string& path,
-                                          int hdu, std::string* error) {
+// Checks the 2-D image of the current HDU (number `hdu`, 1-based absolute) before any pixel
+// is read, and fills everything of *image but its pixels (header, BITPIX, HDU, EXTNAME, ADC
+// range); *nx, *ny are its size.
+bool DescribeCurrentImage(const OpenedFits& opened, const std::string& path, int hdu,
+                          FitsImage* image, int* nx, int* ny, std::string* error) {
   fitsfile* file = opened.file.get();
   int status = 0;
   int naxis = 0;
   if (fits_get_img_dim(file, &naxis, &status)) {
     *error = Corrupt(path, status);
-    return std::nullopt;
+    return false;
   }
   const std::string where = HduWhere(path, hdu);
   if (naxis != 2) {
     *error = where + ": image is " + std::to_string(naxis) + "-D, expected 2-D";
-    return std::nullopt;
+    return false;
   }
   LONGLONG naxes[2] = {0, 0};
   int bitpix = 0;
@@ -598,13 +600,13 @@ std::optional<FitsImage> ReadCurrentImage(const OpenedFits& opened, const std::s
   if (fits_get_img_sizell(file, 2, naxes, &status) ||
       fits_get_img_type(file, &bitpix, &status)) {
     *error = Corrupt(path, status);
-    return std::nullopt;
+    return false;
   }
   compressed = fits_is_compressed_image(file, &status);
   if (naxes[0] <= 0 || naxes[1] <= 0) {
     *error = where + ": image is empty (" + std::to_string(naxes[0]) + " x " +
              std::to_string(naxes[1]) + ")";
-    return std::nullopt;
+    return false;
   }
   // The screen has checked this already; CFITSIO's view of the size is checked again here,
   // where the memory is about to be allocated.
@@ -613,45 +615,64 @@ std::optional<FitsImage> ReadCurrentImage(const OpenedFits& opened, const std::s
     *error = !too_large.empty() ? too_large
                                 : where + ": image is too large (" + std::to_string(naxes[0]) +
                                       " x " + std::to_string(naxes[1]) + ")";
-    return std::nullopt;
+    return false;
   }
-  const LONGLONG num_pixels = naxes[0] * naxes[1];
   if (hdu < 1 || hdu > static_cast<int>(opened.hdus.size()) ||
       opened.hdus[hdu - 1].tiled != (compressed != 0)) {
     *error = Quoted(path) + " is truncated or corrupt (CFITSIO and the reader's screen disagree "
              "about HDU " + std::to_string(hdu - 1) + ")";
-    return std::nullopt;
+    return false;
   }
   const HduLayout& layout = opened.hdus[hdu - 1];
   if (compressed) {
     // Every tile is checked before CFITSIO decompresses any.
-    if (!CheckTiles(opened.bytes, layout, where, error)) return std::nullopt;
+    if (!CheckTiles(opened.bytes, layout, where, error)) return false;
   } else if (layout.data_start + layout.data_bytes > opened.bytes.size()) {
     // The data must fit in the file: checking before reading gives a clear message and
     // avoids allocating for data that are not there.
     *error = Quoted(path) + " is truncated or corrupt (the image needs " +
              std::to_string(layout.data_start + layout.data_bytes) + " bytes, the file has " +
              std::to_string(opened.bytes.size()) + ")";
-    return std::nullopt;
+    return false;
   }
+  image->bitpix = bitpix;
+  image->hdu = hdu;
+  image->extname = ExtName(file);
+  AdcRange(file, bitpix, &image->adc_min, &image->adc_max);
+  if (!ReadHeader(file, compressed != 0, &image->header, &status)) {
+    *error = Corrupt(path, status);
+    return false;
+  }
+  *nx = static_cast<int>(naxes[0]);
+  *ny = static_cast<int>(naxes[1]);
+  return true;
+}
 
-  FitsImage result;
-  result.bitpix = bitpix;
-  result.hdu = hdu;
-  result.extname = ExtName(file);
-  AdcRange(file, bitpix, &result.adc_min, &result.adc_max);
-  result.pixels = Image(static_cast<int>(naxes[0]), static_cast<int>(naxes[1]));
-  // Reading as TDOUBLE makes CFITSIO apply BSCALE/BZERO; a NaN null value turns BLANK
-  // pixels of integer images (and NaNs of float images) into NaN.
+// Reads rows [y_begin, y_begin + rows) of the current HDU's nx-wide image into `out` as
+// doubles. Reading as TDOUBLE makes CFITSIO apply BSCALE/BZERO; a NaN null value turns
+// BLANK pixels of integer images (and NaNs of float images) into NaN.
+bool ReadCurrentRows(fitsfile* file, const std::string& path, int nx, int y_begin, int rows,
+                     double* out, std::string* error) {
+  int status = 0;
   double null_value = std::numeric_limits<double>::quiet_NaN();
   int any_null = 0;
-  if (fits_read_img(file, TDOUBLE, 1, num_pixels, &null_value, result.pixels.data.data(),
-                    &any_null, &status)) {
+  LONGLONG first[2] = {1, static_cast<LONGLONG>(y_begin) + 1};
+  if (fits_read_pixll(file, TDOUBLE, first, static_cast<LONGLONG>(nx) * rows, &null_value, out,
+                      &any_null, &status)) {
     *error = Corrupt(path, status);
-    return std::nullopt;
+    return false;
   }
-  if (!ReadHeader(file, compressed != 0, &result.header, &status)) {
-    *error = Corrupt(path, status);
+  return true;
+}
+
+// Reads the 2-D image of the current HDU (number `hdu`, 1-based absolute).
+std::optional<FitsImage> ReadCurrentImage(const OpenedFits& opened, const std::string& path,
+                                          int hdu, std::string* error) {
+  FitsImage result;
+  int nx = 0, ny = 0;
+  if (!DescribeCurrentImage(opened, path, hdu, &result, &nx, &ny, error)) return std::nullopt;
+  result.pixels = Image(nx, ny);
+  if (!ReadCurrentRows(opened.file.get(), path, nx, 0, ny, result.pixels.data.data(), error)) {
     return std::nullopt;
   }
   return result;
@@ -720,16 +741,18 @@ std::optional<FitsImage> ReadFitsImage(const std::string& path, std::string* err
   return ReadFitsImage(path, "", error);
 }
 
-std::optional<FitsImage> ReadFitsImage(const std::string& path, const std::string& hdu_selector,
-                                       std::string* error) {
-  OpenedFits opened;
-  if (!OpenForReading(path, &opened, error)) return std::nullopt;
+namespace {
+
+// Moves to the image HDU that `hdu_selector` names (ReadFitsImage's choice when empty) and
+// sets *hdu to its 1-based absolute number.
+bool SelectImageHdu(const OpenedFits& opened, const std::string& path,
+                    const std::string& hdu_selector, int* hdu_number, std::string* error) {
   const FitsFile& file = opened.file;
   int status = 0;
   int num_hdus = 0;
   if (fits_get_num_hdus(file.get(), &num_hdus, &status)) {
     *error = Corrupt(path, status);
-    return std::nullopt;
+    return false;
   }
 
   if (!hdu_selector.empty()) {
@@ -741,11 +764,11 @@ std::optional<FitsImage> ReadFitsImage(const std::string& path, const std::strin
         *error = Quoted(path) + " has no HDU " + hdu_selector + " (it has " +
                  std::to_string(num_hdus) + ": 0 = primary .. " + std::to_string(num_hdus - 1) +
                  ")";
-        return std::nullopt;
+        return false;
       }
       if (fits_movabs_hdu(file.get(), index + 1, &type, &status)) {
         *error = Corrupt(path, status);
-        return std::nullopt;
+        return false;
       }
     } else {
       std::string wanted = ToUpper(hdu_selector);
@@ -753,7 +776,7 @@ std::optional<FitsImage> ReadFitsImage(const std::string& path, const std::strin
       for (int h = 1; h <= num_hdus && index < 0; ++h) {
         if (fits_movabs_hdu(file.get(), h, &type, &status)) {
           *error = Corrupt(path, status);
-          return std::nullopt;
+          return false;
         }
         if (ToUpper(ExtName(file.get())) == wanted) index = h - 1;
       }
@@ -765,30 +788,31 @@ std::optional<FitsImage> ReadFitsImage(const std::string& path, const std::strin
         }
         *error = Quoted(path) + " has no extension named '" + hdu_selector + "'" +
                  (names.empty() ? "" : " (images: " + names + ")");
-        return std::nullopt;
+        return false;
       }
     }
     int naxis = 0;
     if (fits_get_img_dim(file.get(), &naxis, &status)) {
       *error = Corrupt(path, status);
-      return std::nullopt;
+      return false;
     }
     if (type != IMAGE_HDU && !fits_is_compressed_image(file.get(), &status)) {
       *error = Quoted(path) + " HDU " + hdu_selector + " is a table, not an image";
-      return std::nullopt;
+      return false;
     }
     if (naxis == 0) {
       *error = Quoted(path) + " HDU " + hdu_selector + " holds no image (NAXIS = 0)";
-      return std::nullopt;
+      return false;
     }
-    return ReadCurrentImage(opened, path, index + 1, error);
+    *hdu_number = index + 1;
+    return true;
   }
 
   // The primary HDU, or the first image extension with data when the primary is empty.
   int naxis = 0;
   if (fits_get_img_dim(file.get(), &naxis, &status)) {
     *error = Corrupt(path, status);
-    return std::nullopt;
+    return false;
   }
   int hdu = 1;
   if (naxis == 0) {
@@ -798,7 +822,7 @@ std::optional<FitsImage> ReadFitsImage(const std::string& path, const std::strin
       int type = 0;
       if (fits_movabs_hdu(file.get(), h, &type, &status)) {
         *error = Corrupt(path, status);
-        return std::nullopt;
+        return false;
       }
       if (type != IMAGE_HDU) {
         if (first_extension.empty()) first_extension = "a table";
@@ -806,7 +830,7 @@ std::optional<FitsImage> ReadFitsImage(const std::string& path, const std::strin
       }
       if (fits_get_img_dim(file.get(), &naxis, &status)) {
         *error = Corrupt(path, status);
-        return std::nullopt;
+        return false;
       }
       if (naxis > 0) {
         hdu = h;
@@ -822,10 +846,56 @@ std::optional<FitsImage> ReadFitsImage(const std::string& path, const std::strin
       } else {
         *error = Quoted(path) + " has no image (first extension is " + first_extension + ")";
       }
-      return std::nullopt;
+      return false;
     }
   }
+  *hdu_number = hdu;
+  return true;
+}
+
+}  // namespace
+
+std::optional<FitsImage> ReadFitsImage(const std::string& path, const std::string& hdu_selector,
+                                       std::string* error) {
+  OpenedFits opened;
+  if (!OpenForReading(path, &opened, error)) return std::nullopt;
+  int hdu = 0;
+  if (!SelectImageHdu(opened, path, hdu_selector, &hdu, error)) return std::nullopt;
   return ReadCurrentImage(opened, path, hdu, error);
+}
+
+struct FitsImageStream::Opened {
+  OpenedFits fits;
+};
+
+FitsImageStream::FitsImageStream() = default;
+FitsImageStream::~FitsImageStream() = default;
+
+std::unique_ptr<FitsImageStream> FitsImageStream::Open(const std::string& path,
+                                                       const std::string& hdu_selector,
+                                                       std::string* error) {
+  std::unique_ptr<FitsImageStream> stream(new FitsImageStream());
+  stream->opened_ = std::make_unique<Opened>();
+  stream->path_ = path;
+  OpenedFits& opened = stream->opened_->fits;
+  if (!OpenForReading(path, &opened, error)) return nullptr;
+  int hdu = 0;
+  if (!SelectImageHdu(opened, path, hdu_selector, &hdu, error) ||
+      !DescribeCurrentImage(opened, path, hdu, &stream->image_, &stream->nx_, &stream->ny_,
+                            error)) {
+    return nullptr;
+  }
+  return stream;
+}
+
+bool FitsImageStream::ReadRows(int y_begin, int rows, double* out, std::string* error) {
+  if (y_begin < 0 || rows < 0 || y_begin + rows > ny_) {
+    *error = Quoted(path_) + ": rows " + std::to_string(y_begin) + ".." +
+             std::to_string(y_begin + rows) + " lie outside the image's " + std::to_string(ny_);
+    return false;
+  }
+  if (rows == 0) return true;
+  return ReadCurrentRows(opened_->fits.file.get(), path_, nx_, y_begin, rows, out, error);
 }
 
 std::vector<FitsHduInfo> ListFitsImageHdus(const std::string& path, std::string* error) {
@@ -957,7 +1027,7 @@ bool WriteFitsTable(const std::string& path, const FitsHeader& primary_header,
     *error = "cannot write " + Quoted(path) + ": table has no columns";
     return false;
   }
-  const size_t num_rows = columns.front().values.size();
+  const size_t num_rows = columns.front().Rows();
   std::set<std::string> seen;
   for (const FitsColumn& column : columns) {
     if (column.name.empty()) {
@@ -977,13 +1047,20 @@ bool WriteFitsTable(const std::string& path, const FitsHeader& primary_header,
       *error = "cannot write " + Quoted(path) + ": duplicate column name '" + column.name + "'";
       return false;
     }
-    if (column.values.size() != num_rows) {
+    if (column.Rows() != num_rows) {
       *error = "cannot write " + Quoted(path) + ": column '" + column.name + "' has " +
-               std::to_string(column.values.size()) + " rows, column '" + columns.front().name +
-               "' has " + std::to_string(num_rows);
+               std::to_string(column.Rows()) + " rows, column '" + columns.front().name + "' has " +
+               std::to_string(num_rows);
       return false;
     }
-    if (column.is_integer) {
+    for (const std::string& text : column.texts) {
+      if (!IsPrintableAscii(text)) {
+        *error = "cannot write " + Quoted(path) + ": text column '" + column.name +
+                 "' holds a character that is not printable ASCII";
+        return false;
+      }
+    }
+    if (column.is_integer && column.texts.empty()) {
       for (size_t row = 0; row < num_rows; ++row) {
         const double v = column.values[row];
         // 9.2e18 ~ 2^63: beyond it a 64-bit integer cannot hold the value.
@@ -1010,7 +1087,22 @@ bool WriteFitsTable(const std::string& path, const FitsHeader& primary_header,
 
         std::vector<std::string> tforms;
         std::vector<char*> ttype, tform, tunit;
-        for (const FitsColumn& column : columns) tforms.push_back(column.is_integer ? "1K" : "1D");
+        // Each column's width in a row and its byte offset there [bytes].
+        std::vector<size_t> widths, offsets;
+        size_t row_bytes = 0;
+        for (const FitsColumn& column : columns) {
+          size_t width = 8;  // 1D, 1K
+          if (!column.texts.empty()) {
+            width = 1;
+            for (const std::string& t : column.texts) width = std::max(width, t.size());
+            tforms.push_back(std::to_string(width) + "A");
+          } else {
+            tforms.push_back(column.is_integer ? "1K" : "1D");
+          }
+          widths.push_back(width);
+          offsets.push_back(row_bytes);
+          row_bytes += width;
+        }
         for (size_t i = 0; i < columns.size(); ++i) {
           ttype.push_back(const_cast<char*>(columns[i].name.c_str()));
           tform.push_back(const_cast<char*>(tforms[i].c_str()));
@@ -1043,13 +1135,26 @@ bool WriteFitsTable(const std::string& path, const FitsHeader& primary_header,
           const size_t n = std::min(num_rows - first, static_cast<size_t>(block_rows));
           for (size_t i = 0; i < columns.size(); ++i) {
             const int column_number = static_cast<int>(i) + 1;
-            const double* v = columns[i].values.data() + first;
-            if (columns[i].is_integer) {
+            if (!columns[i].texts.empty()) {
+              // The bytes themselves, NUL-padded: CFITSIO pads strings with blanks, which
+              // astropy's Table.read keeps ('ok     '); a NUL ends a FITS string.
+              std::vector<unsigned char> field(widths[i]);
+              for (size_t row = 0; row < n && status == 0; ++row) {
+                const std::string& text = columns[i].texts[first + row];
+                std::fill(field.begin(), field.end(), 0);
+                std::copy(text.begin(), text.end(), field.begin());
+                fits_write_tblbytes(file.get(), static_cast<LONGLONG>(first + row) + 1,
+                                    static_cast<LONGLONG>(offsets[i]) + 1,
+                                    static_cast<LONGLONG>(widths[i]), field.data(), &status);
+              }
+            } else if (columns[i].is_integer) {
+              const double* v = columns[i].values.data() + first;
               integers.resize(n);
               for (size_t row = 0; row < n; ++row) integers[row] = std::llround(v[row]);
               fits_write_col(file.get(), TLONGLONG, column_number, static_cast<LONGLONG>(first) + 1,
                              1, static_cast<LONGLONG>(n), integers.data(), &status);
             } else {
+              const double* v = columns[i].values.data() + first;
               // CFITSIO may byte-swap the array it is given in place: pass a copy.
               doubles.assign(v, v + n);
               fits_write_col(file.get(), TDOUBLE, column_number, static_cast<LONGLONG>(first) + 1,

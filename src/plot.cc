@@ -1513,3 +1513,48 @@ bool WriteXyPlot(const std::string& dir, const std::string& stem, const XyPlotIn
 }
 
 }  // namespace ccdpsf
+
+namespace ccdpsf {
+
+bool WriteSensorMap(const std::string& dir, const std::string& stem, const SensorMapInput& input,
+                    PlotResult* result, std::string* error, const PlotOptions& options) {
+  if (!ValidateStem(stem, error)) return false;
+  if (input.x.size() != input.y.size() || input.x.size() != input.value.size() ||
+      input.refused_x.size() != input.refused_y.size()) {
+    *error = "sensor map '" + stem + "': coordinate and value lists differ in length";
+    return false;
+  }
+  if (input.nx <= 0 || input.ny <= 0) {
+    *error = "sensor map '" + stem + "': the frame size must be positive";
+    return false;
+  }
+  // Spots: x y value (frame pixels; 1-based in the picture as in DS9). Refused: x y.
+  std::string spots = "# x_px y_px value (x, y 1-based as in DS9: frame coordinate + 1)\n";
+  for (size_t i = 0; i < input.x.size(); ++i) {
+    if (!std::isfinite(input.value[i])) continue;
+    spots += Num(input.x[i] + 1) + " " + Num(input.y[i] + 1) + " " + Num(input.value[i]) + "\n";
+  }
+  std::string refused = "# x_px y_px of spots not fitted (1-based)\n";
+  for (size_t i = 0; i < input.refused_x.size(); ++i) {
+    refused += Num(input.refused_x[i] + 1) + " " + Num(input.refused_y[i] + 1) + "\n";
+  }
+  const std::vector<std::pair<std::string, std::string>> files = {{stem + "_spots.dat", spots},
+                                                                  {stem + "_refused.dat", refused}};
+  std::string s = ScriptPreamble(stem, input.title, 760, 680, 11, files);
+  s += "set title " + GpString(input.title) + "\n";
+  s += "set xlabel 'x [px] (frame column, 1-based)'\nset ylabel 'y [px] (frame row, 1-based)'\n";
+  s += "set xrange [0.5:" + Num(input.nx + 0.5) + "]\nset yrange [0.5:" + Num(input.ny + 0.5) +
+       "]\n";
+  s += "set size ratio -1\nset cblabel " + GpString(input.value_label) + "\n";
+  s += "set palette defined (0 '#313695', 1 '#74add1', 2 '#ffffbf', 3 '#f46d43', 4 '#a50026')\n";
+  s += "set key outside bottom center horizontal\n";
+  s += "plot '" + stem +
+       "_spots.dat' using 1:2:3 with points pt 7 ps 2.2 lc palette title "
+       "'fitted spots (colour: value)', \\\n";
+  s += "     '" + stem +
+       "_refused.dat' using 1:2 with points pt 2 ps 1.5 lc rgb '#808080' "
+       "title 'not fitted (see psf_map.csv)'\n";
+  return WritePlotFiles(dir, stem, files, s, options, result, error);
+}
+
+}  // namespace ccdpsf

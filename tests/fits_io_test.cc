@@ -497,10 +497,10 @@ TEST(FitsIo, TableRoundTrip) {
   ScopedTempDir dir;
   const std::string path = dir.File("chain.fits");
   const std::vector<FitsColumn> columns = {
-      {"walker", "", {0, 1, 2, 3}, true},
-      {"step", "", {0, 0, 1, 1}, true},
-      {"log_prob", "", {-1.5, -2.25, -0.125, -1e-9}, false},
-      {"flux_e", "electron", {5.0e5, 5.1e5, 4.9e5, 0.1}, false},
+      {"walker", "", {0, 1, 2, 3}, true, {}},
+      {"step", "", {0, 0, 1, 1}, true, {}},
+      {"log_prob", "", {-1.5, -2.25, -0.125, -1e-9}, false, {}},
+      {"flux_e", "electron", {5.0e5, 5.1e5, 4.9e5, 0.1}, false, {}},
   };
   std::string error;
   ASSERT_TRUE(WriteFitsTable(path, {{"SEED", 7LL, ""}}, "CHAIN", columns,
@@ -545,19 +545,92 @@ TEST(FitsIo, TableRoundTrip) {
   EXPECT_EQ(status, KEY_NO_EXIST);
 }
 
+// Text columns: TFORM nA with n the longest text, each value NUL-padded (a NUL ends a FITS
+// string: astropy's Table.read would keep CFITSIO's blank padding), numbers beside them intact.
+TEST(FitsIo, TableTextColumnsRoundTrip) {
+  ScopedTempDir dir;
+  const std::string path = dir.File("texts.fits");
+  FitsColumn verdict{"verdict", "", {}, false, {"ok", "suspect", ""}};
+  FitsColumn spot{"spot", "", {0, 1, 2}, true, {}};
+  FitsColumn fwhm{"fwhm_um", "um", {8.5, 9.25, -1e-3}, false, {}};
+  std::string error;
+  ASSERT_TRUE(WriteFitsTable(path, {}, "MAP", {spot, verdict, fwhm}, {}, &error)) << error;
+  CfitsioReader reader(path);
+  int type = 0;
+  fits_movabs_hdu(reader.get(), 2, &type, reader.status());
+  EXPECT_EQ(reader.KeyString("TFORM2"), "7A");  // "suspect"
+  std::vector<char> row(8 + 7 + 8);
+  for (int r = 0; r < 3; ++r) {
+    fits_read_tblbytes(reader.get(), r + 1, 1, static_cast<LONGLONG>(row.size()),
+                       reinterpret_cast<unsigned char*>(row.data()), reader.status());
+    ASSERT_EQ(*reader.status(), 0);
+    const std::string field(row.begin() + 8, row.begin() + 15);
+    std::string expected = verdict.texts[r];
+    expected.resize(7, '\0');
+    EXPECT_EQ(field, expected) << "row " << r;
+  }
+  std::vector<double> values(3);
+  fits_read_col(reader.get(), TDOUBLE, 3, 1, 1, 3, nullptr, values.data(), nullptr,
+                reader.status());
+  EXPECT_EQ(values, fwhm.values);
+  std::vector<LONGLONG> spots(3);
+  fits_read_col(reader.get(), TLONGLONG, 1, 1, 1, 3, nullptr, spots.data(), nullptr,
+                reader.status());
+  EXPECT_EQ(spots, (std::vector<LONGLONG>{0, 1, 2}));
+  EXPECT_EQ(*reader.status(), 0);
+  // Not ASCII: refused, not written.
+  FitsColumn bad{"name", "", {}, false, {"caf\xc3\xa9"}};
+  EXPECT_FALSE(WriteFitsTable(dir.File("bad.fits"), {}, "T", {bad}, {}, &error));
+  ExpectOneLineNaming(error, dir.File("bad.fits"));
+}
+
+// A frame read a few rows at a time holds exactly the pixels read whole, with the same
+// header, BITPIX, HDU and ADC range.
+TEST(FitsIo, ImageStreamRowsEqualTheWholeImage) {
+  ScopedTempDir dir;
+  const std::string path = dir.File("frame.fits");
+  Image image(37, 23);
+  for (size_t i = 0; i < image.data.size(); ++i) image.data[i] = (i * 7919) % 65536;
+  std::string error;
+  ASSERT_TRUE(WriteFitsImageU16(path, image, {{"WAVELEN", 800.0, "nm"}}, &error)) << error;
+  const std::optional<FitsImage> whole = ReadFitsImage(path, &error);
+  ASSERT_TRUE(whole) << error;
+  std::unique_ptr<FitsImageStream> stream = FitsImageStream::Open(path, "", &error);
+  ASSERT_TRUE(stream) << error;
+  EXPECT_EQ(stream->nx(), 37);
+  EXPECT_EQ(stream->ny(), 23);
+  EXPECT_TRUE(stream->image().pixels.empty());
+  EXPECT_EQ(stream->image().bitpix, whole->bitpix);
+  EXPECT_EQ(stream->image().adc_max, whole->adc_max);
+  EXPECT_EQ(FindNumber(stream->image().header, "WAVELEN"), std::optional<double>(800.0));
+  std::vector<double> rows;
+  for (int y = 0; y < 23; y += 5) {  // strips of 5 rows, the last of 3
+    const int n = std::min(5, 23 - y);
+    std::vector<double> strip(static_cast<size_t>(37) * n);
+    ASSERT_TRUE(stream->ReadRows(y, n, strip.data(), &error)) << error;
+    rows.insert(rows.end(), strip.begin(), strip.end());
+  }
+  EXPECT_EQ(rows, whole->pixels.data);
+  std::vector<double> one(37);
+  EXPECT_FALSE(stream->ReadRows(22, 2, one.data(), &error));  // past the last row
+  ExpectOneLineNaming(error, path);
+  EXPECT_FALSE(FitsImageStream::Open(dir.File("missing.fits"), "", &error));
+  ExpectOneLineNaming(error, dir.File("missing.fits"));
+}
+
 TEST(FitsIo, TableRejectsInconsistentColumns) {
   ScopedTempDir dir;
   const std::string path = dir.File("bad_table.fits");
   std::string error;
-  EXPECT_FALSE(
-      WriteFitsTable(path, {}, "T", {{"a", "", {1, 2}, false}, {"b", "", {1}, false}}, {}, &error));
+  EXPECT_FALSE(WriteFitsTable(
+      path, {}, "T", {{"a", "", {1, 2}, false, {}}, {"b", "", {1}, false, {}}}, {}, &error));
   ExpectOneLineNaming(error, path);
-  EXPECT_FALSE(WriteFitsTable(path, {}, "T", {{"a", "", {1, 2}, false}, {"A", "", {1, 2}, false}},
-                              {}, &error));
-  EXPECT_FALSE(WriteFitsTable(path, {}, "T", {{"n", "", {1, kNaN}, true}}, {}, &error));
+  EXPECT_FALSE(WriteFitsTable(
+      path, {}, "T", {{"a", "", {1, 2}, false, {}}, {"A", "", {1, 2}, false, {}}}, {}, &error));
+  EXPECT_FALSE(WriteFitsTable(path, {}, "T", {{"n", "", {1, kNaN}, true, {}}}, {}, &error));
   EXPECT_FALSE(WriteFitsTable(path, {}, "T", {}, {}, &error));
   // A name FITS readers treat unevenly (fitsverify warns on '.') is refused, not written.
-  EXPECT_FALSE(WriteFitsTable(path, {}, "T", {{"x_px.0", "pix", {1, 2}, false}}, {}, &error));
+  EXPECT_FALSE(WriteFitsTable(path, {}, "T", {{"x_px.0", "pix", {1, 2}, false, {}}}, {}, &error));
   EXPECT_NE(error.find("x_px.0"), std::string::npos) << error;
   EXPECT_TRUE(dir.List().empty());
 }
@@ -572,7 +645,7 @@ TEST(FitsIo, FailedWriteLeavesNoFile) {
   EXPECT_FALSE(WriteFitsImageF64(nowhere, image, {}, &error));
   ExpectOneLineNaming(error, nowhere);
   EXPECT_NE(error.find("does not exist"), std::string::npos) << error;
-  EXPECT_FALSE(WriteFitsTable(nowhere, {}, "T", {{"a", "", {1.0}, false}}, {}, &error));
+  EXPECT_FALSE(WriteFitsTable(nowhere, {}, "T", {{"a", "", {1.0}, false, {}}}, {}, &error));
   EXPECT_TRUE(dir.List().empty());
 
   // A value 16 bits cannot hold.

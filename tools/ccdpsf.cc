@@ -26,8 +26,8 @@ DEFINE_string(defocus, "gaussian", "");
 namespace ccdpsf::tools {
 
 const std::vector<Command>& Commands() {
-  static const std::vector<Command> commands = {SimulateCommand(), FitCommand(), TrendCommand(),
-                                                DiagnoseCommand(), GainCommand()};
+  static const std::vector<Command> commands = {SimulateCommand(), FitCommand(),  TrendCommand(),
+                                                DiagnoseCommand(), GainCommand(), GridCommand()};
   return commands;
 }
 

@@ -55,6 +55,7 @@ Command FitCommand();
 Command TrendCommand();
 Command DiagnoseCommand();
 Command GainCommand();
+Command GridCommand();
 
 // The fit options of `fit`, `trend` and `diagnose`: the command's defaults <- --config=FIT.json
 // (its "flags" applied as flags not given on the command line: run_config.cc) <- the flags
@@ -104,6 +105,12 @@ bool ResolveInputs(const std::vector<std::string>& files, const CalibrationOptio
 // --bad_pixel_mask and --requirements where given. An output folder must not hold any of
 // them (it is replaced as a whole: output_folder.h).
 std::vector<std::string> RunInputs(const std::vector<std::string>& args);
+
+// What decides a run's numbers, for the keys of its stored results (trend/group_store.h):
+// the inputs and every option given, but not those that change only where or how fast it
+// runs (--out, --resume, --threads), with the files --config, --manifest, --keywords and
+// --requirements name by content.
+std::string RunSignature(const std::vector<std::string>& inputs);
 
 // True when --name was given on the command line (or by the "flags" of --config).
 bool FlagGiven(const char* name);

@@ -3,7 +3,9 @@
 // `ccdpsf <command> --config=OUT/config.json INPUTS` repeat a run of fit, trend or diagnose.
 #include <algorithm>
 #include <filesystem>
+#include <fstream>
 #include <map>
+#include <sstream>
 
 #include "ccdpsf/atomic_file.h"
 #include "ccdpsf/metadata.h"
@@ -159,6 +161,26 @@ bool ApplyConfigFlags(const json& flags, const std::vector<std::string>& skip, s
     }
   }
   return true;
+}
+
+std::string RunSignature(const std::vector<std::string>& inputs) {
+  nlohmann::json signature = {{"inputs", inputs}};
+  std::vector<gflags::CommandLineFlagInfo> flags;
+  gflags::GetAllFlags(&flags);
+  for (const auto& f : flags) {
+    if (f.is_default || f.name == "out" || f.name == "resume" || f.name == "threads") continue;
+    signature["flags"][f.name] = f.current_value;
+  }
+  // The files --config, --manifest, --keywords and --requirements name, by content.
+  for (const char* flag : {"config", "manifest", "keywords", "requirements"}) {
+    std::string path;
+    if (!gflags::GetCommandLineOption(flag, &path) || path.empty()) continue;
+    std::ifstream in(path);
+    std::stringstream text;
+    text << in.rdbuf();
+    signature["files"][flag] = text.str();
+  }
+  return signature.dump();
 }
 
 }  // namespace ccdpsf::tools

@@ -72,28 +72,6 @@ std::string TrendSummary(const trend::TrendResult& r, const std::string& out_dir
   return line + "; report: " + out_dir + "/report.md";
 }
 
-// What decides a trend's numbers, for the keys of its stored groups (group_store.h): the
-// inputs and every option given, but not those that change only where or how fast it runs.
-std::string RunSignature(const std::vector<std::string>& inputs) {
-  nlohmann::json signature = {{"inputs", inputs}};
-  std::vector<gflags::CommandLineFlagInfo> flags;
-  gflags::GetAllFlags(&flags);
-  for (const auto& f : flags) {
-    if (f.is_default || f.name == "out" || f.name == "resume" || f.name == "threads") continue;
-    signature["flags"][f.name] = f.current_value;
-  }
-  // The files --config, --manifest, --keywords and --requirements name, by content.
-  for (const char* flag : {"config", "manifest", "keywords", "requirements"}) {
-    std::string path;
-    if (!gflags::GetCommandLineOption(flag, &path) || path.empty()) continue;
-    std::ifstream in(path);
-    std::stringstream text;
-    text << in.rdbuf();
-    signature["files"][flag] = text.str();
-  }
-  return signature.dump();
-}
-
 int RunTrend(const std::vector<std::string>& inputs) {
   if (FLAGS_out.empty()) return Usage("trend needs --out=DIR");
   std::string error;

@@ -8,6 +8,7 @@
 #define CCDPSF_FITS_IO_H_
 
 #include <limits>
+#include <memory>
 #include <optional>
 #include <string>
 #include <variant>
@@ -76,6 +77,41 @@ std::optional<FitsImage> ReadFitsImage(const std::string& path, std::string* err
 std::optional<FitsImage> ReadFitsImage(const std::string& path, const std::string& hdu,
                                        std::string* error);
 
+// A 2-D image read a few rows at a time, for frames too large to keep whole (a 4096 x 4096
+// frame is 128 MiB as doubles): the same screen, HDU choice and checks as ReadFitsImage, the
+// header, BITPIX, HDU, EXTNAME and ADC range at once, the pixels only as asked.
+//
+//   std::unique_ptr<FitsImageStream> stream = FitsImageStream::Open(path, "", &error);
+//   if (!stream) { ... }                                   // one line, names the file
+//   std::vector<double> rows(static_cast<size_t>(stream->nx()) * 64);
+//   stream->ReadRows(0, 64, rows.data(), &error);          // rows 0..63, row after row
+class FitsImageStream {
+ public:
+  // `hdu_selector` as for ReadFitsImage. Null with a one-line reason in *error.
+  static std::unique_ptr<FitsImageStream> Open(const std::string& path,
+                                               const std::string& hdu_selector, std::string* error);
+  ~FitsImageStream();
+  FitsImageStream(const FitsImageStream&) = delete;
+  FitsImageStream& operator=(const FitsImageStream&) = delete;
+
+  int nx() const { return nx_; }
+  int ny() const { return ny_; }
+  // Everything ReadFitsImage returns but the pixels (image().pixels is empty).
+  const FitsImage& image() const { return image_; }
+  // Rows [y_begin, y_begin + rows) into out (rows x nx values, row after row; BZERO/BSCALE
+  // applied, BLANK and NaN pixels NaN). False with a reason for rows outside the image or a
+  // read that fails (a file truncated after it was opened).
+  bool ReadRows(int y_begin, int rows, double* out, std::string* error);
+
+ private:
+  FitsImageStream();
+  struct Opened;
+  std::unique_ptr<Opened> opened_;
+  std::string path_;
+  FitsImage image_;
+  int nx_ = 0, ny_ = 0;
+};
+
 // The HDUs of a file that hold a 2-D image, for picking an amplifier segment.
 struct FitsHduInfo {
   int index = 0;         // 0 = primary, as above
@@ -107,12 +143,16 @@ bool WriteFitsImagesF64(const std::string& path, const FitsHeader& primary_heade
                         const std::vector<FitsImageHdu>& images, std::string* error);
 
 // One column of a binary table: doubles (TFORM 1D) or, when is_integer, 64-bit integers
-// (TFORM 1K, values rounded). All columns of a table have the same length.
+// (TFORM 1K, values rounded); or, when `texts` is not empty, strings (TFORM nA, n the longest
+// text, at least 1; printable ASCII) and `values` is ignored. All columns of a table have the
+// same length.
 struct FitsColumn {
   std::string name;
   std::string unit;
   std::vector<double> values;
   bool is_integer = false;
+  std::vector<std::string> texts;
+  size_t Rows() const { return texts.empty() ? values.size() : texts.size(); }
 };
 
 // Writes an empty primary HDU carrying primary_header and one BINTABLE extension named

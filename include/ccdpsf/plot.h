@@ -200,6 +200,21 @@ bool WriteXyPlot(const std::string& dir, const std::string& stem, const XyPlotIn
                  PlotResult* result, std::string* error,
                  const PlotOptions& options = PlotOptions());
 
+// ---------------------------------------------------------------------------------------------
+// A quantity across the sensor: each fitted spot a filled circle at its frame position
+// (drawn 1-based, as DS9 shows pixels), coloured by its value on a colour bar; spots that
+// were not fitted as grey crosses. Writes STEM_spots.dat, STEM_refused.dat, STEM.gp and the
+// picture. Non-finite values are left out.
+struct SensorMapInput {
+  std::string title, value_label;
+  int nx = 0, ny = 0;               // the frame's size [px]
+  std::vector<double> x, y, value;  // frame coordinates (0-based) [px]
+  std::vector<double> refused_x, refused_y;
+};
+bool WriteSensorMap(const std::string& dir, const std::string& stem, const SensorMapInput& input,
+                    PlotResult* result, std::string* error,
+                    const PlotOptions& options = PlotOptions());
+
 }  // namespace ccdpsf
 
 #endif  // CCDPSF_PLOT_H_

@@ -338,12 +338,13 @@ bool WriteFitReport(const std::string& out_dir, const ExposuresFit& fit, const j
       if (derived_names[j] != "peak_e") derived_kept.push_back(j);
     }
     std::vector<FitsColumn> cols = {
-        {"walker", "", {}, true}, {"step", "", {}, true}, {"log_prob", "", {}, false}};
+        {"walker", "", {}, true, {}}, {"step", "", {}, true, {}}, {"log_prob", "", {}, false, {}}};
     for (int i = 0; i < dim; ++i) {
-      cols.push_back({FitsColumnName(r.names[i]), UnitOfName(r.names[i]), {}, false});
+      cols.push_back({FitsColumnName(r.names[i]), UnitOfName(r.names[i]), {}, false, {}});
     }
     for (size_t j : derived_kept) {
-      cols.push_back({FitsColumnName(derived_names[j]), UnitOfName(derived_names[j]), {}, false});
+      cols.push_back(
+          {FitsColumnName(derived_names[j]), UnitOfName(derived_names[j]), {}, false, {}});
     }
     for (auto& col : cols) col.values.reserve(states);
     for (int step = 0; step < c.num_steps; ++step) {

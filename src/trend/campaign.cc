@@ -51,16 +51,18 @@ Placed Place(InputFile input) {
   const CalibrationOptions& o = p.input.options;
   std::string why;
   const GivenValue* hdu = o.given.Find("hdu");
-  const std::optional<FitsImage> image =
-      hdu != nullptr && hdu->text ? ReadFitsImage(p.input.path, *hdu->text, &why)
-                                  : ReadFitsImage(p.input.path, &why);
+  // The header only (the same screen and HDU choice as reading the pixels): a campaign of
+  // full-sensor frames is placed without holding any of them.
+  const std::unique_ptr<FitsImageStream> image =
+      FitsImageStream::Open(p.input.path, hdu != nullptr && hdu->text ? *hdu->text : "", &why);
   if (!image) {
     p.problem = why;
     return p;
   }
   std::optional<double> value;
   std::string source;
-  if (!ResolveNumber(o.given, o.keywords, image->header, "wavelength_nm", &value, &source, &why)) {
+  if (!ResolveNumber(o.given, o.keywords, image->image().header, "wavelength_nm", &value, &source,
+                     &why)) {
     p.problem = "'" + p.input.path + "': " + why;
     return p;
   }
@@ -71,12 +73,13 @@ Placed Place(InputFile input) {
     return p;
   }
   p.wavelength = *value;
-  if (ResolveNumber(o.given, o.keywords, image->header, "exptime_s", &value, &source, &why) &&
+  if (ResolveNumber(o.given, o.keywords, image->image().header, "exptime_s", &value, &source,
+                    &why) &&
       value) {
     p.exptime = *value;
   }
-  if (ResolveNumber(o.given, o.keywords, image->header, "focus_position_um", &value, &source,
-                    &why) &&
+  if (ResolveNumber(o.given, o.keywords, image->image().header, "focus_position_um", &value,
+                    &source, &why) &&
       value) {
     p.focus = *value;
   }

@@ -20,7 +20,8 @@
 namespace ccdpsf::trend {
 namespace {
 
-GroupResult FitOne(const CampaignGroup& group, int index, const GroupFitOptions& options) {
+GroupResult FitOne(const CampaignGroup& group, int position, int index,
+                   const GroupFitOptions& options) {
   const auto start = std::chrono::steady_clock::now();
   GroupResult out;
   out.group = group;
@@ -45,13 +46,17 @@ GroupResult FitOne(const CampaignGroup& group, int index, const GroupFitOptions&
         "Gaussian defocus), which identifies the CCD widths");
   }
   std::string error;
-  std::vector<InputFile> inputs = group.inputs;
-  if (inputs.empty()) {
-    for (const std::string& f : group.files) inputs.push_back({f, "", config.calibration});
-  }
   ExposureSet set;
-  ExposureSetOptions set_options;
-  if (!LoadExposureSet(inputs, set_options, &set, &error)) return finish(error);
+  if (options.load_exposures) {
+    if (!options.load_exposures(position, &set, &error)) return finish(error);
+  } else {
+    std::vector<InputFile> inputs = group.inputs;
+    if (inputs.empty()) {
+      for (const std::string& f : group.files) inputs.push_back({f, "", config.calibration});
+    }
+    ExposureSetOptions set_options;
+    if (!LoadExposureSet(inputs, set_options, &set, &error)) return finish(error);
+  }
   if (set.exposures.size() == 1) {
     out.warnings.push_back("one exposure only: fitted alone, without the joint constraint");
   }
@@ -161,10 +166,11 @@ std::vector<GroupResult> FitGroups(const std::vector<CampaignGroup>& groups,
       const int i = next.fetch_add(1);
       if (i >= total) return;
       const int g = order[i];
+      const int index = options.seed_indices.empty() ? g : options.seed_indices[g];
       GroupResult r;
       std::string stored;
       if (!options.store_dir.empty()) {
-        stored = options.store_dir + "/" + GroupStoreName(options.run_signature, groups[g], g);
+        stored = options.store_dir + "/" + GroupStoreName(options.run_signature, groups[g], index);
         r.group = groups[g];
         r.resumed = LoadGroupResult(stored, &r);
       }
@@ -174,7 +180,7 @@ std::vector<GroupResult> FitGroups(const std::vector<CampaignGroup>& groups,
           std::error_code ec;
           std::filesystem::remove_all(options.reports_dir + "/" + groups[g].name, ec);
         }
-        r = FitOne(groups[g], g, options);
+        r = FitOne(groups[g], g, index, options);
         std::string error;
         // A group that cannot be stored is only refitted by a resumed run.
         if (!stored.empty() && !SaveGroupResult(stored, r, &error)) r.warnings.push_back(error);

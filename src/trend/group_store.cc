@@ -77,7 +77,7 @@ std::string GroupStoreName(const std::string& run_signature, const CampaignGroup
   return name;
 }
 
-bool SaveGroupResult(const std::string& path, const GroupResult& r, std::string* error) {
+nlohmann::json GroupResultJson(const GroupResult& r) {
   json findings = json::array();
   for (const Finding& f : r.quality.findings) {
     findings.push_back({f.code, static_cast<int>(f.severity), f.message, f.exposure});
@@ -90,29 +90,36 @@ bool SaveGroupResult(const std::string& path, const GroupResult& r, std::string*
     for (double v : values) a.push_back(Num(v));
     draws[name] = a;
   }
-  const json j = {{"format", kFormat},
-                  {"group", r.group.name},
-                  {"ok", r.ok},
-                  {"failure", r.failure},
-                  {"warnings", r.warnings},
-                  {"notes", r.notes},
-                  {"exposures", r.exposures},
-                  {"converged", r.converged},
-                  {"chi2_per_dof", Num(r.chi2_per_dof)},
-                  {"seconds", Num(r.seconds)},
-                  {"report_dir", r.report_dir},
-                  {"findings", findings},
-                  {"peak_e", SummaryToJson(r.peak_e)},
-                  {"summaries", summaries},
-                  {"draws", draws},
-                  {"unbounded_below", r.unbounded_below}};
-  return WriteTextFileAtomically(path, j.dump() + "\n", error);
+  json j = {{"format", kFormat},
+            {"group", r.group.name},
+            {"ok", r.ok},
+            {"failure", r.failure},
+            {"warnings", r.warnings},
+            {"notes", r.notes},
+            {"exposures", r.exposures},
+            {"converged", r.converged},
+            {"chi2_per_dof", Num(r.chi2_per_dof)},
+            {"seconds", Num(r.seconds)},
+            {"report_dir", r.report_dir},
+            {"findings", findings},
+            {"peak_e", SummaryToJson(r.peak_e)},
+            {"summaries", summaries},
+            {"draws", draws},
+            {"unbounded_below", r.unbounded_below}};
+  return j;
+}
+
+bool SaveGroupResult(const std::string& path, const GroupResult& r, std::string* error) {
+  return WriteTextFileAtomically(path, GroupResultJson(r).dump() + "\n", error);
 }
 
 bool LoadGroupResult(const std::string& path, GroupResult* result) {
   std::ifstream in(path);
   if (!in) return false;
-  const json j = json::parse(in, nullptr, /*allow_exceptions=*/false);
+  return GroupResultFromJson(json::parse(in, nullptr, /*allow_exceptions=*/false), result);
+}
+
+bool GroupResultFromJson(const nlohmann::json& j, GroupResult* result) {
   if (!j.is_object() || j.value("format", 0) != kFormat ||
       j.value("group", std::string()) != result->group.name) {
     return false;

@@ -15,6 +15,7 @@
 #include <string>
 #include <vector>
 
+#include "ccdpsf/exposure_set.h"
 #include "ccdpsf/fit/fit.h"
 #include "ccdpsf/fit/fit_config.h"
 #include "ccdpsf/plot.h"
@@ -39,6 +40,13 @@ struct GroupFitOptions {
   // group and files is taken from it instead of being fitted again.
   std::string store_dir;
   std::string run_signature;
+  // Where a group's calibrated exposures come from: empty = LoadExposureSet on its files; set
+  // (e.g. by `grid`, whose stamps are cut from frames already read) = called with the
+  // group's position in `groups`, from the worker threads.
+  std::function<bool(int group, ExposureSet* set, std::string* error)> load_exposures;
+  // The index of each group for its MCMC seed and store key; empty = its position. A shard
+  // of a run fits a subset of its groups with the seeds the whole run gives them.
+  std::vector<int> seed_indices;
 };
 
 struct GroupResult {

@@ -14,12 +14,19 @@
 
 #include "ccdpsf/trend/campaign.h"
 #include "ccdpsf/trend/group_fit.h"
+#include "nlohmann/json.hpp"
 
 namespace ccdpsf::trend {
 
 // The file name (hex hash + ".json") under which group `index` of a run is kept.
 std::string GroupStoreName(const std::string& run_signature, const CampaignGroup& group,
                            int index);
+
+// Everything of `result` but its group, as stored; and back into *result, whose `group` the
+// caller has set (false, result untouched, for another format or group). Also how `grid`'s
+// processes send their results to the first.
+nlohmann::json GroupResultJson(const GroupResult& result);
+bool GroupResultFromJson(const nlohmann::json& j, GroupResult* result);
 
 // Writes everything of `result` but its group (which the caller has). False with a reason.
 bool SaveGroupResult(const std::string& path, const GroupResult& result, std::string* error);
