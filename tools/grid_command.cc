@@ -8,6 +8,7 @@
 #include "ccdpsf/atomic_file.h"
 #include "ccdpsf/grid/grid.h"
 #include "ccdpsf/grid/psf_map.h"
+#include "ccdpsf/grid/spot_relations.h"
 #include "ccdpsf/output_folder.h"
 #include "ccdpsf/plot.h"
 #include "ccdpsf/process_group.h"
@@ -123,6 +124,9 @@ int RunGridCommand(const std::vector<std::string>& inputs) {
   }
   std::vector<trend::CampaignGroup> settings;
   if (!trend::LoadCampaign(inputs, campaign, &settings, &error)) return fatal(error);
+  for (const trend::CampaignGroup& g : settings) {
+    if (!g.problem.empty()) return fatal(g.problem);  // names the file
+  }
   std::vector<std::string> read = inputs;
   for (const trend::CampaignGroup& g : settings) {
     read.insert(read.end(), g.files.begin(), g.files.end());
@@ -173,7 +177,11 @@ int RunGridCommand(const std::vector<std::string>& inputs) {
                         {"threads_per_process", options.fit.parallel_groups},
                         {"seconds", seconds},
                         {"software", SoftwareVersions()}};
-  if (!grid::WritePsfMap(partial, result, have_mcmc, plot, &outputs, &error) ||
+  trend::RelationOptions relation_options;
+  relation_options.seed = options.fit.seed;
+  const std::vector<grid::SpotRelation> relations =
+      grid::FitSpotRelations(result, options.match_radius_px, relation_options);
+  if (!grid::WritePsfMap(partial, result, relations, have_mcmc, plot, &outputs, &error) ||
       !WriteTextFileAtomically(partial + "/run.json", run.dump(2) + "\n", &error) ||
       !WriteRunConfig(partial, options.fit.config, nlohmann::json::object(), &error) ||
       !out.Commit({kStore}, &error)) {

@@ -12,6 +12,7 @@ from pathlib import Path
 from .diagnose_result import read_diagnose
 from .errors import RunError
 from .fit_result import fit_subfolders, read_fit
+from .grid_result import read_grid
 from .trend_result import read_trend
 
 
@@ -82,7 +83,7 @@ def run(command, *files, out=None, binary=None, echo=False, timeout=None, **opti
     timeout: seconds, then the run is killed (subprocess.TimeoutExpired).
 
     Returns: fit -> FitResult (several files without --joint: dict subfolder name ->
-    FitResult); trend -> TrendResult; diagnose -> Diagnosis; other commands -> the output
+    FitResult); trend -> TrendResult; diagnose -> Diagnosis; grid -> GridResult; other commands -> the output
     folder as a Path (or stdout's text without out). Raises RunError (exit_code, message,
     stderr) when ccdpsf exits non-zero.
     """
@@ -129,6 +130,8 @@ def run(command, *files, out=None, binary=None, echo=False, timeout=None, **opti
         return {p.name: read_fit(p) for p in fit_subfolders(out)}
     if command == "trend":
         return read_trend(out)
+    if command == "grid":
+        return read_grid(out)
     if command == "diagnose":
         return read_diagnose(out)
     return out

@@ -15,6 +15,8 @@ from astropy.table import Table
 
 import ccdpsf
 
+from conftest import REPO_DIR
+
 # fit.json holds doubles printed to round-trip exactly, chain.fits holds the same doubles; the
 # interpolation formula differs from numpy's only in rounding: a few ulps.
 SUMMARY_RTOL = 1e-12
@@ -137,3 +139,26 @@ def test_trend_tables_match_trend_json(real_trend_folder):
     np.testing.assert_allclose(cpp_percentile(flat[:, i], 0.5),
                                group_summary["parameters"]["airy_radius_px"]["median"],
                                rtol=SUMMARY_RTOL)
+
+
+def test_run_grid_reads_the_map_with_units(ccdpsf_binary, tmp_path):
+    """A 512 x 512 pair of frames with a 2 x 2 grid by the independent script
+    (tests/support/grid_frames.py): read_grid's QTables against psf_map.csv as plain text."""
+    import subprocess
+    import sys
+    frames = tmp_path / "frames"
+    subprocess.run([sys.executable, str(REPO_DIR / "tests/support/grid_frames.py"), str(frames),
+                    "--size", "512", "--grid", "2", "--exposures", "2", "--no_extras"],
+                   check=True, capture_output=True)
+    grid = ccdpsf.run("grid", *sorted(frames.glob("frame_*.fits")), out=tmp_path / "grid",
+                      mcmc=False, binary=ccdpsf_binary)
+    assert isinstance(grid, ccdpsf.GridResult)
+    assert len(grid.psf_map) == 4 and len(grid.ok) == 4
+    assert grid.psf_map["total_fwhm_um"].unit == u.um
+    assert grid.psf_map["x_px"].unit == u.pix
+    assert "Laplace" in grid.interval
+    plain = Table.read(tmp_path / "grid" / "psf_map.csv", format="ascii.csv")
+    np.testing.assert_array_equal(grid.psf_map["total_fwhm_um"].value, plain["total_fwhm_um"])
+    assert list(grid.psf_map["verdict"]) == list(plain["verdict"])
+    assert len(grid.catalogue) == 8  # four spots in each of two frames
+    assert grid.relations is None    # one setting: no relations across settings

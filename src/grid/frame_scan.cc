@@ -187,17 +187,17 @@ bool ScanFrame(const std::string& path, const CalibrationOptions& calibration,
           } else if (s.single_pixel_fraction > options.max_single_pixel_fraction) {
             s.refused = "single_pixel";
             s.reason = Format(
-                "single pixel: %.0f %% of its 3 x 3 core signal is in its peak "
+                "%.0f %% of its 3 x 3 core signal is in its peak "
                 "pixel (a hot pixel or a cosmic-ray hit; a spot holds < %.0f %%)",
                 100.0 * s.single_pixel_fraction, 100.0 * options.max_single_pixel_fraction, 0);
           } else if (!c.compact) {
             s.refused = "extended";
-            s.reason = Format("extended: size %.2f px, elongation %.2f, core fraction %.2f",
-                              c.size_px, c.elongation, c.core_fraction);
+            s.reason = Format("size %.2f px, elongation %.2f, core fraction %.2f", c.size_px,
+                              c.elongation, c.core_fraction);
           } else if (!c.isolated) {
             s.refused = "crowded";
             s.reason = Format(
-                "crowded: other light 4-7 px from its peak (%.0f %% of its core "
+                "other light 4-7 px from its peak (%.0f %% of its core "
                 "signal; at most %.0f %% allowed)",
                 100.0 * c.surround_fraction, 100.0 * finder.max_surround, 0);
           }

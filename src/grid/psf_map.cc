@@ -136,7 +136,8 @@ const std::vector<std::string>& PsfMapMetrics() {
   return names;
 }
 
-bool WritePsfMap(const std::string& dir, const GridResult& result, bool have_mcmc,
+bool WritePsfMap(const std::string& dir, const GridResult& result,
+                 const std::vector<SpotRelation>& relations, bool have_mcmc,
                  const PlotOptions& plot, PsfMapOutputs* outputs, std::string* error) {
   const std::string interval =
       have_mcmc ? "posterior median, central 68 % (MCMC)" : "MAP +- Laplace sd (--nomcmc)";
@@ -305,6 +306,66 @@ bool WritePsfMap(const std::string& dir, const GridResult& result, bool have_mcm
       if (!WriteSensorMap(dir + "/plots", stem, in, &made, error, plot)) return false;
       if (!made.image_written) outputs->warnings.push_back(made.message);
     }
+  }
+  if (relations.empty()) return true;
+
+  // Relations per spot across the settings.
+  Table rel;
+  SensorMapInput alpha_map;
+  alpha_map.nx = result.frames[0].empty() ? 0 : result.frames[0][0].nx;
+  alpha_map.ny = result.frames[0].empty() ? 0 : result.frames[0][0].ny;
+  alpha_map.value_label = "alpha of the identified FWHM";
+  alpha_map.title = "alpha of total_fwhm_um = a lambda^alpha per spot (median)";
+  for (const SpotRelation& r : relations) {
+    rel.Add("track", r.track, true);
+    rel.Add("x_px", r.x_px);
+    rel.Add("y_px", r.y_px);
+    rel.AddText("metric", r.metric);
+    rel.AddText("relation", trend::RelationName(r.metric, r.kind));
+    rel.Add("wavelength_nm", r.wavelength_nm);
+    std::string spots;
+    for (int s : r.spots) spots += (spots.empty() ? "" : " ") + std::to_string(s);
+    rel.AddText("spots", spots);
+    rel.Add("n_points", static_cast<double>(r.fit.points.size()), true);
+    rel.Add("n_gaps", static_cast<double>(r.fit.gaps.size()), true);
+    const bool power = r.kind == trend::RelationKind::kPowerLaw;
+    for (const char* name : {"alpha", "slope_per_e", "value_at_pivot"}) {
+      const std::string key = std::string(name) == "slope_per_e" ? "slope" : name;
+      const trend::Coefficient* c = r.fit.Find(key);
+      const bool here = c != nullptr && (key == "value_at_pivot" || (key == "alpha") == power);
+      rel.Add(name, here ? c->estimate.median : kNaN);
+      rel.Add(std::string(name) + "_lo68", here ? c->estimate.lo68 : kNaN);
+      rel.Add(std::string(name) + "_hi68", here ? c->estimate.hi68 : kNaN);
+    }
+    rel.Add("pivot", r.fit.pivot);
+    rel.Add("chi2_per_dof", r.fit.dof > 0 ? r.fit.chi2 / r.fit.dof : kNaN);
+    std::string flags;
+    for (const trend::RelationFlag& f : r.fit.flags) flags += (flags.empty() ? "" : " ") + f.code;
+    rel.AddText("flags", flags);
+    if (power && r.metric == "total_fwhm_um") {
+      const trend::Coefficient* alpha = r.fit.Find("alpha");
+      if (r.fit.fitted && alpha != nullptr && std::isfinite(alpha->estimate.median)) {
+        alpha_map.x.push_back(r.x_px);
+        alpha_map.y.push_back(r.y_px);
+        alpha_map.value.push_back(alpha->estimate.median);
+      } else {
+        alpha_map.refused_x.push_back(r.x_px);
+        alpha_map.refused_y.push_back(r.y_px);
+      }
+    }
+  }
+  if (!WriteTable(dir, "spot_relations", "SPOT_RELATIONS", rel,
+                  {{"PIVOTWL", trend::kReferenceWavelengthNm, "power-law pivot [nm]"},
+                   {"PIVOTI", trend::kReferenceIntensityE, "linear pivot [e-]"}},
+                  outputs, error)) {
+    return false;
+  }
+  if (!alpha_map.x.empty() && alpha_map.nx > 0) {
+    PlotResult made;
+    if (!WriteSensorMap(dir + "/plots", "map_alpha_total_fwhm_um", alpha_map, &made, error, plot)) {
+      return false;
+    }
+    if (!made.image_written) outputs->warnings.push_back(made.message);
   }
   return true;
 }

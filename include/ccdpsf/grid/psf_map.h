@@ -9,6 +9,9 @@
 //   map_total_fwhm.png, map_total_ellipticity.png (and the CCD widths' maps for
 //                                through-focus settings): the metrics across the sensor
 //   segments.csv                 per setting and segment: spots fitted, median metrics
+//   spot_relations.fits / .csv   campaigns of several settings: each spot's relations with
+//                                wavelength and intensity (spot_relations.h), and a map of
+//                                alpha of the identified FWHM across the sensor
 //
 // Metric columns carry the posterior median and central 68 % interval (MCMC), or, with
 // --nomcmc, the MAP +- its Laplace sd (header keyword INTERVAL says which). total_* are the
@@ -22,6 +25,7 @@
 #include <vector>
 
 #include "ccdpsf/grid/grid.h"
+#include "ccdpsf/grid/spot_relations.h"
 #include "ccdpsf/plot.h"
 
 namespace ccdpsf::grid {
@@ -35,7 +39,8 @@ struct PsfMapOutputs {
 const std::vector<std::string>& PsfMapMetrics();
 
 // Writes everything above into `dir`. False with a reason when a file cannot be written.
-bool WritePsfMap(const std::string& dir, const GridResult& result, bool have_mcmc,
+bool WritePsfMap(const std::string& dir, const GridResult& result,
+                 const std::vector<SpotRelation>& relations, bool have_mcmc,
                  const PlotOptions& plot, PsfMapOutputs* outputs, std::string* error);
 
 }  // namespace ccdpsf::grid

@@ -1,0 +1,313 @@
+// `ccdpsf grid` on full frames it did not make: spot grids photon-shot by the independent
+// scripts tests/support/grid_frames.py (reference_sensor.py's physics; numpy and astropy, no
+// ccdpsf code) with known, smoothly varying CCD widths, a crowded pair and an edge spot.
+#include "ccdpsf/grid/grid.h"
+
+#include <cmath>
+#include <fstream>
+#include <map>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "ccdpsf/trend/campaign.h"
+#include "gtest/gtest.h"
+#include "support/run_ccdpsf.h"
+#include "support/slow_test.h"
+
+namespace ccdpsf {
+namespace {
+
+using testing_support::FreshDir;
+using testing_support::RunCcdpsf;
+using testing_support::RunResult;
+using testing_support::Shell;
+
+// Frames of a grid written by the independent script, once per process and shape.
+std::string GridFrames(const std::string& name, const std::string& options) {
+  static std::map<std::string, std::string> made;
+  auto it = made.find(name);
+  if (it != made.end()) return it->second;
+  const std::string dir = FreshDir("grid_frames", name) + "/frames";
+  std::string output;
+  const int code = Shell("/usr/bin/python3 " + std::string(CCDPSF_SOURCE_DIR) +
+                             "/tests/support/grid_frames.py " + dir + " " + options,
+                         &output);
+  EXPECT_EQ(code, 0) << output;
+  made[name] = dir;
+  return dir;
+}
+
+std::string Frames(const std::string& dir, int n) {
+  std::string files;
+  for (int k = 0; k < n; ++k) {
+    char name[32];
+    std::snprintf(name, sizeof(name), "/frame_%03d.fits", k);
+    files += " " + dir + name;
+  }
+  return files;
+}
+
+// A CSV file as rows of named cells (RFC 4180 quoting: the reason column holds commas).
+using Row = std::map<std::string, std::string>;
+std::vector<Row> ReadCsv(const std::string& path) {
+  std::ifstream in(path);
+  std::stringstream text;
+  text << in.rdbuf();
+  const std::string s = text.str();
+  std::vector<std::vector<std::string>> records(1, std::vector<std::string>(1));
+  bool quoted = false;
+  for (size_t i = 0; i < s.size(); ++i) {
+    const char c = s[i];
+    if (quoted) {
+      if (c == '"' && i + 1 < s.size() && s[i + 1] == '"') {
+        records.back().back() += '"';
+        ++i;
+      } else if (c == '"') {
+        quoted = false;
+      } else {
+        records.back().back() += c;
+      }
+    } else if (c == '"') {
+      quoted = true;
+    } else if (c == ',') {
+      records.back().emplace_back();
+    } else if (c == '\n') {
+      records.emplace_back(1);
+    } else {
+      records.back().back() += c;
+    }
+  }
+  while (!records.empty() && records.back().size() == 1 && records.back()[0].empty()) {
+    records.pop_back();
+  }
+  std::vector<Row> rows;
+  for (size_t r = 1; r < records.size(); ++r) {
+    EXPECT_EQ(records[r].size(), records[0].size()) << path << " record " << r;
+    Row row;
+    for (size_t c = 0; c < records[0].size() && c < records[r].size(); ++c) {
+      row[records[0][c]] = records[r][c];
+    }
+    rows.push_back(std::move(row));
+  }
+  return rows;
+}
+
+double Number(const Row& row, const std::string& name) {
+  const auto it = row.find(name);
+  return it == row.end() || it->second.empty() ? NAN : std::stod(it->second);
+}
+
+// Pulls of the identified widths against the truth, for every spot with verdict ok: the
+// truth spot nearest each map row (grid spots are hundreds of pixels apart; the centroid is
+// within 0.1 px of the truth). Returns the pulls, (fit - truth) / half the 68 % interval.
+std::vector<double> Pulls(const std::vector<Row>& map, const std::vector<Row>& truth,
+                          int* ok_spots) {
+  std::vector<double> pulls;
+  *ok_spots = 0;
+  for (const Row& r : map) {
+    if (r.at("verdict") != "ok") continue;
+    ++*ok_spots;
+    const Row* best = nullptr;
+    double best_d = INFINITY;
+    for (const Row& t : truth) {
+      const double d =
+          std::hypot(Number(t, "x_px") - Number(r, "x_px"), Number(t, "y_px") - Number(r, "y_px"));
+      if (d < best_d) best_d = d, best = &t;
+    }
+    EXPECT_LT(best_d, 0.5) << "spot " << r.at("spot");
+    EXPECT_EQ(best->at("kind"), "grid") << "spot " << r.at("spot");
+    for (const char* m : {"total_sigma_x_px", "total_sigma_y_px", "total_fwhm_um"}) {
+      const std::string name = m;
+      const double half = 0.5 * (Number(r, name + "_hi68") - Number(r, name + "_lo68"));
+      EXPECT_GT(half, 0.0) << name;
+      pulls.push_back((Number(r, name) - Number(*best, name)) / half);
+    }
+  }
+  return pulls;
+}
+
+// A 1024 x 1024 frame pair with a 3 x 3 grid: every grid spot fitted and holding the truth,
+// the crowded pair and the edge spot refused with their reasons, valid FITS tables.
+TEST(Grid, SmallGridHoldsTheTruthAndRefusesCrowdedAndEdgeSpots) {
+  const std::string frames = GridFrames("small", "--size 1024 --grid 3 --exposures 2 --seed 5");
+  const std::string out = FreshDir("Grid", "small") + "/out";
+  const RunResult r = RunCcdpsf("grid --nomcmc --out=" + out + Frames(frames, 2));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("grid of 12 spots in 1 setting(s): 9 fitted (9 ok), 3 not fitted "
+                          "(2 crowded, 1 edge)"),
+            std::string::npos)
+      << r.output;
+  const std::vector<Row> map = ReadCsv(out + "/psf_map.csv");
+  const std::vector<Row> truth = ReadCsv(frames + "/truth.csv");
+  ASSERT_EQ(map.size(), 12u);
+  int crowded = 0, edge = 0;
+  for (const Row& row : map) {
+    if (row.at("verdict") != "refused") continue;
+    const std::string& reason = row.at("reason");
+    crowded += reason.rfind("crowded: other light 4-7 px", 0) == 0;
+    edge += reason.rfind("edge: its 21 x 21 stamp does not fit", 0) == 0;
+    EXPECT_TRUE(std::isnan(Number(row, "total_fwhm_um"))) << "a refused spot has no numbers";
+  }
+  EXPECT_EQ(crowded, 2);
+  EXPECT_EQ(edge, 1);
+  int ok = 0;
+  const std::vector<double> pulls = Pulls(map, truth, &ok);
+  EXPECT_EQ(ok, 9);
+  // 27 pulls of Laplace intervals on exact-model data: each Gaussian, P(|z| > 4) = 6e-5.
+  for (double p : pulls) EXPECT_LT(std::fabs(p), 4.0);
+
+  // The catalogue: every source of both frames, the fittable ones and the refused.
+  const std::vector<Row> catalogue = ReadCsv(out + "/catalogue.csv");
+  EXPECT_EQ(catalogue.size(), 24u);
+  // Valid FITS for astropy, TOPCAT and DS9; the regions hold one circle per spot.
+  for (const char* table : {"psf_map.fits", "catalogue.fits"}) {
+    std::string said;
+    EXPECT_EQ(Shell("fitsverify -q " + out + "/" + table, &said), 0) << said;
+    EXPECT_NE(said.find("verification OK"), std::string::npos) << said;
+  }
+  std::ifstream reg(out + "/spots.reg");
+  std::string line;
+  int circles = 0;
+  while (std::getline(reg, line)) circles += line.rfind("circle(", 0) == 0;
+  EXPECT_EQ(circles, 12);
+}
+
+// The shards of a run merge to the run on one process, number for number: each process fits
+// spots i % size == rank with spot i's seed, and the first puts the results together. Here
+// the two "processes" run one after the other in this test, and the gather hands the first
+// one the second's results; MCMC on, so that the seeds matter.
+TEST(Grid, ShardsMergeToTheRunOnOneProcess) {
+  const std::string frames = GridFrames("small", "--size 1024 --grid 3 --exposures 2 --seed 5");
+  std::vector<trend::CampaignGroup> settings;
+  std::string error;
+  ASSERT_TRUE(trend::LoadCampaign({frames + "/frame_000.fits", frames + "/frame_001.fits"},
+                                  &settings, &error))
+      << error;
+  ASSERT_EQ(settings.size(), 1u);
+  grid::GridOptions options;
+  options.fit.config.fit.mcmc.max_steps = 300;  // short chains: equality, not accuracy
+  options.fit.config.fit.mcmc.target_ess = 50;
+  options.fit.parallel_groups = 2;
+  options.fit.draws = 50;
+  grid::GridResult one;
+  ASSERT_TRUE(grid::RunGrid(settings, options, &one, &error)) << error;
+
+  std::string second_text;
+  grid::GridResult second, first;
+  options.size = 2;
+  options.rank = 1;
+  options.fit.parallel_groups = 1;  // and another thread count
+  options.gather = [&](const std::string& text) {
+    second_text = text;
+    return std::vector<std::string>{};
+  };
+  ASSERT_TRUE(grid::RunGrid(settings, options, &second, &error)) << error;
+  options.rank = 0;
+  options.gather = [&](const std::string& text) {
+    return std::vector<std::string>{text, second_text};
+  };
+  ASSERT_TRUE(grid::RunGrid(settings, options, &first, &error)) << error;
+
+  ASSERT_EQ(first.spots.size(), one.spots.size());
+  int fitted = 0;
+  for (size_t i = 0; i < one.spots.size(); ++i) {
+    const grid::SpotEntry& a = one.spots[i];
+    const grid::SpotEntry& b = first.spots[i];
+    EXPECT_EQ(a.spot, b.spot);
+    EXPECT_EQ(a.where.x_px, b.where.x_px);
+    EXPECT_EQ(a.where.refused, b.where.refused);
+    ASSERT_EQ(a.fitted, b.fitted);
+    if (!a.fitted) continue;
+    ++fitted;
+    EXPECT_TRUE(a.fit.ok) << a.fit.failure;
+    EXPECT_EQ(a.fit.chi2_per_dof, b.fit.chi2_per_dof);
+    ASSERT_EQ(a.fit.summaries.size(), b.fit.summaries.size());
+    for (const auto& [name, s] : a.fit.summaries) {
+      const fit::Summary& t = b.fit.summaries.at(name);
+      // Bit for bit (NaN where both lack the number).
+      for (auto [x, y] : {std::pair{s.map, t.map},
+                          {s.median, t.median},
+                          {s.lo68, t.lo68},
+                          {s.hi68, t.hi68},
+                          {s.laplace_sd, t.laplace_sd}}) {
+        EXPECT_TRUE(x == y || (std::isnan(x) && std::isnan(y))) << name << " spot " << i;
+      }
+    }
+  }
+  EXPECT_EQ(fitted, 9);
+  // The second shard alone holds only its own spots (odd indices).
+  for (const grid::SpotEntry& e : second.spots) EXPECT_EQ(e.spot % 2, 1);
+}
+
+// Two MPI processes write the same psf_map as one process, byte for byte.
+TEST(Grid, MpirunWithTwoProcessesWritesTheSameMap) {
+  CCDPSF_RELEASE_ONLY();
+  std::string said;
+  if (Shell("command -v mpirun", &said) != 0) GTEST_SKIP() << "mpirun not installed";
+  const std::string frames = GridFrames("small", "--size 1024 --grid 3 --exposures 2 --seed 5");
+  const std::string dir = FreshDir("Grid", "mpirun");
+  const std::string common = " --target_ess=100" + Frames(frames, 2);
+  const RunResult one = RunCcdpsf("grid --out=" + dir + "/one --threads=2" + common);
+  ASSERT_EQ(one.exit_code, 0) << one.output;
+  // Root may run mpirun only when told so; the container's 2 cores are its 2 slots.
+  const std::string mpirun =
+      "OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 "
+      "OMPI_MCA_rmaps_base_oversubscribe=1 mpirun -np 2 " CCDPSF_BINARY " grid --out=" +
+      dir + "/two --threads=1" + common + " 2>&1";
+  std::string output;
+  ASSERT_EQ(Shell(mpirun, &output), 0) << output;
+  EXPECT_NE(output.find("[process 1]"), std::string::npos) << output;
+  for (const char* file : {"psf_map.fits", "psf_map.csv", "catalogue.csv"}) {
+    std::string diff;
+    EXPECT_EQ(Shell("cmp " + dir + "/one/" + file + " " + dir + "/two/" + file, &diff), 0)
+        << file << ": " << diff;
+  }
+}
+
+// The issue's case: 4096 x 4096 frames, a 7 x 7 grid whose CCD widths vary across the
+// sensor, three exposures: all 49 spots fitted, the map holds the truth within its intervals,
+// the crowded pair and the edge spot refused.
+TEST(Grid, FullSensorGridHoldsTheTruth) {
+  CCDPSF_RELEASE_ONLY();
+  const std::string frames = GridFrames("full", "--size 4096 --grid 7 --exposures 3 --seed 1");
+  const std::string out = FreshDir("Grid", "full") + "/out";
+  const RunResult r = RunCcdpsf("grid --nomcmc --out=" + out + Frames(frames, 3));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("49 fitted (49 ok), 3 not fitted (2 crowded, 1 edge)"), std::string::npos)
+      << r.output;
+  int ok = 0;
+  const std::vector<double> pulls =
+      Pulls(ReadCsv(out + "/psf_map.csv"), ReadCsv(frames + "/truth.csv"), &ok);
+  EXPECT_EQ(ok, 49);
+  ASSERT_EQ(pulls.size(), 147u);
+  int inside = 0;
+  for (double p : pulls) {
+    inside += std::fabs(p) <= 1.0;
+    EXPECT_LT(std::fabs(p), 4.5);  // 147 Gaussian pulls: P(any beyond 4.5) = 1e-3
+  }
+  // 68.3 % intervals: 100 of 147 expected inside; the three metrics of a spot are strongly
+  // correlated (total FWHM is the geometric mean of the widths), so the count varies more
+  // than a binomial's sd of 5.6: accept 3 binomial sds of the 98 independent width pulls,
+  // scaled to 147, i.e. 100 +- 21.
+  EXPECT_GE(inside, 79);
+  EXPECT_LE(inside, 121);
+}
+
+TEST(Grid, BadInputIsAOneLineError) {
+  const std::string dir = FreshDir("Grid", "bad");
+  RunResult r = RunCcdpsf("grid " + dir);
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  EXPECT_NE(r.output.find("grid needs --out=DIR"), std::string::npos) << r.output;
+  r = RunCcdpsf("grid --out=" + dir + "/o --spot_x_px=3 x.fits");
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  std::ofstream(dir + "/not.fits") << "this is not FITS";
+  r = RunCcdpsf("grid --out=" + dir + "/o --wavelength_nm=800 --gain_e_per_adu=1 " + dir +
+                "/not.fits");
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  EXPECT_NE(r.output.find("not.fits"), std::string::npos) << r.output;
+  EXPECT_EQ(std::count(r.output.begin(), r.output.end(), '\n'), 1) << r.output;
+}
+
+}  // namespace
+}  // namespace ccdpsf
