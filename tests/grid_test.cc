@@ -4,6 +4,7 @@
 #include "ccdpsf/grid/grid.h"
 
 #include <cmath>
+#include <filesystem>
 #include <fstream>
 #include <map>
 #include <sstream>
@@ -19,6 +20,7 @@ namespace ccdpsf {
 namespace {
 
 using testing_support::FreshDir;
+using testing_support::RunAndKill;
 using testing_support::RunCcdpsf;
 using testing_support::RunResult;
 using testing_support::Shell;
@@ -292,6 +294,39 @@ TEST(Grid, FullSensorGridHoldsTheTruth) {
   // scaled to 147, i.e. 100 +- 21.
   EXPECT_GE(inside, 79);
   EXPECT_LE(inside, 121);
+}
+
+// A killed grid keeps the spots it had finished: --resume fits only the others and writes
+// the same map as an uninterrupted run.
+TEST(Grid, AKilledGridResumesWithItsFinishedSpots) {
+  CCDPSF_RELEASE_ONLY();  // three MCMC runs over nine spots
+  const std::string frames = GridFrames("small", "--size 1024 --grid 3 --exposures 2 --seed 5");
+  const std::string dir = FreshDir("Grid", "resume");
+  const std::string options = " --threads=1 --target_ess=100" + Frames(frames, 2);
+  ASSERT_EQ(RunCcdpsf("grid --out=" + dir + "/whole" + options).exit_code, 0);
+  const std::string store = dir + "/.killed.ccdpsf-partial/store";
+  auto finished = [&] {
+    int n = 0;
+    std::error_code ec;
+    for (const auto& e : std::filesystem::directory_iterator(store, ec)) {
+      n += e.path().extension() == ".json";
+    }
+    return n >= 3;
+  };
+  ASSERT_TRUE(RunAndKill("grid --out=" + dir + "/killed" + options, finished));
+  const RunResult r = RunCcdpsf("grid --resume --out=" + dir + "/killed" + options);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  int kept = 0;
+  for (size_t at = 0; (at = r.output.find("kept from an earlier run", at)) != std::string::npos;
+       ++at) {
+    ++kept;
+  }
+  EXPECT_GE(kept, 3) << r.output;
+  EXPECT_LT(kept, 9) << r.output;
+  std::string diff;
+  EXPECT_EQ(Shell("cmp " + dir + "/whole/psf_map.fits " + dir + "/killed/psf_map.fits", &diff), 0)
+      << diff;
+  EXPECT_FALSE(std::filesystem::exists(dir + "/killed/store"));
 }
 
 TEST(Grid, BadInputIsAOneLineError) {

@@ -24,6 +24,7 @@ namespace {
 namespace fs = std::filesystem;
 using testing_support::DemoSet;
 using testing_support::FreshDir;
+using testing_support::RunAndKill;
 using testing_support::RunCcdpsf;
 using testing_support::RunResult;
 
@@ -32,27 +33,6 @@ std::string Bytes(const std::string& path) {
   std::stringstream s;
   s << in.rdbuf();
   return s.str();
-}
-
-// Starts `ccdpsf args` (output discarded), waits until `ready()` holds, then kills it with
-// SIGKILL: nothing of the process runs after, as when a machine or a scheduler kills a job.
-// False if the run ended before `ready()` held (the kill then tests nothing).
-bool RunAndKill(const std::string& args, const std::function<bool()>& ready) {
-  const pid_t pid = ::fork();
-  if (pid == 0) {
-    const std::string command = "exec " + std::string(CCDPSF_BINARY) + " " + args +
-                                " > /dev/null 2>&1";
-    ::execl("/bin/sh", "sh", "-c", command.c_str(), static_cast<char*>(nullptr));
-    ::_exit(127);
-  }
-  int status = 0;
-  while (!ready()) {
-    if (::waitpid(pid, &status, WNOHANG) == pid) return false;
-    std::this_thread::sleep_for(std::chrono::milliseconds(20));
-  }
-  ::kill(pid, SIGKILL);
-  ::waitpid(pid, &status, 0);
-  return WIFSIGNALED(status) && WTERMSIG(status) == SIGKILL;
 }
 
 TEST(Resume, AKilledFitResumesToTheChainOfAnUninterruptedRun) {

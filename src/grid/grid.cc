@@ -64,6 +64,30 @@ bool CalibrateSpot(const trend::CampaignGroup& setting, const std::vector<Scanne
   return true;
 }
 
+// Every spot of setting `s`, numbered from *next_spot on; a fitted one's result is named.
+std::vector<SpotEntry> SettingSpots(const std::vector<trend::CampaignGroup>& settings, int s,
+                                    const std::vector<ScannedFrame>& frames, double radius,
+                                    int* next_spot) {
+  std::string segment = frames.empty() ? "" : frames[0].extname;
+  if (segment.empty() && !frames.empty()) segment = std::to_string(frames[0].hdu_number - 1);
+  std::vector<SpotEntry> entries;
+  for (const GridSpot& spot : MatchSpots(frames, radius)) {
+    SpotEntry entry;
+    entry.setting = s;
+    entry.spot = (*next_spot)++;
+    entry.where = spot;
+    entry.segment = segment;
+    entry.fitted = spot.refused.empty();
+    if (entry.fitted) {
+      entry.fit.group = settings[s];
+      entry.fit.group.name = SpotName(settings[s], entry.spot);
+      entry.fit.group.problem.clear();
+    }
+    entries.push_back(std::move(entry));
+  }
+  return entries;
+}
+
 }  // namespace
 
 bool RunGrid(const std::vector<trend::CampaignGroup>& settings, const GridOptions& options,
@@ -91,27 +115,15 @@ bool RunGrid(const std::vector<trend::CampaignGroup>& settings, const GridOption
                          std::to_string(fittable) + " compact and isolated");
       }
     }
-    const std::vector<GridSpot> spots = MatchSpots(frames, options.match_radius_px);
-    std::string segment = frames.empty() ? "" : frames[0].extname;
-    if (segment.empty() && !frames.empty()) segment = std::to_string(frames[0].hdu_number - 1);
-
-    // This process's fittable spots of the setting, as trend groups.
+    // This process's spots of the setting; the fittable ones as trend groups.
     std::vector<trend::CampaignGroup> groups;
     std::vector<int> group_spot, seeds;
     std::vector<SpotEntry> entries;
-    for (const GridSpot& spot : spots) {
-      SpotEntry entry;
-      entry.setting = static_cast<int>(s);
-      entry.spot = next_spot++;
-      entry.where = spot;
-      entry.segment = segment;
-      entry.fitted = spot.refused.empty();
+    for (SpotEntry& entry :
+         SettingSpots(settings, static_cast<int>(s), frames, options.match_radius_px, &next_spot)) {
       if (entry.spot % options.size != options.rank) continue;
       if (entry.fitted) {
-        trend::CampaignGroup g = setting;
-        g.name = SpotName(setting, entry.spot);
-        g.problem.clear();
-        groups.push_back(std::move(g));
+        groups.push_back(entry.fit.group);
         group_spot.push_back(static_cast<int>(entries.size()));
         seeds.push_back(entry.spot);
       }
@@ -171,21 +183,8 @@ bool RunGrid(const std::vector<trend::CampaignGroup>& settings, const GridOption
   std::vector<SpotEntry> every;
   int spot_index = 0;
   for (size_t s = 0; s < settings.size(); ++s) {
-    const std::vector<ScannedFrame>& frames = result->frames[s];
-    const std::vector<GridSpot> spots = MatchSpots(frames, options.match_radius_px);
-    std::string segment = frames.empty() ? "" : frames[0].extname;
-    if (segment.empty() && !frames.empty()) segment = std::to_string(frames[0].hdu_number - 1);
-    for (const GridSpot& spot : spots) {
-      SpotEntry entry;
-      entry.setting = static_cast<int>(s);
-      entry.spot = spot_index++;
-      entry.where = spot;
-      entry.segment = segment;
-      entry.fitted = spot.refused.empty();
-      if (entry.fitted) {
-        entry.fit.group = settings[s];
-        entry.fit.group.name = SpotName(settings[s], entry.spot);
-      }
+    for (SpotEntry& entry : SettingSpots(settings, static_cast<int>(s), result->frames[s],
+                                         options.match_radius_px, &spot_index)) {
       every.push_back(std::move(entry));
     }
   }

@@ -95,6 +95,16 @@ std::vector<SpotRelation> FitSpotRelations(const GridResult& result, double matc
   }
   const std::vector<std::vector<int>> tracks = Tracks(result, match_radius_px);
   uint64_t stream = 0;
+  // Relation k's resamplings from DeriveSeed(seed, k); kept when the options are valid.
+  auto fit_and_keep = [&](SpotRelation r, const std::vector<trend::RelationPoint>& points) {
+    trend::RelationOptions o = options;
+    o.seed = DeriveSeed(options.seed, stream++);
+    std::string error;
+    std::optional<trend::RelationFit> fit = trend::FitRelation(r.kind, points, o, &error);
+    if (!fit) return;
+    r.fit = std::move(*fit);
+    out.push_back(std::move(r));
+  };
   for (int t = 0; t < static_cast<int>(tracks.size()); ++t) {
     const std::vector<int>& track = tracks[t];
     const SpotEntry* first = nullptr;
@@ -127,14 +137,7 @@ std::vector<SpotRelation> FitSpotRelations(const GridResult& result, double matc
           points.push_back(Point(result, e, metric, result.settings[best].wavelength_nm));
           r.spots.push_back(e.spot);
         }
-        trend::RelationOptions o = options;
-        o.seed = DeriveSeed(options.seed, stream++);
-        std::string error;
-        std::optional<trend::RelationFit> fit = trend::FitRelation(r.kind, points, o, &error);
-        if (fit) {
-          r.fit = std::move(*fit);
-          out.push_back(std::move(r));
-        }
+        fit_and_keep(std::move(r), points);
       }
       // vs intensity, at each wavelength with two or more settings.
       for (const auto& [key, settings] : by_wavelength) {
@@ -153,14 +156,7 @@ std::vector<SpotRelation> FitSpotRelations(const GridResult& result, double matc
           points.push_back(Point(result, e, metric, PeakE(e)));
           r.spots.push_back(e.spot);
         }
-        trend::RelationOptions o = options;
-        o.seed = DeriveSeed(options.seed, stream++);
-        std::string error;
-        std::optional<trend::RelationFit> fit = trend::FitRelation(r.kind, points, o, &error);
-        if (fit) {
-          r.fit = std::move(*fit);
-          out.push_back(std::move(r));
-        }
+        fit_and_keep(std::move(r), points);
       }
     }
   }

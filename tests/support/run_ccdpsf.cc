@@ -1,11 +1,14 @@
 #include "support/run_ccdpsf.h"
 
+#include <signal.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <chrono>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <thread>
 
 #include "gtest/gtest.h"
 
@@ -58,6 +61,24 @@ const std::string& DemoSet() {
     return d;
   }();
   return dir;
+}
+
+bool RunAndKill(const std::string& args, const std::function<bool()>& ready) {
+  const pid_t pid = ::fork();
+  if (pid == 0) {
+    const std::string command =
+        "exec " + std::string(CCDPSF_BINARY) + " " + args + " > /dev/null 2>&1";
+    ::execl("/bin/sh", "sh", "-c", command.c_str(), static_cast<char*>(nullptr));
+    ::_exit(127);
+  }
+  int status = 0;
+  while (!ready()) {
+    if (::waitpid(pid, &status, WNOHANG) == pid) return false;
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  ::kill(pid, SIGKILL);
+  ::waitpid(pid, &status, 0);
+  return WIFSIGNALED(status) && WTERMSIG(status) == SIGKILL;
 }
 
 }  // namespace ccdpsf::testing_support

@@ -2,6 +2,7 @@
 #ifndef CCDPSF_TESTS_SUPPORT_RUN_CCDPSF_H_
 #define CCDPSF_TESTS_SUPPORT_RUN_CCDPSF_H_
 
+#include <functional>
 #include <string>
 
 namespace ccdpsf::testing_support {
@@ -20,6 +21,11 @@ RunResult RunCcdpsf(const std::string& args);
 
 // The same, returning the exit code and replacing *output with what was printed.
 int RunCcdpsf(const std::string& args, std::string* output);
+
+// Starts `ccdpsf args` (output discarded), waits until `ready()` holds, then kills it with
+// SIGKILL: nothing of the process runs after, as when a machine or a scheduler kills a job.
+// False if the run ended before `ready()` held (the kill then tests nothing).
+bool RunAndKill(const std::string& args, const std::function<bool()>& ready);
 
 // A new, empty folder private to this test process (ctest runs tests in parallel processes):
 // <test temp dir>/ccdpsf_<suite>_<pid>_<name>.
