@@ -10,8 +10,11 @@
 // kept, not only the best. A source is fitted only when it is
 //   inside:   its stamp fits in the data section                 (else "edge")
 //   extended: not a single pixel: its peak pixel holds at most max_single_pixel_fraction
-//             of the 3 x 3 core's signal (a hot pixel or cosmic-ray hit holds nearly all; a
-//             spot of total sigma 0.6 px holds ~0.36)                 (else "single_pixel")
+//             (0.95) of the 3 x 3 core's signal. A hot pixel or cosmic-ray hit holds nearly
+//             all of it; a centred Gaussian spot of total sigma s holds
+//             [erf(0.5 / (s sqrt 2)) / erf(1.5 / (s sqrt 2))]^2: 0.36 at s = 0.6 px, 0.82 at
+//             0.3 px (an undersampled bench spot holds 0.84), 0.95 at 0.22 px, below which
+//             the widths are not measurable anyway                  (else "single_pixel")
 //   compact:  spot_finder.h's size, elongation and core fraction (else "extended")
 //   isolated: spot_finder.h's surround (no light 4-7 px from the peak) (else "crowded")
 // Each fitted source keeps a cutout of (2 cutout_half + 1)^2 pixels centred on its peak
@@ -35,7 +38,7 @@ namespace ccdpsf::grid {
 
 struct FrameScanOptions {
   SpotFinderOptions finder;  // thresholds and stamp size; max_candidates is not used
-  double max_single_pixel_fraction = 0.8;
+  double max_single_pixel_fraction = 0.95;
   int cutout_half = 24;  // cutouts of 49 x 49 px: the 21 x 21 stamp and ~1800 px around
   int strip_rows = 128;  // rows read at a time
 };
