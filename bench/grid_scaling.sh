@@ -35,14 +35,14 @@ echo "machine: $(nproc) cores, $(grep -m1 'model name' /proc/cpuinfo | cut -d: -
 echo "load before: $(uptime | sed 's/.*load average: //')"
 echo "frames: ${#files[@]} x ${size}^2 (${frame_mb} MiB each on disk), ${n}x${n} grid; options: ${extra[*]:-(defaults)}"
 
-# One run: prints "wall_s cpu_s peak_rss_mb spots" (the CPU of every process of an MPI job is
-# summed by mpirun's /usr/bin/time, as its children's).
+# One run: run NAME THREADS [LAUNCHER...]; prints "wall_s cpu_s peak_rss_mb spots" (the CPU of
+# every process of an MPI job is counted, as mpirun's children's).
 run() {
-  local out="$work/out_$1"; shift
+  local out="$work/out_$1" threads="$2"; shift 2
   rm -rf "$out"
   local log="$work/log"
-  /usr/bin/time -f "%e %U %S %M" -o "$work/time" "$@" grid --out="$out" "${extra[@]}" \
-    "${files[@]}" > "$log" 2>&1 || { cat "$log" >&2; exit 1; }
+  /usr/bin/time -f "%e %U %S %M" -o "$work/time" "$@" "$binary" grid --out="$out" \
+    --threads="$threads" "${extra[@]}" "${files[@]}" > "$log" 2>&1 || { cat "$log" >&2; exit 1; }
   read -r wall user sys rss < "$work/time"
   local spots
   spots=$(grep -c '^\(\[process [0-9]*\] \)\?\[[0-9]*/[0-9]*\]' "$log" || true)
@@ -52,14 +52,13 @@ run() {
 median() { sort -n | awk '{v[NR] = $1} END {print (NR % 2) ? v[(NR + 1) / 2] : (v[NR / 2] + v[NR / 2 + 1]) / 2}'; }
 
 declare -A wall cpu
-for config in "1x1:$binary --threads=1" "1x2:$binary --threads=2" \
-              "mpi2x1:mpirun -np 2 $binary --threads=1"; do
-  name="${config%%:*}"
-  read -r -a command <<< "${config#*:}"
-  # mpirun's options go before the binary; the command's after it.
+# name:threads per process:launcher
+for config in "1x1:1:" "1x2:2:" "mpi2x1:1:mpirun -np 2"; do
+  IFS=: read -r name threads launcher <<< "$config"
+  read -r -a command <<< "$launcher"
   walls=() cpus=()
   for r in $(seq 1 "$repeats"); do
-    line=$(run "$name" "${command[@]}")
+    line=$(run "$name" "$threads" "${command[@]}")
     read -r w c m s <<< "$line"
     echo "$name run $r: wall ${w} s, CPU ${c} s, peak RSS ${m} MB (largest process), spot fits ${s}"
     walls+=("$w") cpus+=("$c")
