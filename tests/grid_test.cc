@@ -2,11 +2,13 @@
 // scripts tests/support/grid_frames.py (reference_sensor.py's physics; numpy and astropy, no
 // ccdpsf code) with known, smoothly varying CCD widths, a crowded pair and an edge spot.
 #include "ccdpsf/grid/grid.h"
+#include "ccdpsf/grid/spot_relations.h"
 
 #include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <random>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -342,6 +344,82 @@ TEST(Grid, BadInputIsAOneLineError) {
   EXPECT_EQ(r.exit_code, 1) << r.output;
   EXPECT_NE(r.output.find("not.fits"), std::string::npos) << r.output;
   EXPECT_EQ(std::count(r.output.begin(), r.output.end(), '\n'), 1) << r.output;
+}
+
+}  // namespace
+}  // namespace ccdpsf
+
+namespace ccdpsf {
+namespace {
+
+// Relations per spot on a hand-made campaign: three settings at 600, 700 and 850 nm, two
+// spots whose identified FWHM follows a lambda^alpha with a known alpha each (-0.3 and
+// +0.2), posterior draws Gaussian with a 1 % sd; a third spot refused at 700 nm. Each
+// spot's alpha is recovered within its interval (68 %: a 3-sigma window of its sd for the
+// two spots), and the refused setting is a gap with the refusal as reason.
+TEST(GridRelations, EachSpotsAlphaIsRecoveredAndRefusalsAreGaps) {
+  grid::GridResult r;
+  const std::vector<double> wavelengths = {600.0, 700.0, 850.0};
+  const double xs[3] = {100.0, 900.0, 1700.0};
+  const double alphas[3] = {-0.3, 0.2, 0.0};
+  std::mt19937_64 rng(11);
+  std::normal_distribution<double> unit(0.0, 1.0);
+  int spot = 0;
+  for (int s = 0; s < 3; ++s) {
+    trend::CampaignGroup g;
+    g.name = "w" + std::to_string(static_cast<int>(wavelengths[s]));
+    g.wavelength_nm = wavelengths[s];
+    r.settings.push_back(g);
+    r.frames.emplace_back();
+    for (int k = 0; k < 3; ++k) {
+      grid::SpotEntry e;
+      e.setting = s;
+      e.spot = spot++;
+      // Positions move by a few hundredths of a pixel between settings.
+      e.where.x_px = xs[k] + 0.02 * s;
+      e.where.y_px = 500.0 - 0.01 * s;
+      e.fitted = !(k == 2 && s == 1);
+      if (!e.fitted) {
+        e.where.refused = "crowded";
+        e.where.reason = "other light 4-7 px from its peak";
+      } else {
+        e.fit.ok = true;
+        e.fit.peak_e.median = 1.5e5;
+        const double truth = 9.0 * std::pow(wavelengths[s] / 800.0, alphas[k]);
+        std::vector<double>& d = e.fit.draws["total_fwhm_um"];
+        for (int i = 0; i < 400; ++i) d.push_back(truth * (1.0 + 0.01 * unit(rng)));
+        e.fit.draws["fwhm_um"] = d;
+      }
+      r.spots.push_back(e);
+    }
+  }
+  trend::RelationOptions options;
+  const std::vector<grid::SpotRelation> relations = grid::FitSpotRelations(r, 3.0, options);
+  int checked = 0;
+  for (const grid::SpotRelation& rel : relations) {
+    if (rel.metric != "total_fwhm_um") continue;
+    ASSERT_EQ(rel.kind, trend::RelationKind::kPowerLaw);  // one setting per wavelength
+    const int k = static_cast<int>(std::lround((rel.x_px - 100.0) / 800.0));
+    ASSERT_GE(k, 0);
+    ASSERT_LT(k, 3);
+    EXPECT_EQ(rel.spots.size(), 3u);
+    const trend::Coefficient* alpha = rel.fit.Find("alpha");
+    ASSERT_NE(alpha, nullptr);
+    if (k < 2) {
+      EXPECT_TRUE(rel.fit.fitted);
+      EXPECT_EQ(rel.fit.points.size(), 3u);
+      EXPECT_LT(std::fabs(alpha->estimate.median - alphas[k]), 3.0 * alpha->estimate.sd)
+          << "spot track " << k;
+      // 1 % per point over ln(850/600) = 0.35: sd(alpha) ~ 0.03.
+      EXPECT_LT(alpha->estimate.sd, 0.05);
+    } else {
+      ASSERT_EQ(rel.fit.gaps.size(), 1u);
+      EXPECT_NE(rel.fit.gaps[0].reason.find("crowded"), std::string::npos);
+      EXPECT_EQ(rel.fit.points.size(), 2u);
+    }
+    ++checked;
+  }
+  EXPECT_EQ(checked, 3);
 }
 
 }  // namespace
