@@ -298,6 +298,48 @@ TEST(Grid, FullSensorGridHoldsTheTruth) {
   EXPECT_LE(inside, 121);
 }
 
+// A through-focus frame set (five focus positions, defocus sigma 0.8, 0.4, 0, 0.4, 0.8 px):
+// each spot is fitted with the through-focus model, which identifies its CCD widths; the map
+// of ccd_sigma_x_px / ccd_sigma_y_px holds the truth that varies across the sensor.
+TEST(Grid, ThroughFocusGridIdentifiesEachSpotsCcdWidths) {
+  CCDPSF_RELEASE_ONLY();  // 9 spots x 5 exposures, through-focus fits
+  const std::string frames = GridFrames(
+      "focus", "--size 1024 --grid 3 --flux_e 2e5 --focus_um=-100,-50,0,50,100 "
+               "--defocus_px=0.8,0.4,0.0,0.4,0.8 --no_extras --seed 3");
+  const std::string out = FreshDir("Grid", "focus") + "/out";
+  const RunResult r = RunCcdpsf("grid --nomcmc --out=" + out + Frames(frames, 5));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const std::vector<Row> map = ReadCsv(out + "/psf_map.csv");
+  const std::vector<Row> truth = ReadCsv(frames + "/truth.csv");
+  ASSERT_EQ(map.size(), 9u);
+  int ok = 0;
+  for (const Row& row : map) {
+    EXPECT_EQ(row.at("focus_series"), "1");
+    if (row.at("verdict") != "ok") continue;
+    ++ok;
+    const Row* best = nullptr;
+    double best_d = INFINITY;
+    for (const Row& t : truth) {
+      const double d = std::hypot(Number(t, "x_px") - Number(row, "x_px"),
+                                  Number(t, "y_px") - Number(row, "y_px"));
+      if (d < best_d) best_d = d, best = &t;
+    }
+    ASSERT_LT(best_d, 0.5);
+    for (const char* m : {"ccd_sigma_x_px", "ccd_sigma_y_px"}) {
+      const std::string name = m;
+      const double half = 0.5 * (Number(row, name + "_hi68") - Number(row, name + "_lo68"));
+      // 18 Gaussian pulls of Laplace intervals: P(any beyond 4) = 1e-3.
+      EXPECT_LT(std::fabs(Number(row, name) - Number(*best, name)), 4.0 * half)
+          << name << " spot " << row.at("spot");
+      // Identified: an interval far narrower than the prior's 0.1-1 px.
+      EXPECT_LT(half, 0.03) << name;
+    }
+  }
+  EXPECT_EQ(ok, 9);
+  EXPECT_TRUE(std::filesystem::exists(out + "/plots/map_ccd_sigma_x_px.dat") ||
+              std::filesystem::exists(out + "/plots/map_ccd_sigma_x_px_spots.dat"));
+}
+
 // A killed grid keeps the spots it had finished: --resume fits only the others and writes
 // the same map as an uninterrupted run.
 TEST(Grid, AKilledGridResumesWithItsFinishedSpots) {
