@@ -3,7 +3,7 @@
 
     /usr/bin/python3 tests/support/grid_frames.py OUTDIR [--size 4096] [--grid 7]
         [--exposures 3] [--seed 1] [--flux_e 4e5] [--focus_um a,b,c,...]
-        [--defocus_px d1,d2,...] [--no_extras]
+        [--defocus_px d1,d2,...] [--no_extras] [--wavelength_nm 800]
 
 Writes OUTDIR/frame_000.fits, frame_001.fits, ... (one per exposure), OUTDIR/truth.csv (one
 row per spot) and OUTDIR/truth.json. Shares no code with ccdpsf (numpy, scipy, astropy only):
@@ -23,17 +23,21 @@ Options
 --defocus_px    Gaussian defocus sigma per exposure [px], comma-separated, 0..10 (default 0.41
                 in every exposure). Both lists also take a leading minus: --focus_um -50,0,50.
 --no_extras     grid spots only (default: also the crowded pair and the edge spot)
+--wavelength_nm W   wavelength [nm], 550..900 (default 800): WAVELEN, and the Airy radius and
+                the diffusion widths follow it (see Widths). A campaign of several wavelengths
+                is one run per wavelength, each into its own OUTDIR, with the same --seed: the
+                layout is then the same at every wavelength, the noise differs (Randomness).
 
 Conventions (those of ccdpsf and reference_sensor.py): frame coordinates are 0-based with
 pixel centres at integers, x = column (NAXIS1), y = row, numpy index data[y, x]; the frame
 covers [-0.5, size - 0.5) on each axis. Lengths are in pixels unless a name says um.
 
 Detector (every frame): gain 3.1 e-/ADU (GAIN), read noise 4.5 e- rms (RDNOISE), bias
-1000 ADU (BIASLVL), 12 um pixels (PIXSIZE), SATURATE 65535 ADU, WAVELEN 800 nm, EXPTIME 1 s,
-and FOCUSPOS [um] when --focus_um is given. Per pixel: collected electrons (Poisson through
-photon shooting) + Normal(0, 4.5 e-) read noise on every pixel, / gain + bias, rounded to
-whole ADU (halves up), clipped to [0, 65535], written as 16-bit unsigned (BITPIX 16,
-BZERO 32768).
+1000 ADU (BIASLVL), 12 um pixels (PIXSIZE), SATURATE 65535 ADU, WAVELEN = --wavelength_nm
+[nm] (default 800), EXPTIME 1 s, and FOCUSPOS [um] when --focus_um is given. Per pixel:
+collected electrons (Poisson through photon shooting) + Normal(0, 4.5 e-) read noise on every
+pixel, / gain + bias, rounded to whole ADU (halves up), clipped to [0, 65535], written as
+16-bit unsigned (BITPIX 16, BZERO 32768).
 
 Spots
 -----
@@ -52,36 +56,51 @@ Spots
 - Drift: in exposure k every spot sits at its exposure-0 position + (0.03 k, 0.02 k) px, a
   projector's slow drift. truth gives the exposure-0 positions and the drift per exposure.
 - Widths, smooth over the sensor: with u = 2 (x + 0.5) / size - 1 and v = 2 (y + 0.5) / size - 1
-  in [-1, 1) at the spot's exposure-0 centre,
+  in [-1, 1) at the spot's exposure-0 centre, at 800 nm
       ccd_sigma_x_px = 0.29 + 0.05 u + 0.03 v^2      (0.24 .. 0.37)
       ccd_sigma_y_px = 0.33 + 0.04 v - 0.02 u^2      (0.27 .. 0.37)
   charge-diffusion widths (per spot, the same in every exposure: the drift is < 0.1 px).
-  Airy radius (first dark ring) 0.47 px everywhere; defocus a circular Gaussian of sigma
-  --defocus_px (one per exposure; default 0.41 px in every exposure).
+  At wavelength W [nm] each width follows a power law in W, with an exponent smooth over the
+  sensor too (red light converts deeper in the silicon, nearer the pixels, and diffuses less):
+      ccd_sigma_x_px(u, v, W) = ccd_sigma_x_px(u, v) (W / 800)^alpha_x,  alpha_x = -0.25 + 0.10 u
+      ccd_sigma_y_px(u, v, W) = ccd_sigma_y_px(u, v) (W / 800)^alpha_y,  alpha_y = -0.20 + 0.08 v
+  (alpha_x in -0.35 .. -0.15, alpha_y in -0.28 .. -0.12). Over the sensor sigma_x spans
+  0.274 .. 0.391 px at 550 nm and 0.230 .. 0.364 px at 900 nm, sigma_y 0.300 .. 0.387 and
+  0.261 .. 0.365 px: inside 0.2 .. 0.45 px, which the script checks per spot, for every
+  allowed W. At 800 nm the factor is exactly 1.0, so the widths are the 800 nm law's bits.
+  Airy radius (first dark ring) 0.47 (W / 800) px everywhere (diffraction: 1.22 lambda F# /
+  pixel; 0.47 px at 800 nm, 0.323 at 550, 0.529 at 900); defocus a circular Gaussian of sigma
+  --defocus_px (one per exposure; default 0.41 px in every exposure, at every wavelength).
 - Flux: --flux_e mean photo-electrons per spot (every spot; Poisson-drawn per exposure).
   Each spot is photon-shot inside its own 41 x 41 px box centred on the pixel nearest its
   centre and added into the frame; light landing beyond the box (the Airy wings beyond
-  ~20 px: about 0.33 % of the flux for r0 = 0.47, 2 r0 / (pi^2 Rz r) asymptotically) or beyond
-  the frame is lost; truth.json counts it per spot and exposure.
+  ~20 px: about 0.33 % of the flux for r0 = 0.47, 2 r0 / (pi^2 Rz r) asymptotically, so
+  0.23 % at 550 nm and 0.37 % at 900 nm) or beyond the frame is lost; truth.json counts it
+  per spot and exposure.
 - Saturation: the set is refused (exit 2, nothing written) if any pixel's electrons before
   read noise come within 5 sd (Poisson + read noise) of SATURATE: bias + (e + 5 sqrt(e +
   rn^2)) / gain >= 65535. With the defaults the brightest pixel holds ~1.5e5 e- (~4.9e4 ADU);
   at 4e5 e- a defocus of 0.3 px still fits (1.9e5 e-) and 0.25 px does not: a through-focus set
-  reaching best focus needs a lower --flux_e (e.g. 2e5).
+  reaching best focus needs a lower --flux_e (e.g. 2e5). Across 550 .. 900 nm the peak
+  changes by < 2 % (the sharper Airy core at short wavelengths is offset by wider diffusion).
 
 Randomness (numpy default_rng, explicit seeds; the same options give the same bytes):
-  layout (sub-pixel offsets)      default_rng([seed, 0])
-  read noise of exposure k        default_rng([seed, 1, k])
+  layout (sub-pixel offsets)      default_rng([seed, 0])   (no wavelength: the same positions
+                                                            at every --wavelength_nm)
+  read noise of exposure k        default_rng([seed, 1, k] + w)
   photons of spot s, exposure k   reference_sensor.simulate_exposure with config seed
-                                  SeedSequence([seed, 2, k, s]).generate_state(1, uint64) >> 1
+                                  SeedSequence([seed, 2, k, s] + w).generate_state(1, uint64) >> 1
+  where w = [] at W = 800 nm exactly (so the default set's frames are byte-for-byte those made
+  before --wavelength_nm existed) and w = [round(W x 1000)] otherwise (each wavelength its own photon
+  and read noise, independent of the other wavelengths' runs).
 
 truth.csv (one row per spot: grid spots first, row-major from the bottom-left, i.e. by y then
 x; then the crowded pair, then the edge spot)
   spot                 0-based index
   kind                 "grid", "crowded" or "edge"
   x_px, y_px           centre in exposure 0 [px, frame coordinates]
-  ccd_sigma_x_px, ccd_sigma_y_px   the diffusion widths above [px]
-  airy_radius_px       0.47
+  ccd_sigma_x_px, ccd_sigma_y_px   the diffusion widths above at --wavelength_nm [px]
+  airy_radius_px       0.47 (W / 800) [px]
   flux_e               mean photo-electrons [e-]
   defocus_px, total_sigma_x_px, total_sigma_y_px, total_fwhm_um
                        only for a single-focus set (every exposure's defocus equal):
@@ -89,13 +108,19 @@ x; then the crowded pair, then the edge spot)
                        2 sqrt(2 ln 2) sqrt(total_sigma_x total_sigma_y) pixel_um
   fwhm_um              2 sqrt(2 ln 2) sqrt(ccd_sigma_x ccd_sigma_y) pixel_um (always)
   ellipticity          |sx^2 - sy^2| / (sx^2 + sy^2) of the CCD sigmas (always)
+  alpha_x, alpha_y     the spot's exponents of the widths' power law in wavelength
+  wavelength_nm        --wavelength_nm [nm]
+  (the last three come last, so the columns before them are those of sets made before
+  --wavelength_nm existed, with the same values at 800 nm)
 Numbers are written with Python's repr (they read back to the same float64).
 
 truth.json: "spots" (the rows of truth.csv, same keys and values), "columns" (truth.csv's
-header), the seed and options, the detector, the optics and width law, the layout, and per
-exposure: file, focus_um (or null), defocus_px, drift_x_px / drift_y_px, exptime_s, the
-brightest pixel (electrons before noise) and, per spot, photons drawn and electrons
-collected / lost beyond the box or the frame.
+header), the seed and options (with wavelength_nm), the detector, the optics (this set's
+airy_radius_px and wavelength_nm; the 800 nm width laws; the wavelength laws of the Airy radius
+and the widths and of alpha_x, alpha_y, as text; the allowed wavelengths and width bounds), the
+layout, and per exposure: file, focus_um (or null), defocus_px, drift_x_px / drift_y_px,
+exptime_s, the brightest pixel (electrons before noise) and, per spot, photons drawn and
+electrons collected / lost beyond the box or the frame.
 
 Errors (a bad option, a non-empty OUTDIR, a saturating set, an unwritable OUTDIR) are one line
 on stderr and exit code 2. OUTDIR is created if missing (and removed again if the set is then
@@ -122,10 +147,12 @@ READ_NOISE_E = 4.5
 BIAS_ADU = 1000.0
 PIXEL_UM = 12.0
 SATURATION_ADU = 65535.0
-WAVELENGTH_NM = 800.0
+REFERENCE_WAVELENGTH_NM = 800.0  # the wavelength at which the width laws' constants hold
+WAVELENGTH_RANGE_NM = (550.0, 900.0)  # --wavelength_nm: where the widths stay in CCD_SIGMA_BOUNDS_PX
 EXPTIME_S = 1.0
 ADU_MAX = 65535
-AIRY_RADIUS_PX = 0.47
+AIRY_RADIUS_AT_REFERENCE_PX = 0.47  # first dark ring at 800 nm; diffraction scales with lambda
+CCD_SIGMA_BOUNDS_PX = (0.2, 0.45)  # every diffusion width, at every allowed wavelength
 DEFAULT_DEFOCUS_PX = 0.41
 DRIFT_PER_EXPOSURE_PX = (0.03, 0.02)  # (x, y) [px] per exposure index
 CROWDED_SEPARATION_PX = 5.0
@@ -194,6 +221,8 @@ def parse_options(argv):
     p.add_argument("--defocus_px", default=None,
                    help="Gaussian defocus sigma per exposure [px], comma-separated (default 0.41)")
     p.add_argument("--no_extras", action="store_true", help="no crowded pair and no edge spot")
+    p.add_argument("--wavelength_nm", type=float, default=REFERENCE_WAVELENGTH_NM,
+                   help="wavelength [nm], 550..900 (default 800): WAVELEN, the Airy radius, the widths")
     a = p.parse_args(argv)
 
     if not 64 <= a.size <= 4096:
@@ -212,6 +241,11 @@ def parse_options(argv):
         raise UsageError(f"--seed {a.seed} is out of range (0..2^63-1)")
     if not math.isfinite(a.flux_e) or not 0.0 < a.flux_e <= reference_sensor.MAX_FLUX_E:
         raise UsageError(f"--flux_e {a.flux_e:g} is out of range (> 0, <= {reference_sensor.MAX_FLUX_E:g})")
+    lo, hi = WAVELENGTH_RANGE_NM
+    if not math.isfinite(a.wavelength_nm) or not lo <= a.wavelength_nm <= hi:
+        raise UsageError(f"--wavelength_nm {a.wavelength_nm:g} is out of range ({lo:g}..{hi:g} nm; > 0 "
+                         f"and where the width laws keep every sigma in {CCD_SIGMA_BOUNDS_PX[0]:g}.."
+                         f"{CCD_SIGMA_BOUNDS_PX[1]:g} px)")
 
     focus = number_list(a.focus_um, "focus_um") if a.focus_um is not None else None
     defocus = number_list(a.defocus_px, "defocus_px") if a.defocus_px is not None else None
@@ -231,18 +265,47 @@ def parse_options(argv):
             raise UsageError(f"--defocus_px {d:g} is out of range (0..10 px)")
     return {"outdir": a.outdir, "size": a.size, "grid": a.grid, "exposures": n, "seed": a.seed,
             "flux_e": a.flux_e, "focus_um": focus, "defocus_px": defocus,
-            "extras": not a.no_extras}
+            "extras": not a.no_extras, "wavelength_nm": a.wavelength_nm}
 
 
 # --------------------------------------------------------------------------------------------
 # The scene
 
 
-def ccd_sigmas(x, y, size):
-    """Charge-diffusion widths (sigma_x, sigma_y) [px] at frame position (x, y)."""
-    u = 2.0 * (x + 0.5) / size - 1.0
-    v = 2.0 * (y + 0.5) / size - 1.0
-    return 0.29 + 0.05 * u + 0.03 * v * v, 0.33 + 0.04 * v - 0.02 * u * u
+def sensor_uv(x, y, size):
+    """Frame position (x, y) [px] -> (u, v) in [-1, 1): the sensor's normalised coordinates."""
+    return 2.0 * (x + 0.5) / size - 1.0, 2.0 * (y + 0.5) / size - 1.0
+
+
+def ccd_alphas(x, y, size):
+    """Power-law exponents (alpha_x, alpha_y) of the diffusion widths with wavelength at (x, y)."""
+    u, v = sensor_uv(x, y, size)
+    return -0.25 + 0.10 * u, -0.20 + 0.08 * v
+
+
+def ccd_sigmas(x, y, size, wavelength_nm):
+    """Charge-diffusion widths (sigma_x, sigma_y) [px] at frame position (x, y) and the
+    wavelength [nm]: the 800 nm law across the sensor times (W / 800)^alpha per axis. At 800 nm
+    the factor is exactly 1.0 (1.0 ** alpha), so the widths are those of the 800 nm law."""
+    u, v = sensor_uv(x, y, size)
+    alpha_x, alpha_y = ccd_alphas(x, y, size)
+    ratio = wavelength_nm / REFERENCE_WAVELENGTH_NM
+    return ((0.29 + 0.05 * u + 0.03 * v * v) * ratio ** alpha_x,
+            (0.33 + 0.04 * v - 0.02 * u * u) * ratio ** alpha_y)
+
+
+def airy_radius(wavelength_nm):
+    """Radius of the Airy pattern's first dark ring [px]: 1.22 lambda F# / pixel, so linear in
+    the wavelength (exactly 0.47 at 800 nm)."""
+    return AIRY_RADIUS_AT_REFERENCE_PX * (wavelength_nm / REFERENCE_WAVELENGTH_NM)
+
+
+def wavelength_entropy(wavelength_nm):
+    """Extra seed words for the noise streams: none at 800 nm (the original streams, so the
+    default set keeps its bytes), round(W x 1000) otherwise (each wavelength its own noise)."""
+    if wavelength_nm == REFERENCE_WAVELENGTH_NM:
+        return []
+    return [int(round(wavelength_nm * 1000.0))]
 
 
 def layout(opts):
@@ -268,13 +331,19 @@ def layout(opts):
 def truth_rows(opts, spots):
     """truth.csv's rows (dicts, in column order) and its column names."""
     defocus = opts["defocus_px"]
+    wavelength = opts["wavelength_nm"]
     single_focus = all(d == defocus[0] for d in defocus)
     rows = []
     for index, (kind, x, y) in enumerate(spots):
-        sx, sy = ccd_sigmas(x, y, opts["size"])
+        sx, sy = ccd_sigmas(x, y, opts["size"], wavelength)
+        lo, hi = CCD_SIGMA_BOUNDS_PX
+        if not (lo <= sx <= hi and lo <= sy <= hi):  # cannot happen for 550..900 nm (see the docstring)
+            raise UsageError(f"spot {index}: diffusion widths ({sx:.3f}, {sy:.3f}) px leave {lo:g}..{hi:g} px "
+                             f"at --wavelength_nm {wavelength:g}")
+        alpha_x, alpha_y = ccd_alphas(x, y, opts["size"])
         row = {"spot": index, "kind": kind, "x_px": x, "y_px": y,
                "ccd_sigma_x_px": sx, "ccd_sigma_y_px": sy,
-               "airy_radius_px": AIRY_RADIUS_PX, "flux_e": opts["flux_e"]}
+               "airy_radius_px": airy_radius(wavelength), "flux_e": opts["flux_e"]}
         if single_focus:
             d = defocus[0]
             tx, ty = math.sqrt(sx * sx + d * d), math.sqrt(sy * sy + d * d)
@@ -282,13 +351,16 @@ def truth_rows(opts, spots):
                         "total_fwhm_um": FWHM_PER_SIGMA * math.sqrt(tx * ty) * PIXEL_UM})
         row["fwhm_um"] = FWHM_PER_SIGMA * math.sqrt(sx * sy) * PIXEL_UM
         row["ellipticity"] = abs(sx * sx - sy * sy) / (sx * sx + sy * sy)
+        # Appended last: the columns of the 800 nm set before --wavelength_nm keep their places.
+        row.update({"alpha_x": alpha_x, "alpha_y": alpha_y, "wavelength_nm": wavelength})
         rows.append(row)
     return rows, list(rows[0].keys())
 
 
-def photon_seed(seed, exposure, spot):
+def photon_seed(seed, exposure, spot, wavelength_nm):
     """The config seed reference_sensor gets for one spot in one exposure (63-bit integer)."""
-    state = np.random.SeedSequence([seed, 2, exposure, spot]).generate_state(1, np.uint64)
+    words = [seed, 2, exposure, spot] + wavelength_entropy(wavelength_nm)
+    state = np.random.SeedSequence(words).generate_state(1, np.uint64)
     return int(state[0]) >> 1
 
 
@@ -297,17 +369,17 @@ def render_spot(opts, exposure, spot, x, y, sigma_x, sigma_y, airy):
     bx0, by0 = int(math.floor(x + 0.5)) - BOX_HALF_PX, int(math.floor(y + 0.5)) - BOX_HALF_PX
     n = 2 * BOX_HALF_PX + 1
     cfg = {
-        "seed": photon_seed(opts["seed"], exposure, spot),
+        "seed": photon_seed(opts["seed"], exposure, spot, opts["wavelength_nm"]),
         # Noise-free unit-gain detector: the electrons are taken before noise and ADUs.
         "detector": {"gain_e_per_adu": 1.0, "read_noise_e": 0.0, "bias_adu": 0.0,
                      "pixel_um": PIXEL_UM, "saturation_adu": SATURATION_ADU, "nx": n, "ny": n},
-        "optics": {"airy_radius_px": AIRY_RADIUS_PX,
+        "optics": {"airy_radius_px": airy.r0,
                    "defocus": {"kind": "gaussian", "sigma_px": opts["defocus_px"][exposure]},
                    "ccd_sigma_x_px": sigma_x, "ccd_sigma_y_px": sigma_y},
         "pixel_response": {"kind": "box", "width_px": 1.0},
         "brighter_fatter": {"strength": 0.0, "batches": 100},
         "exposures": [{"flux_e": opts["flux_e"], "x_px": x - bx0, "y_px": y - by0,
-                       "exptime_s": EXPTIME_S, "wavelength_nm": WAVELENGTH_NM}],
+                       "exptime_s": EXPTIME_S, "wavelength_nm": opts["wavelength_nm"]}],
     }
     electrons, _, t = reference_sensor.simulate_exposure(cfg, 0, airy)
     return electrons, bx0, by0, {"photons": t["photons_drawn"], "in_box": t["electrons_collected"]}
@@ -355,7 +427,7 @@ def render_exposure(opts, k, spots, rows, airy):
 
     peak_x, peak_y, peak = check_saturation(opts, k, electrons, 0, 0)  # overlapping spots too
 
-    rng = np.random.default_rng([opts["seed"], 1, k])
+    rng = np.random.default_rng([opts["seed"], 1, k] + wavelength_entropy(opts["wavelength_nm"]))
     electrons += rng.normal(0.0, READ_NOISE_E, size=electrons.shape)
     adu = np.floor(electrons / GAIN_E_PER_ADU + BIAS_ADU + 0.5)
     np.clip(adu, 0, ADU_MAX, out=adu)
@@ -376,7 +448,7 @@ def fits_hdu(adu, record, opts):
     h["BIASLVL"] = (BIAS_ADU, "[ADU] bias level")
     h["PIXSIZE"] = (PIXEL_UM, "[um]")
     h["SATURATE"] = (SATURATION_ADU, "[ADU] saturation level")
-    h["WAVELEN"] = (WAVELENGTH_NM, "[nm]")
+    h["WAVELEN"] = (opts["wavelength_nm"], "[nm]")
     h["EXPTIME"] = (record["exptime_s"], "[s]")
     if record["focus_um"] is not None:
         h["FOCUSPOS"] = (record["focus_um"], "[um] focus stage position")
@@ -433,7 +505,7 @@ def write_set(opts):
     outdir = opts["outdir"]
     spots = layout(opts)
     rows, columns = truth_rows(opts, spots)
-    airy = reference_sensor.AiryRadii(AIRY_RADIUS_PX)
+    airy = reference_sensor.AiryRadii(airy_radius(opts["wavelength_nm"]))
     temps = []  # (temporary path, final path), renamed only when all are written
     try:
         exposures = []
@@ -447,16 +519,26 @@ def write_set(opts):
             "generator": "tests/support/grid_frames.py (photon shooting by reference_sensor.py)",
             "seed": opts["seed"],
             "options": {key: opts[key] for key in
-                        ("size", "grid", "exposures", "flux_e", "focus_um", "defocus_px", "extras")},
+                        ("size", "grid", "exposures", "flux_e", "focus_um", "defocus_px", "extras",
+                         "wavelength_nm")},
             "detector": {"gain_e_per_adu": GAIN_E_PER_ADU, "read_noise_e": READ_NOISE_E,
                          "bias_adu": BIAS_ADU, "pixel_um": PIXEL_UM,
                          "saturation_adu": SATURATION_ADU, "nx": opts["size"], "ny": opts["size"]},
-            "optics": {"airy_radius_px": AIRY_RADIUS_PX, "wavelength_nm": WAVELENGTH_NM,
+            "optics": {"airy_radius_px": airy.r0, "wavelength_nm": opts["wavelength_nm"],
                        "defocus_kind": "gaussian",
                        "ccd_sigma_x_px": "0.29 + 0.05 u + 0.03 v^2",
                        "ccd_sigma_y_px": "0.33 + 0.04 v - 0.02 u^2",
                        "u_v": "u = 2 (x + 0.5) / size - 1, v = 2 (y + 0.5) / size - 1 "
-                              "at the exposure-0 centre"},
+                              "at the exposure-0 centre",
+                       # The wavelength laws; the two width laws above hold at 800 nm.
+                       "reference_wavelength_nm": REFERENCE_WAVELENGTH_NM,
+                       "airy_radius_law": "0.47 (W / 800) px",
+                       "ccd_sigma_wavelength_law": "ccd_sigma_x_px(u, v, W) = ccd_sigma_x_px(u, v) "
+                                                   "(W / 800)^alpha_x, likewise y",
+                       "alpha_x": "-0.25 + 0.10 u",
+                       "alpha_y": "-0.20 + 0.08 v",
+                       "wavelength_range_nm": list(WAVELENGTH_RANGE_NM),
+                       "ccd_sigma_bounds_px": list(CCD_SIGMA_BOUNDS_PX)},
             "layout": {"cell_px": opts["size"] / opts["grid"],
                        "render_box_px": 2 * BOX_HALF_PX + 1,
                        "drift_px_per_exposure": list(DRIFT_PER_EXPOSURE_PX),

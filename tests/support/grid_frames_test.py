@@ -275,7 +275,8 @@ def test_truth_layout_and_columns(small):
     assert list(rows[0].keys()) == truth["columns"]
     assert truth["columns"] == ["spot", "kind", "x_px", "y_px", "ccd_sigma_x_px", "ccd_sigma_y_px",
                                 "airy_radius_px", "flux_e", "defocus_px", "total_sigma_x_px",
-                                "total_sigma_y_px", "total_fwhm_um", "fwhm_um", "ellipticity"]
+                                "total_sigma_y_px", "total_fwhm_um", "fwhm_um", "ellipticity",
+                                "alpha_x", "alpha_y", "wavelength_nm"]
     assert len(rows) == len(truth["spots"]) == 9 + 3
     for r, j in zip(rows, truth["spots"]):
         assert int(r["spot"]) == j["spot"] and r["kind"] == j["kind"]
@@ -310,6 +311,9 @@ def test_truth_layout_and_columns(small):
         assert s["total_fwhm_um"] == pytest.approx(fwhm * math.sqrt(tx * ty) * PIXEL_UM, rel=1e-12)
         assert s["fwhm_um"] == pytest.approx(fwhm * math.sqrt(sx * sy) * PIXEL_UM, rel=1e-12)
         assert s["ellipticity"] == pytest.approx(abs(sx * sx - sy * sy) / (sx * sx + sy * sy), rel=1e-12)
+        assert s["alpha_x"] == pytest.approx(-0.25 + 0.10 * u, rel=1e-12)
+        assert s["alpha_y"] == pytest.approx(-0.20 + 0.08 * v, rel=1e-12)
+        assert s["wavelength_nm"] == 800.0
 
     assert truth["seed"] == 5
     d = truth["detector"]
@@ -333,7 +337,8 @@ def test_focus_series(tmp_path):
     assert [e["focus_um"] for e in truth["exposures"]] == [-50.0, 0.0, 50.0]
     assert [e["defocus_px"] for e in truth["exposures"]] == [0.6, 0.2, 0.6]
     assert truth["columns"] == ["spot", "kind", "x_px", "y_px", "ccd_sigma_x_px", "ccd_sigma_y_px",
-                                "airy_radius_px", "flux_e", "fwhm_um", "ellipticity"]
+                                "airy_radius_px", "flux_e", "fwhm_um", "ellipticity",
+                                "alpha_x", "alpha_y", "wavelength_nm"]
     assert [s["kind"] for s in truth["spots"]] == ["grid"] * 4
     frames = []
     for e in truth["exposures"]:
@@ -385,6 +390,12 @@ def test_refuses_a_non_empty_outdir(tmp_path):
     (["--seed", "-4"], "--seed -4 is out of range"),
     (["--size", "128", "--grid", "2", "--flux_e", "1e6"], "saturates"),
     (["--bogus"], "unrecognized arguments"),
+    (["--wavelength_nm", "0"], "--wavelength_nm 0 is out of range"),
+    (["--wavelength_nm", "-650"], "--wavelength_nm -650 is out of range"),
+    (["--wavelength_nm", "549"], "--wavelength_nm 549 is out of range"),
+    (["--wavelength_nm", "901"], "--wavelength_nm 901 is out of range"),
+    (["--wavelength_nm", "nan"], "--wavelength_nm nan is out of range"),
+    (["--wavelength_nm", "red"], "invalid float value"),
 ])
 def test_errors_are_one_line(tmp_path, args, needle):
     out = tmp_path / "never"
@@ -398,3 +409,159 @@ def test_errors_are_one_line(tmp_path, args, needle):
 def test_missing_outdir_is_one_line():
     r = subprocess.run([sys.executable, str(SCRIPT)], capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1
+
+
+# --------------------------------------------------------------------------------------------
+# Wavelength: one run per wavelength, the same seed, the same layout
+
+
+def law(x, y, size, wavelength_nm):
+    """The docstring's laws, written out here: (sigma_x, sigma_y, alpha_x, alpha_y, airy) [px]
+    at frame position (x, y) and wavelength [nm]."""
+    u, v = 2 * (x + 0.5) / size - 1, 2 * (y + 0.5) / size - 1
+    ax, ay = -0.25 + 0.10 * u, -0.20 + 0.08 * v
+    r = wavelength_nm / 800.0
+    return ((0.29 + 0.05 * u + 0.03 * v * v) * r ** ax, (0.33 + 0.04 * v - 0.02 * u * u) * r ** ay,
+            ax, ay, 0.47 * r)
+
+
+@pytest.fixture(scope="module")
+def by_wavelength(tmp_path_factory):
+    """The small set (as the `small` fixture, seed 5) at 650 and 850 nm: {W: (folder, truth,
+    e- frames)}."""
+    out = {}
+    for w in (650, 850):
+        folder = tmp_path_factory.mktemp(f"w{w}") / "set"
+        truth = make(folder, *SMALL, "--wavelength_nm", w)
+        frames = []
+        for e in truth["exposures"]:
+            with fits.open(folder / e["file"]) as hdul:
+                assert hdul[0].header["WAVELEN"] == float(w)
+                frames.append((hdul[0].data.astype(np.float64) - BIAS) * GAIN)
+        out[w] = (folder, truth, frames)
+    return out
+
+
+def test_wavelength_truth_follows_the_laws(small, by_wavelength):
+    """At 650 nm: every spot's widths, exponents and Airy radius equal the documented laws
+    (to rounding: the script and this test may order the operations differently); truth.csv
+    carries them as truth.json does; the positions are exactly those of the 800 nm set with the
+    same seed (the layout does not depend on the wavelength), as are the other columns that do
+    not depend on it."""
+    folder, truth, _ = by_wavelength[650]
+    _, truth800, _ = small
+    assert truth["options"]["wavelength_nm"] == 650.0 and truth["optics"]["wavelength_nm"] == 650.0
+    assert truth["optics"]["airy_radius_px"] == pytest.approx(0.47 * 650 / 800, rel=1e-12)
+    assert truth["columns"] == truth800["columns"]
+    rows = read_csv(folder / "truth.csv")
+    assert len(rows) == len(truth["spots"]) == len(truth800["spots"]) == 12
+    for r, s, s800 in zip(rows, truth["spots"], truth800["spots"]):
+        for c in truth["columns"][2:]:
+            assert float(r[c]) == s[c], c
+        assert (s["kind"], s["x_px"], s["y_px"]) == (s800["kind"], s800["x_px"], s800["y_px"])
+        sx, sy, ax, ay, airy = law(s["x_px"], s["y_px"], 512, 650.0)
+        assert s["ccd_sigma_x_px"] == pytest.approx(sx, rel=1e-12)
+        assert s["ccd_sigma_y_px"] == pytest.approx(sy, rel=1e-12)
+        assert (s["alpha_x"], s["alpha_y"]) == pytest.approx((ax, ay), rel=1e-12)
+        assert s["airy_radius_px"] == pytest.approx(airy, rel=1e-12)
+        assert s["wavelength_nm"] == 650.0
+        assert (s["alpha_x"], s["alpha_y"]) == (s800["alpha_x"], s800["alpha_y"])
+        # Bluer light diffuses more (alpha < 0): every width is larger than at 800 nm.
+        assert s["ccd_sigma_x_px"] > s800["ccd_sigma_x_px"] and s["ccd_sigma_y_px"] > s800["ccd_sigma_y_px"]
+        tx, ty = math.hypot(sx, 0.41), math.hypot(sy, 0.41)
+        assert s["total_sigma_x_px"] == pytest.approx(tx, rel=1e-12)
+        assert s["total_sigma_y_px"] == pytest.approx(ty, rel=1e-12)
+    assert [e["drift_x_px"] for e in truth["exposures"]] == [e["drift_x_px"] for e in truth800["exposures"]]
+
+
+def test_width_laws_stay_in_bounds_at_every_allowed_wavelength(tmp_path):
+    """The documented laws keep every width in 0.2 .. 0.45 px over the whole sensor (a 401 x 401
+    grid of (u, v) in [-1, 1]) at 550 and 900 nm; the width is monotonic in W for each (u, v)
+    (a power law), so the two ends bound every wavelength between. The script accepts both
+    ends and writes those widths."""
+    uv = np.linspace(-1.0, 1.0, 401)
+    u, v = np.meshgrid(uv, uv)
+    for w in (550.0, 900.0):
+        r = w / 800.0
+        sx = (0.29 + 0.05 * u + 0.03 * v * v) * r ** (-0.25 + 0.10 * u)
+        sy = (0.33 + 0.04 * v - 0.02 * u * u) * r ** (-0.20 + 0.08 * v)
+        assert 0.2 <= sx.min() and sx.max() <= 0.45 and 0.2 <= sy.min() and sy.max() <= 0.45, w
+        truth = make(tmp_path / f"w{w:g}", "--size", "128", "--grid", "2", "--no_extras",
+                     "--exposures", "1", "--wavelength_nm", w)
+        for s in truth["spots"]:
+            want = law(s["x_px"], s["y_px"], 128, w)
+            assert (s["ccd_sigma_x_px"], s["ccd_sigma_y_px"]) == pytest.approx(want[:2], rel=1e-12)
+
+
+def test_noise_streams_differ_between_wavelengths_and_800_is_the_default(tmp_path, small, by_wavelength):
+    """--wavelength_nm 800 gives the default set's bytes. Other wavelengths draw their own noise:
+    the Poisson photon counts of the spots differ (with the same stream they would be equal:
+    reference_sensor draws the count from flux_e first, before any position), and the read noise in pixels far from all
+    spots (25+ px) is uncorrelated between 650 and 850 nm (|r| < 4 / sqrt(n); with one shared
+    stream r would be ~1)."""
+    args = ["--size", "128", "--grid", "2", "--exposures", "1", "--no_extras", "--seed", "9"]
+    make(tmp_path / "default", *args)
+    make(tmp_path / "w800", *args, "--wavelength_nm", "800.0")
+    assert digests(tmp_path / "default") == digests(tmp_path / "w800")
+
+    counts = {w: [rec["photons_drawn"] for e in t["exposures"] for rec in e["spots"]]
+              for w, (_, t, _) in list(by_wavelength.items()) + [(800, small)]}
+    assert counts[650] != counts[850] and counts[650] != counts[800] and counts[850] != counts[800]
+
+    _, truth, frames650 = by_wavelength[650]
+    frames850 = by_wavelength[850][2]
+    for k, e in enumerate(truth["exposures"]):
+        ys, xs = np.mgrid[0:512, 0:512]
+        far = np.ones((512, 512), bool)
+        for s in truth["spots"]:
+            far &= np.maximum(abs(xs - s["x_px"] - e["drift_x_px"]), abs(ys - s["y_px"] - e["drift_y_px"])) > 25
+        r = np.corrcoef(frames650[k][far], frames850[k][far])[0, 1]
+        assert abs(r) < Z_MAX / math.sqrt(far.sum()), (k, r)
+
+
+def test_second_moments_follow_the_wavelength(by_wavelength, small):
+    """The measured per-axis second moments of the 9 grid spots (15 x 15 windows about the true
+    centre), averaged over spots, axes and exposures, change from 650 to 850 nm as the truth
+    says: the expected change D comes from the exact images of each set's truth (Airy radius
+    and widths at that wavelength). Its sign is not obvious: the windowed Airy moment grows
+    ~linearly with r0 (its 1/r^3 wings weigh in up to the window's edge), the diffusion part
+    shrinks (alpha < 0), so the sign is taken from D and required to be clear (|D| > 4 sd).
+    With seed 5, D = -0.071 px^2 (850 nm the wider: the Airy term wins in this window). The
+    data's change agrees with D within 4 sd (sd ~0.0013 px^2: ~0.006 px^2 per moment over 36
+    moments per wavelength), and misses by > 4 sd the change predicted with the 800 nm widths
+    at both wavelengths (only the Airy radius following W; -0.083 px^2, ~9 sd away): the data
+    carry the widths' power law, not just the diffraction."""
+    _, truth800, _ = small
+    widths800 = {s["spot"]: (s["ccd_sigma_x_px"], s["ccd_sigma_y_px"]) for s in truth800["spots"]}
+
+    def mean_moments(w, fixed_widths):
+        _, truth, frames = by_wavelength[w]
+        data = expected = var = 0.0
+        n = 0
+        for frame, e in zip(frames, truth["exposures"]):
+            for spots, centre, hx, hy in groups(truth):
+                if spots[0]["kind"] != "grid":
+                    continue
+                spot = dict(spots[0])
+                if fixed_widths:
+                    spot["ccd_sigma_x_px"], spot["ccd_sigma_y_px"] = widths800[spot["spot"]]
+                d, x, sd = compare_window(frame, e, [spot], centre, hx, hy)
+                for q in ("mx", "my"):
+                    data += d[q]
+                    expected += x[q]
+                    var += sd[q] ** 2
+                    n += 1
+        assert n == 36
+        return data / n, expected / n, var / n ** 2
+
+    d650, x650, v650 = mean_moments(650, False)
+    d850, x850, v850 = mean_moments(850, False)
+    sd = math.sqrt(v650 + v850)
+    change_data, change_expected = d650 - d850, x650 - x850
+    assert abs(change_expected) > Z_MAX * sd  # the sign is clear
+    assert math.copysign(1.0, change_data) == math.copysign(1.0, change_expected)
+    assert abs(change_data - change_expected) < Z_MAX * sd, (change_data, change_expected, sd)
+
+    _, a650, _ = mean_moments(650, True)
+    _, a850, _ = mean_moments(850, True)
+    assert abs(change_data - (a650 - a850)) > Z_MAX * sd, (change_data, a650 - a850, sd)
