@@ -340,6 +340,55 @@ TEST(Grid, ThroughFocusGridIdentifiesEachSpotsCcdWidths) {
               std::filesystem::exists(out + "/plots/map_ccd_sigma_x_px_spots.dat"));
 }
 
+// A campaign of three wavelengths, each a through-focus set (the CCD widths identified per
+// spot), with diffusion widths sigma ~ lambda^alpha and alpha varying across the sensor: each
+// spot's relation of the CCD FWHM (sqrt(sigma_x sigma_y)) with wavelength has alpha =
+// (alpha_x + alpha_y) / 2, the truth's exponents (grid_frames.py's law).
+TEST(Grid, EachSpotsAlphaAcrossWavelengthsHoldsTheTruth) {
+  CCDPSF_RELEASE_ONLY();  // 3 x 5 frames, 27 through-focus fits
+  std::string files;
+  std::string truth_dir;
+  for (const char* wavelength : {"650", "750", "850"}) {
+    const std::string dir = GridFrames(
+        std::string("focus_") + wavelength,
+        std::string("--size 1024 --grid 3 --flux_e 2e5 --focus_um=-100,-50,0,50,100 "
+                    "--defocus_px=0.8,0.4,0.0,0.4,0.8 --no_extras --seed 3 --wavelength_nm ") +
+            wavelength);
+    files += Frames(dir, 5);
+    if (truth_dir.empty()) truth_dir = dir;
+  }
+  const std::string out = FreshDir("Grid", "alpha") + "/out";
+  const RunResult r = RunCcdpsf("grid --nomcmc --out=" + out + files);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("grid of 27 spots in 3 setting(s): 27 fitted (27 ok)"),
+            std::string::npos)
+      << r.output;
+  const std::vector<Row> relations = ReadCsv(out + "/spot_relations.csv");
+  const std::vector<Row> truth = ReadCsv(truth_dir + "/truth.csv");
+  int checked = 0;
+  for (const Row& rel : relations) {
+    if (rel.at("relation") != "fwhm_um_vs_wavelength") continue;
+    EXPECT_EQ(rel.at("n_points"), "3");
+    const Row* best = nullptr;
+    double best_d = INFINITY;
+    for (const Row& t : truth) {
+      const double d = std::hypot(Number(t, "x_px") - Number(rel, "x_px"),
+                                  Number(t, "y_px") - Number(rel, "y_px"));
+      if (d < best_d) best_d = d, best = &t;
+    }
+    ASSERT_LT(best_d, 0.5);
+    const double expected = 0.5 * (Number(*best, "alpha_x") + Number(*best, "alpha_y"));
+    const double half = 0.5 * (Number(rel, "alpha_hi68") - Number(rel, "alpha_lo68"));
+    // 9 pulls from Gaussian (Laplace) points: P(any beyond 4) = 6e-4.
+    EXPECT_LT(std::fabs(Number(rel, "alpha") - expected), 4.0 * half)
+        << "track " << rel.at("track") << ": alpha " << rel.at("alpha") << ", truth "
+        << expected;
+    EXPECT_LT(half, 0.05);  // ~1 % widths over 650-850 nm: alpha to a few hundredths
+    ++checked;
+  }
+  EXPECT_EQ(checked, 9);
+}
+
 // A killed grid keeps the spots it had finished: --resume fits only the others and writes
 // the same map as an uninterrupted run.
 TEST(Grid, AKilledGridResumesWithItsFinishedSpots) {
