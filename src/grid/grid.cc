@@ -4,9 +4,12 @@
 #include <algorithm>
 #include <cstdio>
 #include <filesystem>
+#include <iterator>
+#include <map>
 #include <mutex>
 
 #include "ccdpsf/exposure_set.h"
+#include "ccdpsf/grid/spot_relations.h"
 #include "ccdpsf/trend/group_store.h"
 #include "nlohmann/json.hpp"
 
@@ -149,7 +152,18 @@ bool RunGrid(const std::vector<trend::CampaignGroup>& settings, const GridOption
           }
           options.progress(line);
         });
-    for (size_t g = 0; g < fitted.size(); ++g) entries[group_spot[g]].fit = std::move(fitted[g]);
+    for (size_t g = 0; g < fitted.size(); ++g) {
+      // Only the related metrics' draws are kept (spot_relations.h): the others would make a
+      // spot's result ~115 KB instead of ~16 KB, which 10^4 spots gathered to one process
+      // cannot afford.
+      std::map<std::string, std::vector<double>>& draws = fitted[g].draws;
+      for (auto it = draws.begin(); it != draws.end();) {
+        const std::vector<std::string>& keep = SpotRelationMetrics();
+        it = std::find(keep.begin(), keep.end(), it->first) == keep.end() ? draws.erase(it)
+                                                                           : std::next(it);
+      }
+      entries[group_spot[g]].fit = std::move(fitted[g]);
+    }
     for (SpotEntry& entry : entries) mine.push_back(std::move(entry));
     for (ScannedFrame& frame : frames) frame.cutouts.clear();
     result->frames.push_back(std::move(frames));

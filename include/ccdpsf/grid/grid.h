@@ -52,7 +52,7 @@ struct SpotEntry {
   GridSpot where;       // position and refusal
   std::string segment;  // the frames' EXTNAME, else their HDU number
   bool fitted = false;  // not refused: a fit was made (fit.ok says whether it succeeded)
-  trend::GroupResult fit;
+  trend::GroupResult fit;  // its draws: those of SpotRelationMetrics() only
 };
 
 struct GridResult {
