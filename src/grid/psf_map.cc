@@ -58,7 +58,14 @@ struct Table {
   void Add(const std::string& name, double v, bool integer = false) {
     Number(name, integer).values.push_back(v);
   }
-  void AddText(const std::string& name, const std::string& v) { Text(name).texts.push_back(v); }
+  // FITS text is printable ASCII: anything else (a file name in UTF-8) becomes '?', so that a
+  // long run never fails at its last step on a name.
+  void AddText(const std::string& name, std::string v) {
+    for (char& c : v) {
+      if (c < 0x20 || c > 0x7e) c = '?';
+    }
+    Text(name).texts.push_back(std::move(v));
+  }
 
   std::string Csv() const {
     std::string out;
