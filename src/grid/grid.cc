@@ -34,14 +34,21 @@ std::string CutoutDataSection(const ScannedFrame& frame, const FrameCutout& cut)
          ":" + std::to_string(y1) + "]";
 }
 
+// File e's calibration options: its own (flags, manifest row, FIT.json merged), else the run's.
+const CalibrationOptions& FileOptions(const trend::CampaignGroup& setting, size_t e,
+                                      const CalibrationOptions& run) {
+  return e < setting.inputs.size() ? setting.inputs[e].options : run;
+}
+
 // The spot's calibrated exposures, from its cutouts.
 bool CalibrateSpot(const trend::CampaignGroup& setting, const std::vector<ScannedFrame>& frames,
-                   const GridSpot& spot, ExposureSet* set, std::string* error) {
+                   const GridSpot& spot, const CalibrationOptions& run, ExposureSet* set,
+                   std::string* error) {
   for (size_t e = 0; e < frames.size(); ++e) {
     const ScannedFrame& frame = frames[e];
     const FrameSource& source = frame.sources[spot.source[e]];
     const FrameCutout& cut = frame.cutouts[source.cutout];
-    CalibrationOptions options = setting.inputs[e].options;
+    CalibrationOptions options = FileOptions(setting, e, run);
     const std::string from = "grid: the peak found in the frame scan";
     options.given.SetNumber("spot_x_px", source.shape.peak_x - cut.x0, from);
     options.given.SetNumber("spot_y_px", source.shape.peak_y - cut.y0, from);
@@ -107,9 +114,10 @@ bool RunGrid(const std::vector<trend::CampaignGroup>& settings, const GridOption
       return false;
     }
     for (size_t e = 0; e < setting.files.size(); ++e) {
-      const CalibrationOptions& calibration =
-          e < setting.inputs.size() ? setting.inputs[e].options : options.fit.config.calibration;
-      if (!ScanFrame(setting.files[e], calibration, options.scan, &frames[e], error)) return false;
+      if (!ScanFrame(setting.files[e], FileOptions(setting, e, options.fit.config.calibration),
+                     options.scan, &frames[e], error)) {
+        return false;
+      }
       if (options.progress) {
         int fittable = 0;
         for (const FrameSource& src : frames[e].sources) fittable += src.refused.empty();
@@ -135,7 +143,8 @@ bool RunGrid(const std::vector<trend::CampaignGroup>& settings, const GridOption
     trend::GroupFitOptions fit = options.fit;
     fit.seed_indices = seeds;
     fit.load_exposures = [&](int g, ExposureSet* set, std::string* why) {
-      return CalibrateSpot(setting, frames, entries[group_spot[g]].where, set, why);
+      return CalibrateSpot(setting, frames, entries[group_spot[g]].where,
+                           options.fit.config.calibration, set, why);
     };
     std::vector<trend::GroupResult> fitted =
         trend::FitGroups(groups, fit, [&](const trend::GroupResult& r, int done, int total) {
