@@ -102,6 +102,19 @@ double Number(const Row& row, const std::string& name) {
   return it == row.end() || it->second.empty() ? NAN : std::stod(it->second);
 }
 
+// The truth row nearest `row` by position, and its distance [px]: grid spots are hundreds of
+// pixels apart and a fitted centroid within 0.1 px of its truth.
+const Row* NearestTruth(const std::vector<Row>& truth, const Row& row, double* distance) {
+  const Row* best = nullptr;
+  *distance = INFINITY;
+  for (const Row& t : truth) {
+    const double d =
+        std::hypot(Number(t, "x_px") - Number(row, "x_px"), Number(t, "y_px") - Number(row, "y_px"));
+    if (d < *distance) *distance = d, best = &t;
+  }
+  return best;
+}
+
 // Pulls of the identified widths against the truth, for every spot with verdict ok: the
 // truth spot nearest each map row (grid spots are hundreds of pixels apart; the centroid is
 // within 0.1 px of the truth). Returns the pulls, (fit - truth) / half the 68 % interval.
@@ -112,13 +125,8 @@ std::vector<double> Pulls(const std::vector<Row>& map, const std::vector<Row>& t
   for (const Row& r : map) {
     if (r.at("verdict") != "ok") continue;
     ++*ok_spots;
-    const Row* best = nullptr;
     double best_d = INFINITY;
-    for (const Row& t : truth) {
-      const double d =
-          std::hypot(Number(t, "x_px") - Number(r, "x_px"), Number(t, "y_px") - Number(r, "y_px"));
-      if (d < best_d) best_d = d, best = &t;
-    }
+    const Row* best = NearestTruth(truth, r, &best_d);
     EXPECT_LT(best_d, 0.5) << "spot " << r.at("spot");
     EXPECT_EQ(best->at("kind"), "grid") << "spot " << r.at("spot");
     for (const char* m : {"total_sigma_x_px", "total_sigma_y_px", "total_fwhm_um"}) {
@@ -317,13 +325,8 @@ TEST(Grid, ThroughFocusGridIdentifiesEachSpotsCcdWidths) {
     EXPECT_EQ(row.at("focus_series"), "1");
     if (row.at("verdict") != "ok") continue;
     ++ok;
-    const Row* best = nullptr;
     double best_d = INFINITY;
-    for (const Row& t : truth) {
-      const double d = std::hypot(Number(t, "x_px") - Number(row, "x_px"),
-                                  Number(t, "y_px") - Number(row, "y_px"));
-      if (d < best_d) best_d = d, best = &t;
-    }
+    const Row* best = NearestTruth(truth, row, &best_d);
     ASSERT_LT(best_d, 0.5);
     for (const char* m : {"ccd_sigma_x_px", "ccd_sigma_y_px"}) {
       const std::string name = m;
@@ -369,13 +372,8 @@ TEST(Grid, EachSpotsAlphaAcrossWavelengthsHoldsTheTruth) {
   for (const Row& rel : relations) {
     if (rel.at("relation") != "fwhm_um_vs_wavelength") continue;
     EXPECT_EQ(rel.at("n_points"), "3");
-    const Row* best = nullptr;
     double best_d = INFINITY;
-    for (const Row& t : truth) {
-      const double d = std::hypot(Number(t, "x_px") - Number(rel, "x_px"),
-                                  Number(t, "y_px") - Number(rel, "y_px"));
-      if (d < best_d) best_d = d, best = &t;
-    }
+    const Row* best = NearestTruth(truth, rel, &best_d);
     ASSERT_LT(best_d, 0.5);
     const double expected = 0.5 * (Number(*best, "alpha_x") + Number(*best, "alpha_y"));
     const double half = 0.5 * (Number(rel, "alpha_hi68") - Number(rel, "alpha_lo68"));
