@@ -2,7 +2,10 @@
 //
 // Write the model as a radially symmetric image S (the Airy pattern, or the Airy pattern
 // convolved with the pillbox) convolved with a separable kernel K = kx(x) ky(y), where kx is
-// a Gaussian of total width sX convolved with the unit pixel box (pixel_kernel.h):
+// a Gaussian of total width sX convolved with the pixel's collecting window of width w (1 for
+// the whole pixel; less for a narrower pixel response): the fraction of a unit Gaussian of
+// width s centred at offset t from a pixel centre that falls in the window,
+//   k(t, s) = Phi((t + w/2) / s) - Phi((t - w/2) / s),
 //
 //   M(a, b) = Integral S(p - c) kx(xa - px) ky(yb - py) dp.
 //
@@ -32,11 +35,15 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
+
+#if defined(__AVX2__) && defined(__FMA__)
+#include <immintrin.h>
+#endif
 
 #include "ccdpsf/model/airy.h"
 #include "glog/logging.h"
 #include "internal/gauss_legendre.h"
-#include "internal/pixel_kernel.h"
 
 namespace ccdpsf::internal {
 
@@ -50,6 +57,16 @@ using model::kFlux;
 using model::kNumSpotParams;
 
 namespace {
+
+// Four doubles in one vector register (a GCC/Clang vector extension: one AVX register with
+// -march=x86-64-v3, two SSE2 registers without). Scalars broadcast in arithmetic with it.
+typedef double Vec4 __attribute__((vector_size(32)));
+inline Vec4 LoadVec4(const double* p) {
+  Vec4 v;
+  std::memcpy(&v, p, sizeof v);
+  return v;
+}
+inline void StoreVec4(double* p, const Vec4& v) { std::memcpy(p, &v, sizeof v); }
 
 // Largest number of quadrature nodes allowed in one image: guards against parameters far
 // outside anything physical turning into gigabytes (ValidSpotParams keeps us well below).
@@ -72,89 +89,175 @@ inline void AiryIntensity(double d, double k, double* value, double* d_dk) {
   *d_dk = k / (2.0 * M_PI) * (a * a + a * da * k * d);
 }
 
-// The Airy amplitude a(v) and, when damp is not null, da/dv at n points v >= 0 from the
-// table's quintic pieces (airy.h), as AiryAmplitudeAndDerivativeInline computes them; v at
-// or past kAiryTableMax reads the last piece and must be redone by the caller. (Scalar: AVX2
-// gathers of the coefficients measured slower on the development machine.)
-void TablePolynomial(const double* table, int n, const double* v, double* amp, double* damp) {
+// The Airy amplitude a(v) and da/dv for v >= 0 from the table's quintic pieces (airy.h), as
+// AiryAmplitudeAndDerivativeInline computes them, except that v at or past kAiryTableMax
+// reads the last piece: the caller redoes those.
+inline void TablePolynomial(const double* table, double v, double* amp, double* damp) {
   constexpr double kInvStep = 1.0 / model::kAiryTableStep;
-  const int last = static_cast<int>(std::lround(model::kAiryTableMax * kInvStep)) - 1;
-  for (int t = 0; t < n; ++t) {
-    const double sv = std::min(v[t], model::kAiryTableMax) * kInvStep;
-    const int i = std::min(static_cast<int>(sv), last);
-    const double u = sv - i;
-    const double* c = table + 6 * static_cast<long>(i);
-    amp[t] = c[0] + u * (c[1] + u * (c[2] + u * (c[3] + u * (c[4] + u * c[5]))));
-    if (damp != nullptr) {
-      damp[t] = (c[1] + u * (2 * c[2] + u * (3 * c[3] + u * (4 * c[4] + u * 5 * c[5])))) * kInvStep;
-    }
+  constexpr int kLast = static_cast<int>(model::kAiryTableMax * kInvStep + 0.5) - 1;
+  const double sv = std::min(v, model::kAiryTableMax) * kInvStep;
+  const int i = std::min(static_cast<int>(sv), kLast);
+  const double u = sv - i;
+  const double* c = table + 6 * static_cast<long>(i);
+  *amp = c[0] + u * (c[1] + u * (c[2] + u * (c[3] + u * (c[4] + u * c[5]))));
+  if (damp != nullptr) {
+    *damp = (c[1] + u * (2 * c[2] + u * (3 * c[3] + u * (4 * c[4] + u * 5 * c[5])))) * kInvStep;
   }
 }
 
-// S for the Gaussian-defocus model: the Airy pattern itself.
-// Each quadrant column is done in chunks, in separate vectorised loops: the distances
-// (square roots), then the table's polynomials (TablePolynomial), then the rare nodes past the
-// table's end (exact Bessel functions) fixed up one by one. The values are those of
-// AiryIntensity node by node.
-void FillAiryQuadrant(double k, double dk_dr, double hx, double hy, bool derivs,
-                      Eigen::MatrixXd* q, Eigen::MatrixXd* q_dr) {
+#if defined(__AVX2__) && defined(__FMA__)
+// TablePolynomial at four points. A point's six coefficients are contiguous, so two loads
+// fetch them, and a 4 x 4 (plus a 4 x 2) transpose turns four points' coefficients into one
+// vector per coefficient; the polynomial then runs four points per instruction. (AVX2 gathers
+// of the coefficients measured slower on the development machine, the scalar loop about 2x
+// slower than this.) damp may be null.
+inline __m256d TablePolynomial4(const double* table, __m256d v, __m256d* damp) {
+  constexpr double kInvStep = 1.0 / model::kAiryTableStep;
+  constexpr int kLast = static_cast<int>(model::kAiryTableMax * kInvStep + 0.5) - 1;
+  const __m256d inv_step = _mm256_set1_pd(kInvStep);
+  const __m256d sv =
+      _mm256_mul_pd(_mm256_min_pd(v, _mm256_set1_pd(model::kAiryTableMax)), inv_step);
+  const __m128i index = _mm_min_epi32(_mm256_cvttpd_epi32(sv), _mm_set1_epi32(kLast));  // sv >= 0
+  const __m256d u = _mm256_sub_pd(sv, _mm256_cvtepi32_pd(index));
+  // (Extracted from the register: storing the vector and reading its parts back stalls on
+  // store forwarding.)
+  const double* c[4] = {table + 6 * static_cast<long>(_mm_cvtsi128_si32(index)),
+                        table + 6 * static_cast<long>(_mm_extract_epi32(index, 1)),
+                        table + 6 * static_cast<long>(_mm_extract_epi32(index, 2)),
+                        table + 6 * static_cast<long>(_mm_extract_epi32(index, 3))};
+  // Rows r_l = (c0, c1, c2, c3) of point l, transposed to columns C0..C3 over the points.
+  const __m256d r0 = _mm256_loadu_pd(c[0]), r1 = _mm256_loadu_pd(c[1]);
+  const __m256d r2 = _mm256_loadu_pd(c[2]), r3 = _mm256_loadu_pd(c[3]);
+  const __m256d t0 = _mm256_unpacklo_pd(r0, r1), t1 = _mm256_unpackhi_pd(r0, r1);
+  const __m256d t2 = _mm256_unpacklo_pd(r2, r3), t3 = _mm256_unpackhi_pd(r2, r3);
+  const __m256d c0 = _mm256_permute2f128_pd(t0, t2, 0x20);
+  const __m256d c1 = _mm256_permute2f128_pd(t1, t3, 0x20);
+  const __m256d c2 = _mm256_permute2f128_pd(t0, t2, 0x31);
+  const __m256d c3 = _mm256_permute2f128_pd(t1, t3, 0x31);
+  // (c4, c5) of points 0 and 2, of points 1 and 3; then columns C4, C5.
+  const __m256d s02 = _mm256_insertf128_pd(_mm256_castpd128_pd256(_mm_loadu_pd(c[0] + 4)),
+                                           _mm_loadu_pd(c[2] + 4), 1);
+  const __m256d s13 = _mm256_insertf128_pd(_mm256_castpd128_pd256(_mm_loadu_pd(c[1] + 4)),
+                                           _mm_loadu_pd(c[3] + 4), 1);
+  const __m256d c4 = _mm256_unpacklo_pd(s02, s13), c5 = _mm256_unpackhi_pd(s02, s13);
+  __m256d a = _mm256_fmadd_pd(u, c5, c4);
+  a = _mm256_fmadd_pd(u, a, c3);
+  a = _mm256_fmadd_pd(u, a, c2);
+  a = _mm256_fmadd_pd(u, a, c1);
+  a = _mm256_fmadd_pd(u, a, c0);
+  if (damp != nullptr) {
+    __m256d d = _mm256_fmadd_pd(u, _mm256_mul_pd(_mm256_set1_pd(5.0), c5),
+                                _mm256_mul_pd(_mm256_set1_pd(4.0), c4));
+    d = _mm256_fmadd_pd(u, d, _mm256_mul_pd(_mm256_set1_pd(3.0), c3));
+    d = _mm256_fmadd_pd(u, d, _mm256_add_pd(c2, c2));
+    d = _mm256_fmadd_pd(u, d, c1);
+    *damp = _mm256_mul_pd(d, inv_step);
+  }
+  return a;
+}
+#endif
+
+// S for the Gaussian-defocus model, the Airy pattern, on quadrant column ju from row `first`:
+// S = norm a(v)^2 at v = k d, and dS/dr = dnorm (a^2 + a da v) when col_dr is not null.
+// Nodes past the table's end (v >= kAiryTableMax, exact Bessel functions) are redone one by
+// one at the end; v grows down the column, so the check is the last node's.
+void FillAiryColumn(const double* table, double k, double norm, double dnorm, double hx, double y2,
+                    int first, int rows, double* col, double* col_dr) {
+  int iu = first;
+#if defined(__AVX2__) && defined(__FMA__)
+  const __m256d kv = _mm256_set1_pd(k), hxv = _mm256_set1_pd(hx), y2v = _mm256_set1_pd(y2);
+  const __m256d normv = _mm256_set1_pd(norm), dnormv = _mm256_set1_pd(dnorm);
+  const __m256d step = _mm256_set1_pd(4.0);
+  __m256d index = _mm256_add_pd(_mm256_set1_pd(first), _mm256_set_pd(3.0, 2.0, 1.0, 0.0));
+  for (; iu + 4 <= rows; iu += 4, index = _mm256_add_pd(index, step)) {
+    const __m256d x = _mm256_mul_pd(index, hxv);
+    const __m256d v = _mm256_mul_pd(kv, _mm256_sqrt_pd(_mm256_fmadd_pd(x, x, y2v)));
+    __m256d da;
+    const __m256d a = TablePolynomial4(table, v, col_dr != nullptr ? &da : nullptr);
+    const __m256d a2 = _mm256_mul_pd(a, a);
+    _mm256_storeu_pd(col + iu, _mm256_mul_pd(normv, a2));
+    if (col_dr != nullptr) {
+      _mm256_storeu_pd(col_dr + iu,
+                       _mm256_mul_pd(dnormv, _mm256_fmadd_pd(_mm256_mul_pd(a, da), v, a2)));
+    }
+  }
+#endif
+  for (; iu < rows; ++iu) {
+    const double x = iu * hx;
+    const double v = k * std::sqrt(x * x + y2);
+    double a, da;
+    TablePolynomial(table, v, &a, col_dr != nullptr ? &da : nullptr);
+    col[iu] = norm * a * a;
+    if (col_dr != nullptr) col_dr[iu] = dnorm * (a * a + a * da * v);
+  }
+  const double x_last = (rows - 1) * hx;
+  if (k * std::sqrt(x_last * x_last + y2) < model::kAiryTableMax) return;
+  for (iu = first; iu < rows; ++iu) {
+    const double x = iu * hx;
+    const double v = k * std::sqrt(x * x + y2);
+    if (v < model::kAiryTableMax) continue;
+    double a, da;
+    model::AiryAmplitudeAndDerivative(v, &a, &da);
+    col[iu] = norm * a * a;
+    if (col_dr != nullptr) col_dr[iu] = dnorm * (a * a + a * da * v);
+  }
+}
+
+// Copies the lower triangle of the square part of q onto its upper triangle, q(i, j) = q(j, i)
+// for i < j: in 4 x 4 blocks, each read as four column pieces and written transposed, so that
+// every cache line touched is used whole (element by element, the strided reads took ~10 %
+// of a render).
+void MirrorLowerTriangle(NodeImage* q) {
+  const int n = std::min(q->cols, q->rows);
+  const int rows = q->rows;
+  double* data = q->data();
+  int j0 = 0;
+  for (; j0 + 4 <= n; j0 += 4) {
+    for (int i0 = 0; i0 < j0; i0 += 4) {  // whole blocks above the diagonal
+      Vec4 src[4];                        // src[t] = q(j0..j0+3, i0 + t)
+      for (int t = 0; t < 4; ++t) src[t] = LoadVec4(data + static_cast<size_t>(i0 + t) * rows + j0);
+      for (int t = 0; t < 4; ++t) {
+        const Vec4 column = {src[0][t], src[1][t], src[2][t], src[3][t]};  // q(i0.., j0 + t)
+        StoreVec4(data + static_cast<size_t>(j0 + t) * rows + i0, column);
+      }
+    }
+    for (int j = j0 + 1; j < j0 + 4; ++j) {  // the diagonal block
+      for (int i = j0; i < j; ++i) (*q)(i, j) = (*q)(j, i);
+    }
+  }
+  for (int j = j0; j < n; ++j) {  // columns past the last whole block
+    for (int i = 0; i < j; ++i) (*q)(i, j) = (*q)(j, i);
+  }
+}
+
+// S for the Gaussian-defocus model on the whole quadrant, column by column (FillAiryColumn).
+// The values are those of AiryIntensity node by node.
+void FillAiryQuadrant(double k, double dk_dr, double hx, double hy, bool derivs, NodeImage* q,
+                      NodeImage* q_dr) {
   // With equal spacings S(|i|, |j|) = S(|j|, |i|): compute the lower triangle, mirror the rest.
   static const double* const table = model::AiryTableCoefficients();
   const bool mirror = hx == hy;
-  const int rows = static_cast<int>(q->rows());
+  const int rows = q->rows;
   const double norm = k * k / (4.0 * M_PI);
   const double dnorm = k / (2.0 * M_PI) * dk_dr;  // d(norm a^2)/dr = dnorm (a^2 + a da k d)
-  constexpr int kChunk = 64;
-  double v[kChunk], amp[kChunk], damp[kChunk];
-  for (int ju = 0; ju < q->cols(); ++ju) {
+  for (int ju = 0; ju < q->cols; ++ju) {
     const double y2 = (ju * hy) * (ju * hy);
     const int first = (mirror && ju < rows) ? ju : 0;
     double* col = q->data() + static_cast<size_t>(ju) * rows;
     double* col_dr = derivs ? q_dr->data() + static_cast<size_t>(ju) * rows : nullptr;
-    for (int start = first; start < rows; start += kChunk) {
-      const int n = std::min(kChunk, rows - start);
-      for (int t = 0; t < n; ++t) {
-        const double x = (start + t) * hx;
-        v[t] = k * std::sqrt(x * x + y2);
-      }
-      // The table's polynomial where v is inside it (index clamped so the loop has no branch;
-      // entries past the end are redone below).
-      if (!derivs) {
-        TablePolynomial(table, n, v, amp, nullptr);
-        for (int t = 0; t < n; ++t) {
-          if (v[t] >= model::kAiryTableMax) amp[t] = model::AiryAmplitude(v[t]);
-        }
-        for (int t = 0; t < n; ++t) col[start + t] = norm * amp[t] * amp[t];
-        continue;
-      }
-      TablePolynomial(table, n, v, amp, damp);
-      for (int t = 0; t < n; ++t) {
-        if (v[t] >= model::kAiryTableMax) {
-          model::AiryAmplitudeAndDerivative(v[t], &amp[t], &damp[t]);
-        }
-      }
-      for (int t = 0; t < n; ++t) {
-        col[start + t] = norm * amp[t] * amp[t];
-        col_dr[start + t] = dnorm * (amp[t] * amp[t] + amp[t] * damp[t] * v[t]);
-      }
-    }
+    FillAiryColumn(table, k, norm, dnorm, hx, y2, first, rows, col, col_dr);
   }
   if (!mirror) return;
-  for (int ju = 1; ju < std::min<int>(q->cols(), rows); ++ju) {
-    for (int iu = 0; iu < ju; ++iu) {
-      (*q)(iu, ju) = (*q)(ju, iu);
-      if (derivs) (*q_dr)(iu, ju) = (*q_dr)(ju, iu);
-    }
-  }
+  MirrorLowerTriangle(q);
+  if (derivs) MirrorLowerTriangle(q_dr);
 }
 
 // S for the pillbox model: the mean of the Airy intensity over a disc of radius R around
 // each node, by Gauss-Legendre in radius and the (spectrally accurate) midpoint rule in
 // angle. The angular integrand has Fourier modes up to about 2 pi rho_c R, the radial one is
 // entire; node counts follow with a margin that the reference tests confirm.
-void FillPillboxQuadrant(double k, double dk_dr, double rho_c, double radius, double hx,
-                         double hy, Eigen::MatrixXd* q, Eigen::MatrixXd* q_dr,
-                         Eigen::MatrixXd* q_dR) {
+void FillPillboxQuadrant(double k, double dk_dr, double rho_c, double radius, double hx, double hy,
+                         NodeImage* q, NodeImage* q_dr, NodeImage* q_dR) {
   const int n_full = static_cast<int>(std::ceil(2.0 * M_PI * rho_c * radius * 1.1 + 20.0));
   const int n_theta = (n_full + 1) / 2;  // midpoints on [0, pi]; the integrand is even in theta
   const int n_rho = static_cast<int>(std::ceil(M_PI * rho_c * radius + 10.0));
@@ -172,8 +275,8 @@ void FillPillboxQuadrant(double k, double dk_dr, double rho_c, double radius, do
   // With equal spacings S(|i|, |j|) = S(|j|, |i|): compute the lower triangle, mirror the rest
   // (this fill is most of a pillbox render's time).
   const bool mirror = hx == hy;
-  const int rows = static_cast<int>(q->rows());
-  for (int ju = 0; ju < q->cols(); ++ju) {
+  const int rows = static_cast<int>(q->rows);
+  for (int ju = 0; ju < q->cols; ++ju) {
     const int first = (mirror && ju < rows) ? ju : 0;
     for (int iu = first; iu < rows; ++iu) {
       const double d = std::hypot(iu * hx, ju * hy);
@@ -207,13 +310,9 @@ void FillPillboxQuadrant(double k, double dk_dr, double rho_c, double radius, do
     }
   }
   if (!mirror) return;
-  for (int ju = 1; ju < std::min<int>(q->cols(), rows); ++ju) {
-    for (int iu = 0; iu < ju; ++iu) {
-      (*q)(iu, ju) = (*q)(ju, iu);
-      (*q_dr)(iu, ju) = (*q_dr)(ju, iu);
-      (*q_dR)(iu, ju) = (*q_dR)(ju, iu);
-    }
-  }
+  MirrorLowerTriangle(q);
+  MirrorLowerTriangle(q_dr);
+  MirrorLowerTriangle(q_dR);
 }
 
 // Kernel weights along one axis. With an integer node density Q = 1/h, the nodes seen by
@@ -226,58 +325,144 @@ struct AxisWeights {
   Eigen::MatrixXd w;  // (size x 3): h k, d(h k)/d centre, d(h k)/d width
 };
 
-void ComputeAxisWeights(double pixel0, double centre, double h, int q, double half_width,
-                        double s, double window, bool derivs, AxisWeights* aw) {
+// The pixel kernel k(t, s) times h at every node of the window, and when
+// derivs its derivatives by the centre and the width. A node's kernel is the normal
+// probability between its window's edges t +- w/2; the normal's tail and density are
+// evaluated once per edge. With the whole pixel collecting (w = 1 = q node spacings) node m's
+// lower edge is node m + q's upper edge, which halves the (erfc, exp) evaluations.
+void ComputeAxisWeights(double pixel0, double centre, double h, int q, double half_width, double s,
+                        double window, bool derivs, AxisWeights* aw,
+                        std::vector<double>* edge_scratch) {
+  constexpr double kInvSqrt2 = 0.70710678118654752440;
+  constexpr double kInvSqrt2Pi = 0.39894228040143267794;
   aw->q = q;
   aw->first = static_cast<int>(std::ceil((pixel0 - centre - half_width) * q));
   const int last = static_cast<int>(std::floor((pixel0 - centre + half_width) * q));
   const int size = last - aw->first + 1;
   aw->w.resize(size, derivs ? 3 : 1);
+  const double half = 0.5 * window;
+  const bool shared = window == 1.0;
+  // Edges: [0, n_upper) the upper edges of nodes 0, 1, ... (shared: also the lower edges,
+  // node m's at m + q); then, not shared, the lower edges of nodes 0..size-1.
+  const int n_upper = shared ? size + q : size;
+  const int n_edges = shared ? n_upper : 2 * size;
+  // Per edge: z = edge / s, the tail 0.5 erfc(|z| / sqrt 2) (one side, so that far from the
+  // centre the difference of two tails keeps its relative precision), the density phi(z).
+  edge_scratch->resize(3 * static_cast<size_t>(n_edges));
+  double* z = edge_scratch->data();
+  double* tail = z + n_edges;
+  double* density = tail + n_edges;
+  for (int e = 0; e < n_edges; ++e) {
+    const int node = e < n_upper ? e : e - n_upper;
+    const double t = pixel0 - centre - (aw->first + node) * h;
+    z[e] = (e < n_upper ? t + half : t - half) / s;
+    tail[e] = 0.5 * std::erfc(std::fabs(z[e]) * kInvSqrt2);
+    if (derivs) density[e] = kInvSqrt2Pi * std::exp(-0.5 * z[e] * z[e]);
+  }
   for (int m = 0; m < size; ++m) {
-    const PixelKernelValue kv = PixelKernel(pixel0 - centre - (aw->first + m) * h, s, window);
-    aw->w(m, 0) = h * kv.value;
+    const int up = m, lo = shared ? m + q : n_upper + m;
+    const double zp = z[up], zm = z[lo];
+    double value;
+    if (zm >= 0.0) {
+      value = tail[lo] - tail[up];  // both edges above the centre
+    } else if (zp <= 0.0) {
+      value = tail[up] - tail[lo];  // both below
+    } else {
+      value = 1.0 - tail[up] - tail[lo];  // the window straddles the centre
+    }
+    aw->w(m, 0) = h * value;
     if (derivs) {
-      aw->w(m, 1) = -h * kv.d_dt;  // t = pixel - centre - node: d/dcentre = -d/dt
-      aw->w(m, 2) = h * kv.d_ds;
+      // dk/dt = (phi(zp) - phi(zm)) / s; t = pixel - centre - node, so d/dcentre = -d/dt.
+      aw->w(m, 1) = -h * (density[up] - density[lo]) / s;
+      aw->w(m, 2) = -h * (zp * density[up] - zm * density[lo]) / s;  // dk/ds
     }
   }
 }
 
-// The inner loops of both passes, as functions whose restrict-qualified arguments tell the
-// compiler the arrays do not overlap, so that it vectorises them.
-// out += w * x
-inline void Axpy(int n, double w, const double* __restrict x, double* __restrict out) {
-  for (int i = 0; i < n; ++i) out[i] += w * x[i];
-}
-// out0 += w0 x, out1 += w1 x, out2 += w2 x: one input with three weights.
-inline void Axpy3(int n, double w0, double w1, double w2, const double* __restrict x,
-                  double* __restrict out0, double* __restrict out1, double* __restrict out2) {
-  for (int i = 0; i < n; ++i) {
-    out0[i] += w0 * x[i];
-    out1[i] += w1 * x[i];
-    out2[i] += w2 * x[i];
+// The inner loop of both passes: for r < R,
+//   out[r * out_stride + t] = sum_m w[r * w_stride + m] * base[offset[m] + t],
+// for t in [start, start + 4 V). The 4 V sums of each weight row stay in registers through
+// the whole sum over nodes m, so each input vector is loaded once for R rows of weights and
+// each output is stored once (register blocking: a load per multiply-add for R = 1, a third
+// of one for R = 3, against two loads and a store per multiply-add for a plain axpy).
+template <int R, int V>
+inline void WeightedSumsBlock(int nodes, const double* base, const size_t* offset, const double* w,
+                              int w_stride, int start, double* out, int out_stride) {
+  Vec4 acc[R][V];
+  for (int r = 0; r < R; ++r) {
+    for (int v = 0; v < V; ++v) acc[r][v] = Vec4{0.0, 0.0, 0.0, 0.0};
+  }
+  for (int m = 0; m < nodes; ++m) {
+    const double* x = base + offset[m] + start;
+    Vec4 in[V];
+    for (int v = 0; v < V; ++v) in[v] = LoadVec4(x + 4 * v);
+    for (int r = 0; r < R; ++r) {
+      const double wr = w[r * w_stride + m];
+      for (int v = 0; v < V; ++v) acc[r][v] += wr * in[v];
+    }
+  }
+  for (int r = 0; r < R; ++r) {
+    for (int v = 0; v < V; ++v) StoreVec4(out + r * out_stride + start + 4 * v, acc[r][v]);
   }
 }
 
-// Four inputs at once ("register blocking"): each pass of the output then carries four
-// weighted inputs instead of one, so the output is loaded and stored a quarter as often.
-// out += w[0] x0 + w[1] x1 + w[2] x2 + w[3] x3.
-inline void Axpy4(int n, const double* w, const double* __restrict x0, const double* __restrict x1,
-                  const double* __restrict x2, const double* __restrict x3,
-                  double* __restrict out) {
-  const double a = w[0], b = w[1], c = w[2], d = w[3];
-  for (int i = 0; i < n; ++i) out[i] += a * x0[i] + b * x1[i] + c * x2[i] + d * x3[i];
+// WeightedSumsBlock over t in [0, length), length a multiple of 4: blocks of 4 V, then one
+// block of whatever is left (so that short lengths still have several independent sums in
+// flight: one multiply-add's latency is several cycles).
+template <int R, int V>
+void WeightedSums(int nodes, const double* base, const size_t* offset, const double* w,
+                  int w_stride, int length, double* out, int out_stride) {
+  int start = 0;
+  for (; start + 4 * V <= length; start += 4 * V) {
+    WeightedSumsBlock<R, V>(nodes, base, offset, w, w_stride, start, out, out_stride);
+  }
+  switch ((length - start) / 4) {
+#define CCDPSF_REST(n)                                                                   \
+  case n:                                                                                \
+    if constexpr (n < V) {                                                               \
+      WeightedSumsBlock<R, n>(nodes, base, offset, w, w_stride, start, out, out_stride); \
+    }                                                                                    \
+    break;
+    CCDPSF_REST(1)
+    CCDPSF_REST(2)
+    CCDPSF_REST(3)
+    CCDPSF_REST(4)
+    CCDPSF_REST(5)
+    CCDPSF_REST(6)
+    CCDPSF_REST(7)
+#undef CCDPSF_REST
+    default:
+      break;
+  }
 }
-// The three-weight form of Axpy3 over four inputs: out_r += sum_t w_r[t] x_t, r = 0, 1, 2.
-inline void Axpy3x4(int n, const double* w0, const double* w1, const double* w2,
-                    const double* __restrict x0, const double* __restrict x1,
-                    const double* __restrict x2, const double* __restrict x3,
-                    double* __restrict out0, double* __restrict out1, double* __restrict out2) {
-  for (int i = 0; i < n; ++i) {
-    const double v0 = x0[i], v1 = x1[i], v2 = x2[i], v3 = x3[i];
-    out0[i] += w0[0] * v0 + w0[1] * v1 + w0[2] * v2 + w0[3] * v3;
-    out1[i] += w1[0] * v0 + w1[1] * v1 + w1[2] * v2 + w1[3] * v3;
-    out2[i] += w2[0] * v0 + w2[1] * v1 + w2[2] * v2 + w2[3] * v3;
+// Block sizes: R x V accumulators plus V inputs fit the 16 vector registers of AVX2.
+inline void WeightedSums1(int nodes, const double* base, const size_t* offset, const double* w,
+                          int length, double* out) {
+  WeightedSums<1, 8>(nodes, base, offset, w, 0, length, out, 0);
+}
+inline void WeightedSums3(int nodes, const double* base, const size_t* offset, const double* w,
+                          int w_stride, int length, double* out, int out_stride) {
+  WeightedSums<3, 3>(nodes, base, offset, w, w_stride, length, out, out_stride);
+}
+
+// Stores four first-pass output rows (rows[l * row_size + rhs * nh + i], for b = b0 + l) into
+// bt[(i * nr + rhs) * ny_pad + b0 + l]: a 4 x 4 transpose per four nodes, so that each store
+// writes four b at once (one strided store per value measured ~15 % of a render).
+void TransposeStore4(const double* rows, size_t row_size, int nh, int nr, int ny_pad, int b0,
+                     double* bt) {
+  for (int r = 0; r < nr; ++r) {
+    const double* x0 = rows + r * nh;
+    const double* x1 = x0 + row_size;
+    const double* x2 = x1 + row_size;
+    const double* x3 = x2 + row_size;
+    for (int i = 0; i < nh; i += 4) {  // nh is a multiple of 4
+      const Vec4 a = LoadVec4(x0 + i), b = LoadVec4(x1 + i);
+      const Vec4 c = LoadVec4(x2 + i), d = LoadVec4(x3 + i);
+      for (int t = 0; t < 4; ++t) {
+        const Vec4 column = {a[t], b[t], c[t], d[t]};
+        StoreVec4(bt + (static_cast<size_t>(i + t) * nr + r) * ny_pad + b0, column);
+      }
+    }
   }
 }
 
@@ -320,8 +505,10 @@ void RenderIntegrated(const model::ModelOptions& options, const model::SpotParam
   // A collecting window narrower than the pixel (ModelOptions::pixel_response_width) only
   // shortens the reach of each node; the error bound holds as it is (|sinc(w f)| <= 1).
   const double window = options.pixel_response_width;
-  ComputeAxisWeights(grid.x0, cx, hx, qx, 0.5 * window + tw * sx, sx, window, derivs, &wx);
-  ComputeAxisWeights(grid.y0, cy, hy, qy, 0.5 * window + tw * sy, sy, window, derivs, &wy);
+  ComputeAxisWeights(grid.x0, cx, hx, qx, 0.5 * window + tw * sx, sx, window, derivs, &wx,
+                     &ws->edges);
+  ComputeAxisWeights(grid.y0, cy, hy, qy, 0.5 * window + tw * sy, sy, window, derivs, &wy,
+                     &ws->edges);
   // Node ranges: every node some pixel of the grid sees.
   const int i_lo = wx.first, i_hi = wx.first + qx * (grid.nx - 1) + wx.w.rows() - 1;
   const int j_lo = wy.first, j_hi = wy.first + qy * (grid.ny - 1) + wy.w.rows() - 1;
@@ -331,133 +518,103 @@ void RenderIntegrated(const model::ModelOptions& options, const model::SpotParam
   // Radial image S on the nodes, through the symmetric quadrant.
   const int iu_max = std::max(std::abs(i_lo), std::abs(i_hi));
   const int ju_max = std::max(std::abs(j_lo), std::abs(j_hi));
-  ws->quadrant.resize(iu_max + 1, ju_max + 1);
-  ws->quadrant_dr.resize(iu_max + 1, ju_max + 1);
+  // Rows |i| of the half problem, padded to whole vectors of four (the extra rows hold S at
+  // further nodes, computed like the others and never read into the output).
+  const int nh = (iu_max + 1 + 3) / 4 * 4;
+  ws->quadrant.Resize(nh, ju_max + 1);
+  ws->quadrant_dr.Resize(nh, ju_max + 1);
   if (pillbox && defocus > 0.0) {
-    ws->quadrant_dR.resize(iu_max + 1, ju_max + 1);
+    ws->quadrant_dR.Resize(nh, ju_max + 1);
     FillPillboxQuadrant(k, dk_dr, rho_c, defocus, hx, hy, &ws->quadrant, &ws->quadrant_dr,
                         &ws->quadrant_dR);
   } else {
     FillAiryQuadrant(k, dk_dr, hx, hy, jacobian != nullptr, &ws->quadrant, &ws->quadrant_dr);
     // A pillbox of zero radius: S = Airy, and dS/dR = 0 there (S - Airy is O(R^2)).
-    if (pillbox) ws->quadrant_dR.setZero(iu_max + 1, ju_max + 1);
+    if (pillbox) {
+      ws->quadrant_dR.Resize(nh, ju_max + 1);
+      std::fill_n(ws->quadrant_dR.data(), static_cast<size_t>(nh) * (ju_max + 1), 0.0);
+    }
   }
-  const int nh = iu_max + 1;  // rows |i| of the half problem
 
   // First pass, along y: B(|i|, b) = hy sum_j S(|i|, j) ky(yb - cy - j hy), and the same
   // with d ky / d cy, d ky / d sY, and with dS / dr (and dS / dR): nr right-hand sides.
   // Hand-written loops: at these sizes (~75 x 40 per output row) a general matrix product
-  // spends more time packing than multiplying. The inner loop runs down a contiguous column
-  // of S; each finished row b is stored transposed, bt[(k * nh + |i|) * ny + b], so that the
-  // second pass can run its inner loop over b.
+  // spends more time packing than multiplying. The sums run down contiguous columns of S
+  // (node column j is quadrant column |j|: S(i, -j) = S(i, j), read in place); each finished
+  // row b is stored transposed, bt[(|i| * nr + rhs) * ny_pad + b], so that the second pass
+  // runs over b in the same way, with the right-hand sides of one node side by side.
   const int nr = derivs ? (pillbox ? 5 : 4) : 1;
   const int ny = grid.ny;
-  ws->row.resize(static_cast<size_t>(nr) * nh);
-  ws->bt.resize(static_cast<size_t>(nr) * nh * ny);
+  const int ny_pad = (ny + 3) / 4 * 4;  // b padded to whole vectors; the padding holds zeros
+  const size_t row_size = static_cast<size_t>(nr) * nh;  // one output row b, [rhs * nh + |i|]
+  ws->row.resize(4 * row_size);
+  ws->bt.resize(row_size * ny_pad);
   const int wy_size = static_cast<int>(wy.w.rows());
-  // Node column j of S is quadrant column |j| (S(i, -j) = S(i, j)), read in place.
-  const double* s_val = ws->quadrant.data();
-  const double* s_dr = ws->quadrant_dr.data();
-  const double* s_dR = pillbox ? ws->quadrant_dR.data() : nullptr;
-  double* out = ws->row.data();
-  for (int b = 0; b < ny; ++b) {
-    std::fill(ws->row.begin(), ws->row.end(), 0.0);
-    int m = 0;
-    for (; m + 4 <= wy_size; m += 4) {
-      size_t col[4];
-      double w0[4], w1[4], w2[4];
-      for (int t = 0; t < 4; ++t) {
-        col[t] = static_cast<size_t>(std::abs(j_lo + qy * b + m + t)) * nh;
-        w0[t] = wy.w(m + t, 0);
-        if (derivs) w1[t] = wy.w(m + t, 1), w2[t] = wy.w(m + t, 2);
-      }
-      if (!derivs) {
-        Axpy4(nh, w0, s_val + col[0], s_val + col[1], s_val + col[2], s_val + col[3], out);
+  const int wx_size = static_cast<int>(wx.w.rows());
+  ws->offset.resize(std::max(wx_size, wy_size));
+  size_t* offset = ws->offset.data();
+  // Rows b in fours, so that the transposed stores are of four b at once.
+  for (int b0 = 0; b0 < ny_pad; b0 += 4) {
+    for (int l = 0; l < 4; ++l) {
+      const int b = b0 + l;
+      double* row = ws->row.data() + l * row_size;
+      if (b >= ny) {
+        std::fill_n(row, row_size, 0.0);
         continue;
       }
-      Axpy3x4(nh, w0, w1, w2, s_val + col[0], s_val + col[1], s_val + col[2], s_val + col[3], out,
-              out + nh, out + 2 * nh);
-      Axpy4(nh, w0, s_dr + col[0], s_dr + col[1], s_dr + col[2], s_dr + col[3], out + 3 * nh);
-      if (pillbox) {
-        Axpy4(nh, w0, s_dR + col[0], s_dR + col[1], s_dR + col[2], s_dR + col[3], out + 4 * nh);
+      for (int m = 0; m < wy_size; ++m) {
+        offset[m] = static_cast<size_t>(std::abs(j_lo + qy * b + m)) * nh;
+      }
+      if (derivs) {
+        WeightedSums3(wy_size, ws->quadrant.data(), offset, wy.w.data(), wy_size, nh, row, nh);
+        WeightedSums1(wy_size, ws->quadrant_dr.data(), offset, wy.w.data(), nh, row + 3 * nh);
+        if (pillbox) {
+          WeightedSums1(wy_size, ws->quadrant_dR.data(), offset, wy.w.data(), nh, row + 4 * nh);
+        }
+      } else {
+        WeightedSums1(wy_size, ws->quadrant.data(), offset, wy.w.data(), nh, row);
       }
     }
-    for (; m < wy_size; ++m) {
-      const size_t col = static_cast<size_t>(std::abs(j_lo + qy * b + m)) * nh;
-      const double* sv = s_val + col;
-      const double w0 = wy.w(m, 0);
-      if (!derivs) {
-        Axpy(nh, w0, sv, out);
-        continue;
-      }
-      Axpy3(nh, w0, wy.w(m, 1), wy.w(m, 2), sv, out, out + nh, out + 2 * nh);
-      Axpy(nh, w0, s_dr + col, out + 3 * nh);
-      if (pillbox) Axpy(nh, w0, s_dR + col, out + 4 * nh);
-    }
-    for (size_t q = 0; q < ws->row.size(); ++q) ws->bt[q * ny + b] = out[q];
+    TransposeStore4(ws->row.data(), row_size, nh, nr, ny_pad, b0, ws->bt.data());
   }
 
-  // Second pass, along x: M(a, b) = hx sum_i kx(xa - cx - i hx) B(|i|, b), vectorised over b.
+  // Second pass, along x: M(a, b) = hx sum_i kx(xa - cx - i hx) B(|i|, b), over b.
   const double flux = p[kFlux];
   const double gx = (!pillbox && sx > 0) ? defocus / sx : 0.0;  // d sX / d sigma_f
   const double gy = (!pillbox && sy > 0) ? defocus / sy : 0.0;
   const double fx = pillbox ? 1.0 : p[kCcdSigmaX] / sx;          // d sX / d sigma_x
   const double fy = pillbox ? 1.0 : p[kCcdSigmaY] / sy;
-  const int wx_size = static_cast<int>(wx.w.rows());
+  // acc rows: value, d/dcx, d/dsX, d/dcy, d/dsY, d/dr, d/dR.
   const int nacc = derivs ? (pillbox ? 7 : 6) : 1;
-  ws->acc.resize(static_cast<size_t>(nacc) * ny);
+  ws->acc.resize(static_cast<size_t>(nacc) * ny_pad);
   double* acc = ws->acc.data();
-  const double* bt = ws->bt.data();
-  const size_t plane = static_cast<size_t>(nh) * ny;  // one right-hand side in bt
+  const int node_stride = nr * ny_pad;  // one node's right-hand sides in bt
   for (int a = 0; a < grid.nx; ++a) {
-    std::fill(ws->acc.begin(), ws->acc.end(), 0.0);
     const int first = i_lo + qx * a;
-    int m = 0;
-    for (; m + 4 <= wx_size; m += 4) {
-      const double* v[4];
-      double w0[4], w1[4], w2[4];
-      for (int t = 0; t < 4; ++t) {
-        v[t] = bt + static_cast<size_t>(std::abs(first + m + t)) * ny;
-        w0[t] = wx.w(m + t, 0);
-        if (derivs) w1[t] = wx.w(m + t, 1), w2[t] = wx.w(m + t, 2);
-      }
-      if (!derivs) {
-        Axpy4(ny, w0, v[0], v[1], v[2], v[3], acc);
-        continue;
-      }
-      Axpy3x4(ny, w0, w1, w2, v[0], v[1], v[2], v[3], acc, acc + ny, acc + 2 * ny);
-      for (int r = 1; r <= (pillbox ? 4 : 3); ++r) {
-        const size_t o = r * plane;
-        Axpy4(ny, w0, v[0] + o, v[1] + o, v[2] + o, v[3] + o, acc + (2 + r) * ny);
-      }
+    for (int m = 0; m < wx_size; ++m) {
+      offset[m] = static_cast<size_t>(std::abs(first + m)) * node_stride;
     }
-    for (; m < wx_size; ++m) {
-      const double* v = bt + static_cast<size_t>(std::abs(first + m)) * ny;
-      const double w0 = wx.w(m, 0);
-      // acc rows: value, d/dcx, d/dsX, d/dcy, d/dsY, d/dr, d/dR.
-      if (!derivs) {
-        Axpy(ny, w0, v, acc);
-        continue;
-      }
-      Axpy3(ny, w0, wx.w(m, 1), wx.w(m, 2), v, acc, acc + ny, acc + 2 * ny);
-      Axpy(ny, w0, v + plane, acc + 3 * ny);
-      Axpy(ny, w0, v + 2 * plane, acc + 4 * ny);
-      Axpy(ny, w0, v + 3 * plane, acc + 5 * ny);
-      if (pillbox) Axpy(ny, w0, v + 4 * plane, acc + 6 * ny);
+    const double* bt = ws->bt.data();
+    if (derivs) {
+      // B with the three weights, then every other right-hand side with the value weight.
+      WeightedSums3(wx_size, bt, offset, wx.w.data(), wx_size, ny_pad, acc, ny_pad);
+      WeightedSums1(wx_size, bt + ny_pad, offset, wx.w.data(), (nr - 1) * ny_pad, acc + 3 * ny_pad);
+    } else {
+      WeightedSums1(wx_size, bt, offset, wx.w.data(), ny_pad, acc);
     }
     for (int b = 0; b < ny; ++b) {
       const int pix = b * grid.nx + a;
       model_out[pix] = flux * acc[b];
       if (!derivs) continue;
-      double* row = jacobian + static_cast<size_t>(pix) * kNumSpotParams;
-      const double d_sx = acc[2 * ny + b], d_sy = acc[4 * ny + b];
-      row[kFlux] = acc[b];
-      row[kCentreX] = flux * acc[ny + b];
-      row[kCentreY] = flux * acc[3 * ny + b];
-      row[kAiryRadius] = flux * acc[5 * ny + b];
-      row[kDefocus] = pillbox ? flux * acc[6 * ny + b] : flux * (d_sx * gx + d_sy * gy);
-      row[kCcdSigmaX] = flux * d_sx * fx;
-      row[kCcdSigmaY] = flux * d_sy * fy;
+      double* jrow = jacobian + static_cast<size_t>(pix) * kNumSpotParams;
+      const double d_sx = acc[2 * ny_pad + b], d_sy = acc[4 * ny_pad + b];
+      jrow[kFlux] = acc[b];
+      jrow[kCentreX] = flux * acc[ny_pad + b];
+      jrow[kCentreY] = flux * acc[3 * ny_pad + b];
+      jrow[kAiryRadius] = flux * acc[5 * ny_pad + b];
+      jrow[kDefocus] = pillbox ? flux * acc[6 * ny_pad + b] : flux * (d_sx * gx + d_sy * gy);
+      jrow[kCcdSigmaX] = flux * d_sx * fx;
+      jrow[kCcdSigmaY] = flux * d_sy * fy;
     }
   }
 }

@@ -2,22 +2,56 @@
 #ifndef CCDPSF_INTERNAL_INTEGRATED_RENDERER_H_
 #define CCDPSF_INTERNAL_INTEGRATED_RENDERER_H_
 
-#include <vector>
-
 #include <Eigen/Core>
+#include <cstdint>
+#include <vector>
 
 #include "ccdpsf/model/spot_model.h"
 
 namespace ccdpsf::internal {
 
+// Doubles starting on a 64-byte boundary (a cache line): the passes load four doubles at a
+// time, and a load straddling two cache lines costs two.
+class AlignedDoubles {
+ public:
+  void resize(size_t n) {
+    storage_.resize(n + 7);
+    const size_t misalignment = reinterpret_cast<uintptr_t>(storage_.data()) % 64;
+    data_ = storage_.data() + (misalignment == 0 ? 0 : (64 - misalignment) / sizeof(double));
+  }
+  double* data() { return data_; }
+  const double* data() const { return data_; }
+  double& operator[](size_t i) { return data_[i]; }
+
+ private:
+  std::vector<double> storage_;
+  double* data_ = nullptr;
+};
+
+// A column-major image on quadrature nodes; with rows a multiple of 4 every column starts on
+// a 32-byte boundary, so that no four-double load straddles a cache line.
+struct NodeImage {
+  int rows = 0, cols = 0;
+  AlignedDoubles values;
+  void Resize(int r, int c) {
+    rows = r;
+    cols = c;
+    values.resize(static_cast<size_t>(r) * c);
+  }
+  double& operator()(int i, int j) { return values[static_cast<size_t>(j) * rows + i]; }
+  double* data() { return values.data(); }
+};
+
 // Scratch space reused between renders (sizes change with the parameters).
 struct IntegratedWorkspace {
   // The radially symmetric image S (unit flux) at the nodes (|i|, |j|) of one quadrant, and
   // its derivatives by the Airy radius and (pillbox only) the pillbox radius.
-  Eigen::MatrixXd quadrant, quadrant_dr, quadrant_dR;
-  std::vector<double> row;  // first pass: the right-hand sides of one output row, by |i|
-  std::vector<double> bt;   // first pass output, [(rhs * n|i| + |i|) * ny + b]
-  std::vector<double> acc;  // second pass accumulators, [quantity * ny + b]
+  NodeImage quadrant, quadrant_dr, quadrant_dR;
+  AlignedDoubles row;          // first pass: the right-hand sides of one output row, by |i|
+  AlignedDoubles bt;           // first pass output, [(|i| * rhs count + rhs) * ny_pad + b]
+  std::vector<double> acc;     // second pass accumulators, [quantity * ny_pad + b]
+  std::vector<double> edges;   // kernel weights: the normal's values at the window edges
+  std::vector<size_t> offset;  // where each kernel node's input starts, for one output line
 };
 
 // Renders with unit flux semantics handled inside; see renderer.h for the output layout.
