@@ -518,6 +518,10 @@ void RenderIntegrated(const model::ModelOptions& options, const model::SpotParam
   // Radial image S on the nodes, through the symmetric quadrant.
   const int iu_max = std::max(std::abs(i_lo), std::abs(i_hi));
   const int ju_max = std::max(std::abs(j_lo), std::abs(j_hi));
+  // The Airy table must reach the farthest node (plus the disc's radius for the pillbox).
+  // The padding rows below reach 3 nodes further.
+  model::EnsureAiryTable(k *
+                         (std::hypot((iu_max + 3) * hx, ju_max * hy) + (pillbox ? defocus : 0.0)));
   // Rows |i| of the half problem, padded to whole vectors of four (the extra rows hold S at
   // further nodes, computed like the others and never read into the output).
   const int nh = (iu_max + 1 + 3) / 4 * 4;

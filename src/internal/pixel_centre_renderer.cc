@@ -190,6 +190,13 @@ void RenderPixelCentre(const model::SpotParams& params, const model::PixelGrid& 
                        double defocus_dy_px) {
   CHECK(grid.x0 == 0.0 && grid.y0 == 0.0) << "pixel_centre sampling works on stamp indices";
   const int npix = grid.size();
+  {
+    // The Airy table must reach the farthest pixel: v = pi d / (r / Rz).
+    const double x = params[kCentreX], y = params[kCentreY];
+    const double dx = std::max(std::fabs(x), std::fabs(grid.nx - 1 - x));
+    const double dy = std::max(std::fabs(y), std::fabs(grid.ny - 1 - y));
+    model::EnsureAiryTable(M_PI * std::hypot(dx, dy) * model::kAiryRz / params[kAiryRadius]);
+  }
   if (jacobian == nullptr) {
     std::vector<double> out;
     RenderTemplated(params.data(), defocus_dx_px, defocus_dy_px, grid.nx, grid.ny, &out);

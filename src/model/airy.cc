@@ -1,6 +1,9 @@
 #include "ccdpsf/model/airy.h"
 
+#include <algorithm>
+#include <atomic>
 #include <cmath>
+#include <mutex>
 #include <vector>
 
 namespace ccdpsf::model {
@@ -37,27 +40,55 @@ void AirySeries(double v, double* a, double* da, double* d2a) {
 // Per-interval quintic polynomials in u = (v - v_i) / h, coefficients c0..c5, equal to the
 // quintic Hermite interpolant through a, a', a'' at both ends of the interval; stored
 // contiguously so one evaluation touches one cache line.
-struct AiryTable {
-  AiryTable() {
-    const int n = static_cast<int>(kTableMax / kTableStep) + 2;
+// The table, built on demand in blocks of intervals from v = 0 up to the largest v asked
+// for: building all of it (60 000 Bessel-function calls) took ~0.15 s, a tenth of a complete
+// fit, while renders rarely need v beyond ~300. The storage is allocated whole at once, so
+// the pointer handed out never changes; `built` counts the intervals ready, published with
+// release semantics after they are written, and readers never read past what they have seen
+// (EnsureAiryTable before use), so no reader races a writer. Every interval's coefficients
+// depend only on its two nodes, so the values do not depend on the order of the requests.
+class AiryTable {
+ public:
+  AiryTable() : coefficients_(static_cast<size_t>(kIntervals) * 6) {}
+
+  const double* data() const { return coefficients_.data(); }
+
+  void Ensure(double v_max) {
+    const int needed =
+        std::min(kIntervals, static_cast<int>(std::max(v_max, 0.0) / kTableStep) + 1);
+    if (needed <= built_.load(std::memory_order_acquire)) return;
+    std::lock_guard<std::mutex> lock(mutex_);
+    int built = built_.load(std::memory_order_relaxed);
+    if (needed <= built) return;
+    const int target = std::min(kIntervals, (needed + kBlock - 1) / kBlock * kBlock);
+    Build(built, target);
+    built_.store(target, std::memory_order_release);
+  }
+
+ private:
+  static constexpr int kIntervals = static_cast<int>(kTableMax / kTableStep) + 1;
+  static constexpr int kBlock = 1024;  // intervals built at once (v = 51.2 apart)
+
+  // The quintic Hermite interpolants on intervals [first, last).
+  void Build(int first, int last) {
+    const int n = last - first + 1;  // nodes
     std::vector<double> a(n), da(n), d2a(n);
-    for (int i = 0; i < n; ++i) {
-      const double v = i * kTableStep;
+    for (int l = 0; l < n; ++l) {
+      const double v = (first + l) * kTableStep;
       if (v < kSeriesLimit) {
-        AirySeries(v, &a[i], &da[i], &d2a[i]);
+        AirySeries(v, &a[l], &da[l], &d2a[l]);
       } else {
-        AiryAmplitudeDirect(v, &a[i], &da[i]);
-        d2a[i] = -a[i] - 3.0 * da[i] / v;  // Bessel equation for a = 2 J1(v) / v.
+        AiryAmplitudeDirect(v, &a[l], &da[l]);
+        d2a[l] = -a[l] - 3.0 * da[l] / v;  // Bessel equation for a = 2 J1(v) / v.
       }
     }
-    coefficients.resize(static_cast<size_t>(n - 1) * 6);
     const double h = kTableStep;
-    for (int i = 0; i + 1 < n; ++i) {
+    for (int l = 0; l + 1 < n; ++l) {
       // Hermite data scaled to the unit interval.
-      const double p0 = a[i], p1 = a[i + 1];
-      const double m0 = da[i] * h, m1 = da[i + 1] * h;
-      const double c0 = d2a[i] * h * h, c1 = d2a[i + 1] * h * h;
-      double* c = &coefficients[static_cast<size_t>(i) * 6];
+      const double p0 = a[l], p1 = a[l + 1];
+      const double m0 = da[l] * h, m1 = da[l + 1] * h;
+      const double c0 = d2a[l] * h * h, c1 = d2a[l + 1] * h * h;
+      double* c = &coefficients_[static_cast<size_t>(first + l) * 6];
       c[0] = p0;
       c[1] = m0;
       c[2] = 0.5 * c0;
@@ -66,11 +97,14 @@ struct AiryTable {
       c[5] = -6 * p0 - 3 * m0 - 0.5 * c0 + 6 * p1 - 3 * m1 + 0.5 * c1;
     }
   }
-  std::vector<double> coefficients;
+
+  std::vector<double> coefficients_;
+  std::atomic<int> built_{0};
+  std::mutex mutex_;
 };
 
-const AiryTable& Table() {
-  static const AiryTable table;
+AiryTable& Table() {
+  static AiryTable table;
   return table;
 }
 
@@ -99,13 +133,17 @@ void AiryAmplitudeAndDerivative(double v, double* a, double* da_dv) {
   const double s = v * (1.0 / kTableStep);
   const int i = static_cast<int>(s);
   const double u = s - i;  // in [0, 1)
-  const double* c = &Table().coefficients[static_cast<size_t>(i) * 6];
+  AiryTable& table = Table();
+  table.Ensure(v);
+  const double* c = table.data() + static_cast<size_t>(i) * 6;
   *a = c[0] + u * (c[1] + u * (c[2] + u * (c[3] + u * (c[4] + u * c[5]))));
   *da_dv = (c[1] + u * (2 * c[2] + u * (3 * c[3] + u * (4 * c[4] + u * 5 * c[5])))) *
            (1.0 / kTableStep);
 }
 
-const double* AiryTableCoefficients() { return Table().coefficients.data(); }
+const double* AiryTableCoefficients() { return Table().data(); }
+
+void EnsureAiryTable(double v_max) { Table().Ensure(v_max); }
 
 double AiryAmplitude(double v) {
   double a, da;

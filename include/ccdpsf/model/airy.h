@@ -3,8 +3,9 @@
 // The Airy intensity of spot_model.h is I(d) = A a(k d)^2 with k = pi Rz / r. The renderer
 // evaluates a() at tens of thousands of quadrature nodes per image, so a() is interpolated
 // from a table (quintic Hermite on nodes 0.05 apart, using a, a' and a'' at the nodes, which
-// follow exactly from the Bessel equation: v a'' + 3 a' + v a = 0). The table is built on
-// first use from std::cyl_bessel_j and is read-only afterwards (thread-safe).
+// follow exactly from the Bessel equation: v a'' + 3 a' + v a = 0). The table is built from
+// std::cyl_bessel_j on demand, up to the largest v asked for (EnsureAiryTable; thread-safe),
+// and never changes once built.
 #ifndef CCDPSF_MODEL_AIRY_H_
 #define CCDPSF_MODEL_AIRY_H_
 
@@ -21,13 +22,17 @@ void AiryAmplitudeAndDerivative(double v, double* a, double* da_dv);
 void AiryAmplitudeDirect(double v, double* a, double* da_dv);
 
 // The table behind AiryAmplitudeAndDerivative, for the inline fast paths below: per-interval
-// quintic coefficients c0..c5 in u = (v - i h) / h, interval i at [6 i, 6 i + 6).
+// quintic coefficients c0..c5 in u = (v - i h) / h, interval i at [6 i, 6 i + 6). The
+// pointer is the same for the whole run; the intervals up to v are ready once
+// EnsureAiryTable(v) has returned (on any thread), and must not be read before.
 constexpr double kAiryTableStep = 0.05;
 constexpr double kAiryTableMax = 1500.0;
 const double* AiryTableCoefficients();
+void EnsureAiryTable(double v_max);
 
 // Inline versions for the renderer's inner loop (a call per node costs more than the
-// polynomial). v >= 0. Same values as AiryAmplitudeAndDerivative.
+// polynomial). 0 <= v, and EnsureAiryTable(v) called before. Same values as
+// AiryAmplitudeAndDerivative.
 inline double AiryAmplitudeInline(double v, const double* table) {
   if (v >= kAiryTableMax) return AiryAmplitude(v);
   const double s = v * (1.0 / kAiryTableStep);
