@@ -9,13 +9,24 @@
 namespace ccdpsf::fit {
 namespace {
 
-// The integrand in w (see the header): J(d) dd / dw at d = t_m tanh(w).
+// The integrand in w (see the header): J(d) dd / dw at d = t_m tanh(w),
+//   f(w) = t_M t_m sech(w) / sqrt(t_M^2 - t_m^2 tanh^2(w)).
+// With e = exp(2 w) - 1 (expm1: exact near w = 0), tanh = e / (e + 2) and
+// sech = 2 sqrt(e + 1) / (e + 2), so
+//   f = 2 t_M t_m sqrt((e + 1) / (4 t_M^2 (e + 1) + (t_M^2 - t_m^2) e^2)),
+// a sum of two positive terms under the root (no cancellation when t_M ~ t_m), and one
+// exponential instead of tanh and cosh: the weight is computed at every MCMC evaluation and
+// the quantile for every state of the chain.
 struct Integrand {
-  double t_big, t_small;
+  Integrand(double t_big, double t_small)
+      : scale(2.0 * t_big * t_small),
+        four_big2(4.0 * t_big * t_big),
+        diff2((t_big - t_small) * (t_big + t_small)) {}
   double operator()(double w) const {
-    const double th = std::tanh(w);
-    return t_big * t_small / std::cosh(w) / std::sqrt(t_big * t_big - t_small * t_small * th * th);
+    const double e = std::expm1(2.0 * w);
+    return scale * std::sqrt((e + 1.0) / (four_big2 * (e + 1.0) + diff2 * e * e));
   }
+  double scale, four_big2, diff2;
 };
 
 // The two rules used, looked up once: GaussLegendre() takes a lock, and the weight is
@@ -55,14 +66,14 @@ bool AllowedDefocus(double t_x, double t_y, const WidthBounds& b, double* lower,
 
 double DefocusMarginalWeight(double t_x, double t_y, double lower, double upper) {
   const double t_small = std::min(t_x, t_y);
-  const Integrand f{std::max(t_x, t_y), t_small};
+  const Integrand f(std::max(t_x, t_y), t_small);
   return IntegrateGL(f, std::atanh(lower / t_small), std::atanh(upper / t_small), 64);
 }
 
 double DefocusQuantile(double t_x, double t_y, double lower, double upper, double u) {
   constexpr int kPanels = 48;
   const double t_small = std::min(t_x, t_y);
-  const Integrand f{std::max(t_x, t_y), t_small};
+  const Integrand f(std::max(t_x, t_y), t_small);
   const double w0 = std::atanh(lower / t_small), w1 = std::atanh(upper / t_small);
   const double h = (w1 - w0) / kPanels;
   if (!(h > 0)) return lower;
