@@ -55,5 +55,29 @@ TEST(Likelihood, GaussianIsTheNormalDensityWithModelVariance) {
               1e-14);
 }
 
+// The stamp sum against the term-by-term sum in long double, over a bright spot's range of
+// expectations (1e-3 to 1e6 e-: variances up to 2^20, so the mantissa product must be
+// renormalised to stay finite) and a few thousand pixels. Tolerance: each of n factors
+// rounds to 1.1e-16 relative, so the log of the product is off by <= n * 1.1e-16 absolute;
+// the chi^2 and the total are summed in double, off by <= n * 1.1e-16 * sum |terms|.
+TEST(Likelihood, StampSumMatchesTheSumOfPixelTerms) {
+  const CcdNoise noise{1.7, 4.5, true};
+  GaussianLogLikelihoodSum sum(noise);
+  long double direct = 0.0L, magnitude = 0.0L;
+  const int n = 4000;
+  for (int q = 0; q < n; ++q) {
+    const double expected = std::pow(10.0, -3.0 + 9.0 * ((q * 37) % n) / n);
+    const double data = expected + std::sqrt(noise.VarianceE2(expected)) * std::sin(0.7 * q);
+    sum.Add(data, expected);
+    const long double var = noise.VarianceE2(expected);
+    const long double r = data - expected;
+    const long double term = -0.5L * (r * r / var + std::log(2.0L * M_PIl * var));
+    direct += term;
+    magnitude += std::fabs(term);
+  }
+  EXPECT_NEAR(sum.Total(), static_cast<double>(direct),
+              n * 1.1e-16 * (1.0 + static_cast<double>(magnitude)));
+}
+
 }  // namespace
 }  // namespace ccdpsf::fit

@@ -56,4 +56,17 @@ double PoissonNormalLogLikelihood(double data_e, double expected_e, const CcdNoi
   return best;
 }
 
+void GaussianLogLikelihoodSum::Renormalise() {
+  int e = 0;
+  product_ = std::frexp(product_, &e);
+  exponent_ += e;
+  since_renormalised_ = 0;
+}
+
+double GaussianLogLikelihoodSum::Total() {
+  Renormalise();
+  const double log_var_sum = std::log(product_) + static_cast<double>(exponent_) * M_LN2;
+  return -0.5 * (chi2_ + log_var_sum + static_cast<double>(count_) * std::log(2.0 * M_PI));
+}
+
 }  // namespace ccdpsf::fit
