@@ -182,12 +182,15 @@ class EnsembleSampler {
         positions_(static_cast<size_t>(num_walkers) * dim),
         log_prob_(num_walkers),
         accepted_(num_walkers, 0),
+        independence_proposed_(num_walkers, 0),
+        independence_accepted_(num_walkers, 0),
         conditional_acceptance_(num_walkers, 0.0),
         aux_(static_cast<size_t>(num_walkers) * target.aux_dim),
         // Each thread's scratch starts on its own 64-byte cache line (8 doubles), so that
         // threads writing proposals do not invalidate each other's caches.
         proposal_stride_((dim + 7) / 8 * 8),
         proposal_(static_cast<size_t>(team->size()) * proposal_stride_),
+        whitened_(static_cast<size_t>(team->size()) * proposal_stride_),
         aux_stride_((target.aux_dim + 7) / 8 * 8),
         proposal_aux_(static_cast<size_t>(team->size()) * aux_stride_) {
     engines_.reserve(num_walkers);
@@ -234,6 +237,8 @@ class EnsembleSampler {
     c->positions = positions_;
     c->log_prob = log_prob_;
     c->accepted = accepted_;
+    c->independence_proposed = independence_proposed_;
+    c->independence_accepted = independence_accepted_;
     c->conditional_acceptance = conditional_acceptance_;
     c->aux = aux_;
     c->engines.clear();
@@ -246,6 +251,8 @@ class EnsembleSampler {
   bool Import(const SamplerCheckpoint& c, int64_t steps) {
     if (c.positions.size() != positions_.size() || c.log_prob.size() != log_prob_.size() ||
         c.accepted.size() != accepted_.size() || c.aux.size() != aux_.size() ||
+        c.independence_proposed.size() != independence_proposed_.size() ||
+        c.independence_accepted.size() != independence_accepted_.size() ||
         c.conditional_acceptance.size() != conditional_acceptance_.size() ||
         c.engines.size() != engines_.size()) {
       return false;
@@ -259,6 +266,8 @@ class EnsembleSampler {
     positions_ = c.positions;
     log_prob_ = c.log_prob;
     accepted_ = c.accepted;
+    independence_proposed_ = c.independence_proposed;
+    independence_accepted_ = c.independence_accepted;
     conditional_acceptance_ = c.conditional_acceptance;
     aux_ = c.aux;
     engines_ = std::move(engines);
@@ -266,7 +275,10 @@ class EnsembleSampler {
     return true;
   }
 
+  // Per walker: accepted stretch moves; independence moves proposed and accepted.
   const std::vector<int64_t>& accepted() const { return accepted_; }
+  const std::vector<int64_t>& independence_proposed() const { return independence_proposed_; }
+  const std::vector<int64_t>& independence_accepted() const { return independence_accepted_; }
   // Sum over steps of each walker's conditional-update acceptance fraction.
   const std::vector<double>& conditional_acceptance() const { return conditional_acceptance_; }
 
@@ -275,10 +287,28 @@ class EnsembleSampler {
     return aux_dim_ == 0 ? nullptr : &aux_[static_cast<size_t>(walker) * aux_dim_];
   }
 
+  // log q(x) of the independence proposal up to a constant (the constant cancels in the
+  // acceptance ratio): -(nu + d) / 2 log(1 + r^2 / nu), r = L^-1 (x - m) by forward
+  // substitution over the stretch block.
+  double IndependenceLogDensity(const double* x, double* scratch) const {
+    const std::vector<double>& m = options_.independence_mean;
+    const std::vector<double>& l = options_.independence_cholesky;
+    double r2 = 0.0;
+    for (int i = 0; i < stretch_dim_; ++i) {
+      double v = x[i] - m[i];
+      for (int j = 0; j < i; ++j) v -= l[static_cast<size_t>(i) * stretch_dim_ + j] * scratch[j];
+      scratch[i] = v / l[static_cast<size_t>(i) * stretch_dim_ + i];
+      r2 += scratch[i] * scratch[i];
+    }
+    const double nu = options_.independence_nu;
+    return -0.5 * (nu + stretch_dim_) * std::log1p(r2 / nu);
+  }
+
   // Thread t's share of the walkers of half `half`.
   void UpdateHalf(int half, int t) {
     const double a = options_.stretch_a;
     const int other_begin = (1 - half) * half_;
+    const double fraction = options_.independence_fraction;
     int begin, end;
     StaticBlock(half_, team_->size(), t, &begin, &end);
     double* y = &proposal_[static_cast<size_t>(t) * proposal_stride_];
@@ -286,26 +316,62 @@ class EnsembleSampler {
     for (int i = begin; i < end; ++i) {
       const int k = half * half_ + i;
       std::mt19937_64& engine = engines_[k];
-      // Always three draws, in this order, so a walker's stream never depends on outcomes.
-      const double u_partner = Uniform01(engine);
-      const double u_stretch = Uniform01(engine);
-      const double u_accept = Uniform01(engine);
-      const int j = other_begin + std::min(half_ - 1, static_cast<int>(u_partner * half_));
-      // Inverse CDF of g(z) ~ 1/sqrt(z) on [1/a, a]: z = ((a - 1) u + 1)^2 / a.
-      const double root = (a - 1.0) * u_stretch + 1.0;
-      const double z = root * root / a;
       const double* xk = &positions_[static_cast<size_t>(k) * dim_];
-      const double* xj = &positions_[static_cast<size_t>(j) * dim_];
-      for (int d = 0; d < stretch_dim_; ++d) y[d] = xj[d] + z * (xk[d] - xj[d]);
+      // No choice is drawn when the move is off, so the stream (and the chain) is then
+      // exactly the stretch-only sampler's.
+      const bool independence = fraction > 0.0 && Uniform01(engine) < fraction;
+      // log of the factor that multiplies p(y) / p(x_k) in the acceptance probability.
+      double log_factor = 0.0;
+      double u_accept = 0.0;
+      if (independence) {
+        // Always d + nu normals, then one uniform. y = m + L z sqrt(nu / chi2): z ~ N(0, I_d)
+        // and chi2 a chi-square variate with nu degrees of freedom give a multivariate t.
+        for (int d = 0; d < stretch_dim_; ++d) y[d] = StandardNormal(engine);
+        double chi2 = 0.0;
+        for (int n = 0; n < options_.independence_nu; ++n) {
+          const double g = StandardNormal(engine);
+          chi2 += g * g;
+        }
+        u_accept = Uniform01(engine);
+        const double scale = std::sqrt(options_.independence_nu / chi2);
+        double z2 = 0.0;
+        for (int d = 0; d < stretch_dim_; ++d) z2 += y[d] * y[d];
+        // y = m + scale L z in place, last row first: row d reads z[0..d], not yet overwritten.
+        const std::vector<double>& m = options_.independence_mean;
+        const std::vector<double>& l = options_.independence_cholesky;
+        for (int d = stretch_dim_ - 1; d >= 0; --d) {
+          double v = 0.0;
+          for (int j = 0; j <= d; ++j) v += l[static_cast<size_t>(d) * stretch_dim_ + j] * y[j];
+          y[d] = m[d] + scale * v;
+        }
+        // L^-1 (y - m) = scale z, so q(y) needs no solve.
+        const double nu = options_.independence_nu;
+        const double log_q_y = -0.5 * (nu + stretch_dim_) * std::log1p(scale * scale * z2 / nu);
+        double* scratch = &whitened_[static_cast<size_t>(t) * proposal_stride_];
+        log_factor = IndependenceLogDensity(xk, scratch) - log_q_y;
+        ++independence_proposed_[k];
+      } else {
+        // Always three draws, in this order, so a walker's stream never depends on outcomes.
+        const double u_partner = Uniform01(engine);
+        const double u_stretch = Uniform01(engine);
+        u_accept = Uniform01(engine);
+        const int j = other_begin + std::min(half_ - 1, static_cast<int>(u_partner * half_));
+        // Inverse CDF of g(z) ~ 1/sqrt(z) on [1/a, a]: z = ((a - 1) u + 1)^2 / a.
+        const double root = (a - 1.0) * u_stretch + 1.0;
+        const double z = root * root / a;
+        const double* xj = &positions_[static_cast<size_t>(j) * dim_];
+        for (int d = 0; d < stretch_dim_; ++d) y[d] = xj[d] + z * (xk[d] - xj[d]);
+        log_factor = (stretch_dim_ - 1) * std::log(z);
+      }
       std::copy(xk + stretch_dim_, xk + dim_, y + stretch_dim_);
       const double log_prob_y = target_.log_density[t](y, y_aux);
       if (std::isfinite(log_prob_y)) {
-        const double log_ratio = (stretch_dim_ - 1) * std::log(z) + log_prob_y - log_prob_[k];
+        const double log_ratio = log_factor + log_prob_y - log_prob_[k];
         if (std::log(u_accept) < log_ratio) {
           std::copy(y, y + dim_, &positions_[static_cast<size_t>(k) * dim_]);
           if (aux_dim_ > 0) std::copy(y_aux, y_aux + aux_dim_, AuxOf(k));
           log_prob_[k] = log_prob_y;
-          ++accepted_[k];
+          ++(independence ? independence_accepted_ : accepted_)[k];
         }
       }
       if (stretch_dim_ < dim_ && step_ % target_.conditional_every == 0) {
@@ -325,12 +391,15 @@ class EnsembleSampler {
   ThreadTeam* team_;
   std::vector<double> positions_;               // [walker * dim + k]
   std::vector<double> log_prob_;                // [walker]
-  std::vector<int64_t> accepted_;               // [walker]
+  std::vector<int64_t> accepted_;               // [walker], stretch moves
+  std::vector<int64_t> independence_proposed_;  // [walker]
+  std::vector<int64_t> independence_accepted_;  // [walker]
   int64_t step_ = 0;                            // steps completed
   std::vector<double> conditional_acceptance_;  // [walker]
   std::vector<double> aux_;                     // [walker * aux_dim + i]
   const int proposal_stride_;
   std::vector<double> proposal_;  // [thread * proposal_stride_ + k], per-thread scratch
+  std::vector<double> whitened_;  // [thread * proposal_stride_ + k], L^-1 (x - m) scratch
   const int aux_stride_;
   std::vector<double> proposal_aux_;  // [thread * aux_stride_ + i], per-thread scratch
   std::vector<std::mt19937_64> engines_;
@@ -492,6 +561,17 @@ uint64_t RunFingerprint(const BlockedTarget& target, int dim, const std::vector<
   mix(ints, sizeof(ints));
   mix(reals, sizeof(reals));
   mix(initial.data(), initial.size() * sizeof(double));
+  // The independence move: its proposal steers the chain only when the move is on.
+  mix(&o.independence_fraction, sizeof(o.independence_fraction));
+  if (o.independence_fraction > 0.0) {
+    const int64_t nu = o.independence_nu;
+    mix(&nu, sizeof(nu));
+    mix(o.independence_mean.data(), o.independence_mean.size() * sizeof(double));
+    const int d = target.stretch_dim;
+    for (int i = 0; i < d; ++i) {
+      mix(&o.independence_cholesky[static_cast<size_t>(i) * d], (i + 1) * sizeof(double));
+    }
+  }
   return h;
 }
 
@@ -520,6 +600,14 @@ bool SamplerOptions::IsValid(std::string* error) const {
     return fail("stretch_a must be finite and > 1");
   }
   if (num_threads < 1) return fail("num_threads must be >= 1");
+  if (!(independence_fraction >= 0.0) || !(independence_fraction <= 1.0)) {
+    return fail("independence_fraction must be in [0, 1]");
+  }
+  // Above ~30 degrees of freedom the t is a Gaussian in all but the far tails; the cap keeps
+  // the per-proposal draws (nu normals) bounded.
+  if (independence_nu < 1 || independence_nu > 100) {
+    return fail("independence_nu must be in [1, 100]");
+  }
   return true;
 }
 
@@ -615,6 +703,25 @@ bool RunEnsembleSampler(const BlockedTarget& target, int dim, const std::vector<
     }
   }
   if (!SpansAllDirections(initial, num_walkers, dim, stretch_dim, error)) return false;
+  if (options.independence_fraction > 0.0) {
+    const size_t d = static_cast<size_t>(stretch_dim);
+    bool ok =
+        options.independence_mean.size() == d && options.independence_cholesky.size() == d * d;
+    for (size_t i = 0; ok && i < d; ++i) {
+      ok = std::isfinite(options.independence_mean[i]) &&
+           options.independence_cholesky[i * d + i] > 0.0;
+      for (size_t j = 0; ok && j <= i; ++j)
+        ok = std::isfinite(options.independence_cholesky[i * d + j]);
+    }
+    if (!ok) {
+      *error = "ensemble sampler: the independence move needs a finite mean of " +
+               std::to_string(d) + " values and a " + std::to_string(d) + " x " +
+               std::to_string(d) +
+               " lower Cholesky factor with finite entries and a positive "
+               "diagonal";
+      return false;
+    }
+  }
 
   const int wanted_threads = std::min(
       {options.num_threads, static_cast<int>(log_density_per_thread.size()), num_walkers / 2});
@@ -690,8 +797,10 @@ bool RunEnsembleSampler(const BlockedTarget& target, int dim, const std::vector<
       }
     }
     if (options.progress) {
+      // All moves' acceptance: stretch and independence.
       int64_t total = 0;
       for (int64_t a : sampler.accepted()) total += a;
+      for (int64_t a : sampler.independence_accepted()) total += a;
       progress.Update(steps, have_check ? &diag : nullptr,
                       static_cast<double>(total) / (static_cast<double>(steps) * num_walkers),
                       stop);
@@ -710,11 +819,24 @@ bool RunEnsembleSampler(const BlockedTarget& target, int dim, const std::vector<
       diag.reason;
   out.acceptance_fraction.resize(num_walkers);
   double sum = 0.0;
+  int walkers_with_stretch = 0;
+  int64_t independence_accepted = 0;
   for (int w = 0; w < num_walkers; ++w) {
-    out.acceptance_fraction[w] = static_cast<double>(sampler.accepted()[w]) / steps;
-    sum += out.acceptance_fraction[w];
+    const int64_t stretch_proposed = steps - sampler.independence_proposed()[w];
+    out.acceptance_fraction[w] =
+        stretch_proposed > 0 ? static_cast<double>(sampler.accepted()[w]) / stretch_proposed : NAN;
+    if (stretch_proposed > 0) {
+      sum += out.acceptance_fraction[w];
+      ++walkers_with_stretch;
+    }
+    out.independence_proposed += sampler.independence_proposed()[w];
+    independence_accepted += sampler.independence_accepted()[w];
   }
-  out.mean_acceptance = sum / num_walkers;
+  out.mean_acceptance = walkers_with_stretch > 0 ? sum / walkers_with_stretch : NAN;
+  if (out.independence_proposed > 0) {
+    out.independence_acceptance =
+        static_cast<double>(independence_accepted) / out.independence_proposed;
+  }
   if (stretch_dim < dim) {
     double c = 0.0;
     for (double a : sampler.conditional_acceptance()) c += a;

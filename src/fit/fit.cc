@@ -210,7 +210,16 @@ bool RunFit(const FitModel& model, const FitOptions& options, FitResult* result,
       evaluators.push_back(model.NewEvaluator());
       evaluator_ptrs.push_back(evaluators.back().get());
     }
-    if (!RunEnsembleSampler(target.Make(evaluator_ptrs), target.dim(), initial, options.mcmc,
+    // The Laplace-informed independence move (ensemble_sampler.h), where the Laplace
+    // covariance of the stretch block is available; otherwise the stretch moves alone.
+    SamplerOptions mcmc = options.mcmc;
+    mcmc.independence_fraction = 0.0;
+    if (options.target.laplace_move_fraction > 0.0 &&
+        target.LaplaceProposal(options.target.laplace_move_scale, &mcmc.independence_mean,
+                               &mcmc.independence_cholesky)) {
+      mcmc.independence_fraction = options.target.laplace_move_fraction;
+    }
+    if (!RunEnsembleSampler(target.Make(evaluator_ptrs), target.dim(), initial, mcmc,
                             &result->chain, error)) {
       return false;
     }

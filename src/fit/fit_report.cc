@@ -130,13 +130,22 @@ json FitJson(const ExposuresFit& fit) {
       tau[r.names[i]] = Num(c.tau[i]);
       ess[r.names[i]] = Num(c.ess[i]);
     }
-    j["mcmc"] = {{"walkers", c.num_walkers},   {"steps", c.num_steps},
-                 {"burn_in", c.burn_in},       {"acceptance_fraction", c.mean_acceptance},
-                 {"tau", tau},                 {"ess", ess},
-                 {"converged", c.converged},   {"stop_reason", c.stop_reason},
-                 {"threads", c.num_threads_used}, {"seconds", c.seconds},
+    j["mcmc"] = {{"walkers", c.num_walkers},
+                 {"steps", c.num_steps},
+                 {"burn_in", c.burn_in},
+                 {"acceptance_fraction", Num(c.mean_acceptance)},
+                 {"tau", tau},
+                 {"ess", ess},
+                 {"converged", c.converged},
+                 {"stop_reason", c.stop_reason},
+                 {"threads", c.num_threads_used},
+                 {"seconds", c.seconds},
                  // Joint fits: acceptance of the positions' conditional moves (null if none).
-                 {"position_acceptance", Num(c.conditional_acceptance)}};
+                 {"position_acceptance", Num(c.conditional_acceptance)},
+                 // The Laplace-informed independence move: its acceptance (null when it was
+                 // off) and how many it proposed; acceptance_fraction counts stretch moves.
+                 {"laplace_move_acceptance", Num(c.independence_acceptance)},
+                 {"laplace_moves", c.independence_proposed}};
   } else {
     j["mcmc"] = nullptr;
   }
@@ -420,8 +429,11 @@ bool WriteFitReport(const std::string& out_dir, const ExposuresFit& fit, const j
   if (r.have_mcmc) {
     md << "MCMC: " << r.chain.num_walkers << " walkers x " << r.chain.num_steps
        << " steps (burn-in " << r.chain.burn_in << "), acceptance "
-       << Fmt(r.chain.mean_acceptance, 3) << ", "
-       << (r.chain.converged ? "converged" : "NOT converged") << ": " << r.chain.stop_reason
+       << Fmt(r.chain.mean_acceptance, 3)
+       << (r.chain.independence_proposed > 0
+               ? " (stretch), " + Fmt(r.chain.independence_acceptance, 3) + " (Laplace move)"
+               : std::string())
+       << ", " << (r.chain.converged ? "converged" : "NOT converged") << ": " << r.chain.stop_reason
        << ".\n\n";
   }
   if (!r.laplace.unconstrained.empty()) {

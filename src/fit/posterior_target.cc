@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 
+#include "Eigen/Cholesky"
+#include "Eigen/Core"
 #include "ccdpsf/random.h"
 
 namespace ccdpsf::fit {
@@ -86,6 +88,34 @@ PosteriorTarget::PosteriorTarget(const FitModel& model, const std::vector<double
     chol_inverse_[k] = {1.0 / l00, 0.0, -l10 / (l00 * l11), 1.0 / l11};
   }
   stretch_dim_ = num_shared_;
+}
+
+bool PosteriorTarget::LaplaceProposal(double scale, std::vector<double>* mean,
+                                      std::vector<double>* cholesky) const {
+  const int d = stretch_dim_;
+  const int n = laplace_.dim;
+  if (!laplace_.unconstrained.empty() || !(scale > 0.0) || !std::isfinite(scale) || d > n ||
+      laplace_.covariance.size() != static_cast<size_t>(n) * n) {
+    return false;
+  }
+  // The marginal of a Gaussian on a block is the block of its covariance.
+  Eigen::MatrixXd block(d, d);
+  for (int a = 0; a < d; ++a) {
+    for (int b = 0; b < d; ++b) {
+      block(a, b) = scale * scale * laplace_.covariance[static_cast<size_t>(a) * n + b];
+    }
+  }
+  if (!block.allFinite()) return false;
+  const Eigen::LLT<Eigen::MatrixXd> llt(block);
+  if (llt.info() != Eigen::Success) return false;
+  const Eigen::MatrixXd l = llt.matrixL();
+  if (!l.allFinite() || !(l.diagonal().minCoeff() > 0.0)) return false;
+  mean->assign(state_map_.begin(), state_map_.begin() + d);
+  cholesky->assign(static_cast<size_t>(d) * d, 0.0);
+  for (int a = 0; a < d; ++a) {
+    for (int b = 0; b <= a; ++b) (*cholesky)[static_cast<size_t>(a) * d + b] = l(a, b);
+  }
+  return true;
 }
 
 int PosteriorTarget::PhiIndex(int i) const {

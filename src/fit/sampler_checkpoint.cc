@@ -11,7 +11,8 @@ namespace ccdpsf::fit {
 namespace {
 
 constexpr char kMagic[8] = {'C', 'C', 'D', 'P', 'S', 'F', 'M', 'C'};
-constexpr uint32_t kVersion = 1;
+// 2: the independence move's per-walker counts after `accepted`.
+constexpr uint32_t kVersion = 2;
 
 class Writer {
  public:
@@ -86,6 +87,8 @@ bool WriteSamplerCheckpoint(const std::string& path, const SamplerCheckpoint& c,
         w.Vector(c.positions);
         w.Vector(c.log_prob);
         w.Vector(c.accepted);
+        w.Vector(c.independence_proposed);
+        w.Vector(c.independence_accepted);
         w.Vector(c.conditional_acceptance);
         w.Vector(c.aux);
         w.Value<uint64_t>(c.engines.size());
@@ -117,9 +120,9 @@ bool ReadSamplerCheckpoint(const std::string& path, SamplerCheckpoint* c, std::s
   SamplerCheckpoint read;
   bool ok = r.Value(&magic) && std::memcmp(magic, kMagic, sizeof(kMagic)) == 0 &&
             r.Value(&version) && version == kVersion && r.Value(&read.fingerprint) &&
-            r.Value(&read.steps) && r.Value(&read.next_check) &&
-            r.Value(&read.previous_max_tau) && r.Vector(&read.positions) &&
-            r.Vector(&read.log_prob) && r.Vector(&read.accepted) &&
+            r.Value(&read.steps) && r.Value(&read.next_check) && r.Value(&read.previous_max_tau) &&
+            r.Vector(&read.positions) && r.Vector(&read.log_prob) && r.Vector(&read.accepted) &&
+            r.Vector(&read.independence_proposed) && r.Vector(&read.independence_accepted) &&
             r.Vector(&read.conditional_acceptance) && r.Vector(&read.aux) && r.Value(&engines) &&
             engines <= size;
   for (uint64_t i = 0; ok && i < engines; ++i) {

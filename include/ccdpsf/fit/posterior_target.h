@@ -51,6 +51,23 @@ struct PosteriorTargetOptions {
   // nothing in mixing and saves a quarter of the renders (measured on a 12-exposure
   // pixel_centre group: 60 s against 71-89 s of MCMC to the same ESS).
   int position_update_every = 2;
+  // The sampler's Laplace-informed independence move (ensemble_sampler.h) on the stretch
+  // block: the probability that a walker update takes it (SamplerOptions::
+  // independence_fraction; 0 switches it off), and the proposal's scale relative to the
+  // Laplace marginal of the stretch block (its scale matrix is laplace_move_scale^2 times
+  // that covariance). The move is off where that covariance is not available (LaplaceProposal).
+  // Measured (bench/fit_benchmark.cc, seed 1; issue 18): the stretch move alone has tau ~88
+  // steps on the single fit and ~42 on the five-exposure joint fit (5000 and 2500 steps of 20
+  // walkers to ESS 1000); with the move the independence acceptance is ~0.74 / 0.80 and tau
+  // 2.5-5, and both fits converge at 200-300 steps for any fraction in 0.5-0.8 (the
+  // convergence checks come every 100 steps, so a smaller tau gains nothing more). 0.6
+  // reaches 200 steps on both; and where the Laplace approximation is poor, the stretch moves
+  // still take 40 % of the updates, so a run is at most 1 / 0.4 = 2.5 times the stretch-only
+  // one's length (the move accepted never) - 0.8 would allow 5 times. Scale 1: the t_5's
+  // tails already cover a posterior a little wider than the Laplace one; 1.2 lowered the
+  // acceptance (0.61 against 0.74 on the single fit) without lowering tau.
+  double laplace_move_fraction = 0.6;
+  double laplace_move_scale = 1.0;
 };
 
 class PosteriorTarget {
@@ -67,6 +84,15 @@ class PosteriorTarget {
   const std::vector<double>& state_map() const { return state_map_; }
   // The Laplace approximation in state coordinates, to seed the walkers.
   const LaplaceResult& laplace() const { return laplace_; }
+
+  // The independence move's proposal: the Laplace approximation's marginal on the stretch
+  // block [0, stretch_dim()), centred at the MAP state, as a mean and the lower Cholesky
+  // factor (row-major, stretch_dim() x stretch_dim()) of scale^2 times its covariance. False
+  // (outputs untouched) when that covariance is not positive definite: a direction the data
+  // do not constrain (the covariance then covers the constrained subspace only), or a
+  // non-finite entry.
+  bool LaplaceProposal(double scale, std::vector<double>* mean,
+                       std::vector<double>* cholesky) const;
 
   // theta of a state; with the defocus integrated out, u in [0, 1] is the quantile of the
   // defocus drawn from its exact conditional. False when the state is outside the support.

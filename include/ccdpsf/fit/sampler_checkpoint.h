@@ -1,11 +1,11 @@
 // The ensemble sampler's state on disk, so that a killed run resumes where it stopped.
 //
 // A checkpoint holds everything the next step depends on: the walkers' positions, log
-// densities and aux values, their acceptance counts, each walker's random engine, the chain
-// so far and where the convergence checks stand. A run resumed from it ends with exactly the
-// chain of an uninterrupted run (the sampler's determinism, ensemble_sampler.h, does the
-// rest). `fingerprint` identifies the run (options, seed, dimensions and the initial
-// positions): a checkpoint of another run is never used.
+// densities and aux values, their acceptance counts (stretch, independence and conditional moves),
+// each walker's random engine, the chain so far and where the convergence checks stand. A run
+// resumed from it ends with exactly the chain of an uninterrupted run (the sampler's determinism,
+// ensemble_sampler.h, does the rest). `fingerprint` identifies the run (options, seed, dimensions
+// and the initial positions): a checkpoint of another run is never used.
 //
 // File format (little-endian as the machine writes it; read back on the same machine kind):
 // the 8 bytes "CCDPSFMC", a uint32 version, then the fields below in order, each vector as a
@@ -27,7 +27,9 @@ struct SamplerCheckpoint {
   double previous_max_tau = 0;  // what the last check passed to Check() (+inf at the first)
   std::vector<double> positions;               // [walker * dim + k]
   std::vector<double> log_prob;                // [walker]
-  std::vector<int64_t> accepted;               // [walker]
+  std::vector<int64_t> accepted;               // [walker], stretch moves
+  std::vector<int64_t> independence_proposed;  // [walker]
+  std::vector<int64_t> independence_accepted;  // [walker]
   std::vector<double> conditional_acceptance;  // [walker]
   std::vector<double> aux;                     // [walker * aux_dim + i]
   std::vector<std::string> engines;            // [walker], text form
