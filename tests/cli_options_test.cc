@@ -247,7 +247,7 @@ TEST(CliOptions, ExitCodesAreAsDocumented) {
   }
   // A chain stopped long before convergence: the verdict is suspect ("the MCMC did not
   // converge"), which exits 0, or 3 with --strict.
-  const std::string short_chain = " --max_steps=300 --walkers=20 --seed=3 " + file;
+  const std::string short_chain = " --max_steps=100 --walkers=20 --seed=3 " + file;
   const RunResult lenient = RunCcdpsf("fit --out=" + dir + "/lenient" + short_chain);
   EXPECT_EQ(lenient.exit_code, 0) << lenient.output;
   const json fit = ReadJson(dir + "/lenient/fit.json");
