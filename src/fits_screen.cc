@@ -202,8 +202,10 @@ bool IsScreenedKeyword(const std::string& name) {
       "SIMPLE", "XTENSION", "BITPIX", "NAXIS",  "PCOUNT",   "GCOUNT",   "GROUPS",
       "THEAP",  "TFIELDS",  "ZIMAGE", "ZCMPTYPE", "ZBITPIX", "ZNAXIS", "ZVAL1",
       "ZVAL2",  "ZDITHER0", "ZQUANTIZ"};
+  // Any TTYPE name: CFITSIO takes "TTYPE+1" and "TTYPE0001" for column 1 (it reads the index
+  // with strtol), so the column-name check below must see them all.
   return kNames.count(name) > 0 || IsIndexed(name, "NAXIS") || IsIndexed(name, "TFORM") ||
-         IsIndexed(name, "TTYPE") || IsIndexed(name, "ZNAXIS") || IsIndexed(name, "ZTILE");
+         name.rfind("TTYPE", 0) == 0 || IsIndexed(name, "ZNAXIS") || IsIndexed(name, "ZTILE");
 }
 
 // The value of a card whose value starts at column `from` (0-based; 10 after "NAME    = ").
@@ -264,6 +266,13 @@ bool ReadHeaderCards(const FileBytes& bytes, long long start, HeaderCards* cards
         const char* equals = static_cast<const char*>(std::memchr(card + 9, '=', kCard - 9));
         if (equals == nullptr) continue;
         name = ToUpper(internal::Trim(std::string(card + 9, equals)));
+        value_from = static_cast<size_t>(equals - card) + 1;
+      } else if (name_end == card + 8 && card[8] != ' ' && card[8] != '=') {
+        // A name longer than 8 characters ("TTYPE0001= ..."), outside the standard: CFITSIO
+        // reads the name up to the '=' and the value after it, and so does the screen.
+        const char* equals = static_cast<const char*>(std::memchr(card + 8, '=', kCard - 8));
+        if (equals == nullptr) continue;
+        name = ToUpper(internal::Trim(std::string(card, equals)));
         value_from = static_cast<size_t>(equals - card) + 1;
       } else if (card[8] != '=' || card[9] != ' ') {
         continue;
@@ -504,9 +513,10 @@ bool ScreenFile(const FileBytes& bytes, const std::string& path, std::vector<Hdu
     }
     // A column name must be a quoted string (standard section 7.2.2), which fits a card in at
     // most 68 characters. CFITSIO copies TTYPEn's value into a 70-byte field unchecked, so an
-    // unquoted value of 70 characters overflowed it (found by the fuzzer).
+    // unquoted value of 70 characters overflowed it (found by the fuzzer, as "TTYPE1  = ",
+    // "TTYPE+1 = " and "TTYPE0001=").
     for (const auto& [name, value] : cards.values) {
-      if (IsIndexed(name, "TTYPE") && !value.quoted) {
+      if (name.rfind("TTYPE", 0) == 0 && !value.quoted) {
         return corrupt(name + " = '" + Printable(value.text) + "' is not a quoted string");
       }
     }

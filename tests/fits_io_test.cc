@@ -1118,14 +1118,14 @@ TEST(FitsIoScreen, MalformedHeadersAreRefusedWithTheirReason) {
             std::string::npos);
 }
 
-
 // Fuzzer regression: a binary table whose TTYPE1 is an unquoted 70-character value made
 // CFITSIO overflow its 70-byte column-name field (abort under _FORTIFY_SOURCE) while it
 // counted the HDUs. The screen refuses it; a quoted name of the longest length a card holds
-// (68 characters) is read as before.
+// (68 characters) is read as before. CFITSIO also takes "TTYPE+1 = " and "TTYPE0001=" (a
+// name longer than 8 characters, read up to the '=') for column 1: the fuzzer found both.
 TEST(FitsIoScreen, UnquotedColumnNameIsRefusedNotACrash) {
   ScopedTempDir dir;
-  auto file = [](const std::string& ttype) {
+  auto file = [](const std::string& ttype, const std::string& name = "TTYPE1  = ") {
     const std::string primary =
         test_support::HeaderBlock({test_support::Card("SIMPLE", "T"),
                                    test_support::Card("BITPIX", "16"),
@@ -1139,14 +1139,20 @@ TEST(FitsIoScreen, UnquotedColumnNameIsRefusedNotACrash) {
             {test_support::Card("XTENSION", "'BINTABLE'"), test_support::Card("BITPIX", "8"),
              test_support::Card("NAXIS", "2"), test_support::Card("NAXIS1", "8"),
              test_support::Card("NAXIS2", "1"), test_support::Card("PCOUNT", "0"),
-             test_support::Card("GCOUNT", "1"), test_support::Card("TFIELDS", "1"),
-             "TTYPE1  = " + ttype, test_support::Card("TFORM1", "'1D'")}) +
+             test_support::Card("GCOUNT", "1"), test_support::Card("TFIELDS", "1"), name + ttype,
+             test_support::Card("TFORM1", "'1D'")}) +
         std::string(2880, '\0');
     return primary + table;
   };
   EXPECT_NE(ScreenError(dir, "unquoted.fits", file(std::string(70, 'X')))
                 .find(": the header is corrupt (TTYPE1 = '" + std::string(70, 'X') +
                       "' is not a quoted string)"),
+            std::string::npos);
+  EXPECT_NE(ScreenError(dir, "signed.fits", file(std::string(70, 'X'), "TTYPE+1 = "))
+                .find(": the header is corrupt (TTYPE+1 = '"),
+            std::string::npos);
+  EXPECT_NE(ScreenError(dir, "long.fits", file(std::string(70, 'X'), "TTYPE0001="))
+                .find(": the header is corrupt (TTYPE0001 = '"),
             std::string::npos);
   const std::string quoted = dir.File("quoted.fits");
   ASSERT_TRUE(test_support::WriteBytes(quoted, file("'" + std::string(68, 'X') + "'")));
