@@ -279,11 +279,6 @@ void PlotFits(const PlotContext& ctx, const std::string& stem, const std::string
   }
 }
 
-const RelationFit* Find(const TrendResult& r, const std::string& name) {
-  auto it = r.relations.find(name);
-  return it == r.relations.end() ? nullptr : &it->second;
-}
-
 double LimitOf(const TrendResult& r, const std::string& metric) {
   for (const RequirementResult& q : r.requirements) {
     if (q.requirement.target == Requirement::Target::kMetricAt && q.requirement.metric == metric) {
