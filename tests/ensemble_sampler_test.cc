@@ -637,31 +637,35 @@ BlockedTarget BlockedGaussian(const Gaussian& g, int threads) {
   return target;
 }
 
-TEST(EnsembleSampler, BlockedTargetMomentsAndDeterminism) {
-  const Gaussian g = Scaled5d();
-  const int walkers = 16;  // >= 2 x 3 + 2 for the stretch block
+// Samples the blocked 5-d Gaussian g (stretch block 0-2, conditional moves for the rest)
+// with 16 walkers from `initial`, with two threads and with one: the first run converges
+// with the right shapes, moments (5 SE) and stored log densities (which follow the
+// conditional moves too), and the second's chain is bit-identical. Returns the first run.
+SamplerResult RunBlockedAndCheck(const Gaussian& g, const std::vector<double>& initial,
+                                 SamplerOptions options) {
   SamplerResult r;
   std::string error;
-  const std::vector<double> initial = InitialBall(g, walkers, 2.0, 5);
-  ASSERT_TRUE(RunEnsembleSampler(BlockedGaussian(g, 2), 5, initial, QuietOptions(21), &r, &error))
-      << error;
-  ExpectConsistentShapes(r, walkers, 5);
+  EXPECT_TRUE(RunEnsembleSampler(BlockedGaussian(g, 2), 5, initial, options, &r, &error)) << error;
+  ExpectConsistentShapes(r, 16, 5);
   EXPECT_TRUE(r.converged) << r.stop_reason;
   ExpectGaussianMoments(r, g);
-  // The stored log-probabilities follow the conditional moves too.
   for (size_t s = 0; s < r.log_prob.size(); s += 997) {
     EXPECT_NEAR(r.log_prob[s], g(&r.chain[s * 5]), 1e-9 * (1.0 + std::fabs(r.log_prob[s])));
   }
-  EXPECT_GT(r.conditional_acceptance, 0.2);
-  EXPECT_LT(r.conditional_acceptance, 1.0);
-
-  SamplerOptions one_thread = QuietOptions(21);
-  one_thread.num_threads = 1;
+  options.num_threads = 1;
   SamplerResult r1;
-  ASSERT_TRUE(RunEnsembleSampler(BlockedGaussian(g, 1), 5, initial, one_thread, &r1, &error))
-      << error;
+  EXPECT_TRUE(RunEnsembleSampler(BlockedGaussian(g, 1), 5, initial, options, &r1, &error)) << error;
   EXPECT_EQ(r1.chain, r.chain);
   EXPECT_EQ(r1.log_prob, r.log_prob);
+  return r;
+}
+
+TEST(EnsembleSampler, BlockedTargetMomentsAndDeterminism) {
+  const Gaussian g = Scaled5d();
+  const int walkers = 16;  // >= 2 x 3 + 2 for the stretch block
+  const SamplerResult r = RunBlockedAndCheck(g, InitialBall(g, walkers, 2.0, 5), QuietOptions(21));
+  EXPECT_GT(r.conditional_acceptance, 0.2);
+  EXPECT_LT(r.conditional_acceptance, 1.0);
 }
 
 // The independence move on the stretch block of a blocked target (coordinates 0-2, proposal
@@ -675,24 +679,12 @@ TEST(EnsembleSampler, BlockedTargetWithLaplaceMove) {
   const std::vector<double> initial = InitialBall(g, walkers, 2.0, 5);
   SamplerOptions options = QuietOptions(33);
   SetLaplaceMove(marginal, 0.6, 0.0, 1.2, &options);
-  SamplerResult r;
-  std::string error;
-  ASSERT_TRUE(RunEnsembleSampler(BlockedGaussian(g, 2), 5, initial, options, &r, &error)) << error;
-  ExpectConsistentShapes(r, walkers, 5);
-  ASSERT_TRUE(r.converged) << r.stop_reason;
-  ExpectGaussianMoments(r, g);
-  for (size_t s = 0; s < r.log_prob.size(); s += 997) {
-    EXPECT_NEAR(r.log_prob[s], g(&r.chain[s * 5]), 1e-9 * (1.0 + std::fabs(r.log_prob[s])));
-  }
+  const SamplerResult r = RunBlockedAndCheck(g, initial, options);
   EXPECT_GT(r.independence_acceptance, 0.5);
 
-  options.num_threads = 1;
-  SamplerResult r1;
-  ASSERT_TRUE(RunEnsembleSampler(BlockedGaussian(g, 1), 5, initial, options, &r1, &error)) << error;
-  EXPECT_EQ(r1.chain, r.chain);
-  EXPECT_EQ(r1.log_prob, r.log_prob);
-
   // A proposal of the wrong size for the stretch block (all five coordinates) is refused.
+  SamplerResult r1;
+  std::string error;
   SetLaplaceMove(g, 0.6, 0.0, 1.2, &options);
   EXPECT_FALSE(RunEnsembleSampler(BlockedGaussian(g, 1), 5, initial, options, &r1, &error));
   EXPECT_NE(error.find("independence"), std::string::npos) << error;
