@@ -348,6 +348,15 @@ TEST(Map, PixelCentreScreeningKeepsEveryAiryRadius) {
   const double chi2_per_dof = map.chi2 / map.dof;
   EXPECT_LT(std::fabs(chi2_per_dof - 1.0), 5.0 * std::sqrt(2.0 / map.dof)) << chi2_per_dof;
   EXPECT_NEAR(map.theta[kAiryRadiusPx], 0.41125, 0.01);
+  // The screening's grid scores, refinements and local solves run on num_threads threads
+  // (two by default), each writing only its own results: on one thread the MAP is the same
+  // to the last bit.
+  MapOptions one_thread;
+  one_thread.num_threads = 1;
+  MapResult map1;
+  ASSERT_TRUE(FindMap(*model, one_thread, &map1, &error)) << error;
+  EXPECT_EQ(map1.theta, map.theta);
+  EXPECT_EQ(map1.start_costs, map.start_costs);
 }
 
 // A short MCMC: intervals contain the identified truths, the chain is identical for 1 and 2

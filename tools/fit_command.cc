@@ -350,7 +350,7 @@ Command FitCommand() {
       {"target_ess", NumberText(d.fit.mcmc.target_ess),
        "Effective sample size every parameter must reach for the MCMC to have converged"},
       {"threads", std::to_string(d.fit.mcmc.num_threads),
-       "Threads of the MCMC (the chain is the same for any number)"},
+       "Threads of the MAP search and the MCMC (the results are the same for any number)"},
       {"mcmc", d.fit.run_mcmc ? "true" : "false", "Run the MCMC (--nomcmc: MAP and Laplace only)"},
       {"flux", "auto",
        "How the exposures of a joint fit share the light: auto (chosen from the data and "

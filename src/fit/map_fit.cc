@@ -1,9 +1,12 @@
 #include "ccdpsf/fit/map_fit.h"
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
+#include <functional>
 #include <limits>
+#include <thread>
 
 #include "ceres/ceres.h"
 #include "glog/logging.h"
@@ -225,15 +228,34 @@ void RefinePositions(const FitModel& model, FitEvaluator* ev, std::vector<double
   ScoreWithBestFlux(model, ev, theta);
 }
 
+// Calls task(i, evaluator) for i = 0..n-1 on up to `threads` threads, each with its own
+// evaluator of `model`. Tasks must write only their own index's results: the outcome is then
+// the same for any number of threads (the screening's starts, and so the fit, do not depend
+// on --threads).
+void ForEachIndex(const FitModel& model, int n, int threads,
+                  const std::function<void(int, FitEvaluator*)>& task) {
+  std::atomic<int> next{0};
+  auto worker = [&]() {
+    std::unique_ptr<FitEvaluator> ev = model.NewEvaluator();
+    for (int i = next.fetch_add(1); i < n; i = next.fetch_add(1)) task(i, ev.get());
+  };
+  std::vector<std::thread> pool;
+  for (int t = 1; t < std::clamp(threads, 1, std::max(1, n)); ++t) pool.emplace_back(worker);
+  worker();
+  for (std::thread& t : pool) t.join();
+}
+
 // Grid points ranked by log-likelihood (flux by least squares, positions refined once for a
-// mid-range shape); returns the best `keep` as starting vectors.
+// mid-range shape); returns the best `keep` as starting vectors. The grid's scores and the
+// kept points' position refinements (most of a pixel_centre MAP's time) run on
+// options.num_threads threads.
 std::vector<std::vector<double>> ScreenStarts(const FitModel& model, const MapOptions& options) {
   std::unique_ptr<FitEvaluator> ev = model.NewEvaluator();
   std::vector<double> base = model.MomentStart(0.5, 0.5);
   base[kDefocusPx] = 0.4;
   base[kCcdSigmaXPx] = base[kCcdSigmaYPx] = 0.3;
   RefinePositions(model, ev.get(), &base);
-  std::vector<std::pair<double, std::vector<double>>> scored;
+  std::vector<std::vector<double>> grid;
   for (double r : options.screen_airy_radii_px) {
     for (double f : options.screen_defocus_px) {
       for (double sx : options.screen_ccd_sigma_px) {
@@ -247,12 +269,17 @@ std::vector<std::vector<double>> ScreenStarts(const FitModel& model, const MapOp
           for (int i = 1; i < kNumShared; ++i) {
             inside &= theta[i] >= model.lower()[i] && theta[i] <= model.upper()[i];
           }
-          if (!inside) continue;
-          const double ll = ScoreWithBestFlux(model, ev.get(), &theta);
-          if (std::isfinite(ll)) scored.push_back({ll, theta});
+          if (inside) grid.push_back(std::move(theta));
         }
       }
     }
+  }
+  std::vector<double> grid_ll(grid.size());
+  ForEachIndex(model, static_cast<int>(grid.size()), options.num_threads,
+               [&](int i, FitEvaluator* e) { grid_ll[i] = ScoreWithBestFlux(model, e, &grid[i]); });
+  std::vector<std::pair<double, std::vector<double>>> scored;
+  for (size_t i = 0; i < grid.size(); ++i) {
+    if (std::isfinite(grid_ll[i])) scored.push_back({grid_ll[i], std::move(grid[i])});
   }
   std::stable_sort(scored.begin(), scored.end(),
                    [](const auto& a, const auto& b) { return a.first > b.first; });
@@ -275,10 +302,10 @@ std::vector<std::vector<double>> ScreenStarts(const FitModel& model, const MapOp
   // without it a 600 nm spot (r = 0.35 px) ended at chi^2/dof 1.3-1.8 against 1.05 near the
   // truth).
   for (size_t i = 0; i < scored.size(); ++i) {
-    if (!keep[i]) continue;
-    RefinePositions(model, ev.get(), &scored[i].second);
-    starts.push_back(scored[i].second);
+    if (keep[i]) starts.push_back(std::move(scored[i].second));
   }
+  ForEachIndex(model, static_cast<int>(starts.size()), options.num_threads,
+               [&](int i, FitEvaluator* e) { RefinePositions(model, e, &starts[i]); });
   return starts;
 }
 
@@ -300,24 +327,34 @@ std::vector<std::vector<double>> JointScreenStarts(const FitModel& model,
   std::string error;
   auto sub = FitModel::Create(sub_stamps, model.options(), &error);
   if (!sub) return {};
-  std::unique_ptr<FitEvaluator> ev = model.NewEvaluator();
+  // Each kept grid point's local solve and scoring is independent of the others': they run
+  // on options.num_threads threads, each solve on one (Ceres' own threads would only contend).
+  const std::vector<std::vector<double>> screened = ScreenStarts(*sub, options);
+  MapOptions one_thread = options;
+  one_thread.num_threads = 1;
+  std::vector<std::pair<double, std::vector<double>>> outcomes(screened.size(), {-INFINITY, {}});
+  ForEachIndex(model, static_cast<int>(screened.size()), options.num_threads,
+               [&](int s, FitEvaluator* ev) {
+                 const StartOutcome local = Solve(*sub, screened[s], one_thread);
+                 if (!local.usable) return;
+                 std::vector<double> theta = model.MomentStart(local.theta[kAiryRadiusPx], 0.5);
+                 // Shared and position parameters keep their indices; the sub-model's trailing
+                 // ones (flux ratios) move to the full model's.
+                 for (int i = 0; i < kNumShared + 2 * num_sub; ++i) theta[i] = local.theta[i];
+                 for (int k = 1; k < num_sub; ++k) {
+                   if (sub->RatioIndex(k) >= 0) {
+                     theta[model.RatioIndex(k)] = local.theta[sub->RatioIndex(k)];
+                   }
+                 }
+                 // Refine exposures num_sub.. only.
+                 if (model.num_exposures() > num_sub) {
+                   RefinePositions(model, ev, &theta, /*coarse_to_fine=*/true, num_sub);
+                 }
+                 outcomes[s] = {ScoreWithBestFlux(model, ev, &theta), std::move(theta)};
+               });
   std::vector<std::pair<double, std::vector<double>>> scored;
-  for (const std::vector<double>& start : ScreenStarts(*sub, options)) {
-    const StartOutcome local = Solve(*sub, start, options);
-    if (!local.usable) continue;
-    std::vector<double> theta = model.MomentStart(local.theta[kAiryRadiusPx], 0.5);
-    // Shared and position parameters keep their indices; the sub-model's trailing ones
-    // (flux ratios) move to the full model's.
-    for (int i = 0; i < kNumShared + 2 * num_sub; ++i) theta[i] = local.theta[i];
-    for (int k = 1; k < num_sub; ++k) {
-      if (sub->RatioIndex(k) >= 0) theta[model.RatioIndex(k)] = local.theta[sub->RatioIndex(k)];
-    }
-    std::vector<double> rest = theta;  // refine exposures num_sub.. only
-    if (model.num_exposures() > num_sub) {
-      RefinePositions(model, ev.get(), &rest, /*coarse_to_fine=*/true, num_sub);
-    }
-    const double ll = ScoreWithBestFlux(model, ev.get(), &rest);
-    if (std::isfinite(ll)) scored.push_back({ll, rest});
+  for (auto& o : outcomes) {
+    if (std::isfinite(o.first)) scored.push_back(std::move(o));
   }
   std::sort(scored.begin(), scored.end(),
             [](const auto& a, const auto& b) { return a.first > b.first; });

@@ -40,7 +40,9 @@ struct MapOptions {
   // Generous: at low signal (~7 ke- peaks) the rugged pixel_centre joint problem needs several
   // hundred iterations; converging fits stop long before.
   int max_iterations = 1000;
-  // Threads for Ceres' residual evaluation (helps joint fits: one block per exposure).
+  // Threads of the search: the pixel_centre screening's grid scores, position refinements
+  // and local solves, and Ceres' residual evaluation (one block per exposure). The MAP is the
+  // same for any number. FitOptions::MapWithThreadLimit caps it at the MCMC's threads.
   int num_threads = 2;
   // Grid screening before the local solves: the log-likelihood is evaluated on a coarse grid
   // of (Airy radius, defocus, sigma_x, sigma_y) with the flux set by least squares, and the
