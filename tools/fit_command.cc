@@ -76,7 +76,7 @@ bool ApplyFitFlags(bool given_only, fit::FitConfig* c, std::string* error) {
   if (use("walkers")) c->fit.num_walkers = FLAGS_walkers;
   if (use("max_steps")) c->fit.mcmc.max_steps = FLAGS_max_steps;
   if (use("target_ess")) c->fit.mcmc.target_ess = FLAGS_target_ess;
-  if (use("threads")) c->fit.mcmc.num_threads = FLAGS_threads;
+  if (use("threads")) c->fit.mcmc.num_threads = c->fit.map.num_threads = FLAGS_threads;
   if (use("mcmc")) c->fit.run_mcmc = FLAGS_mcmc;
   if (use("stamp_size")) c->calibration.stamp_size = FLAGS_stamp_size;
   if (use("flux")) {

@@ -83,7 +83,7 @@ bool RunFit(const FitModel& model, const FitOptions& options, FitResult* result,
   const int dim = model.dim();
   if (map != nullptr) {
     result->map = *map;
-  } else if (!FindMap(model, options.MapWithThreadLimit(), &result->map, error)) {
+  } else if (!FindMap(model, options.map, &result->map, error)) {
     return false;
   }
   const std::vector<double>& theta_map = result->map.theta;

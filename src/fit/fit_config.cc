@@ -188,7 +188,7 @@ bool ParseFitConfig(const std::string& text, FitConfig* c, std::string* error) {
     c->fit.num_walkers = static_cast<int>(walkers);
     c->fit.mcmc.max_steps = static_cast<int>(steps);
     c->fit.mcmc.seed = static_cast<uint64_t>(seed);
-    c->fit.mcmc.num_threads = static_cast<int>(threads);
+    c->fit.mcmc.num_threads = c->fit.map.num_threads = static_cast<int>(threads);
   }
   if (r.ok() && r.Has("calibration")) {
     const json& k = r.Get("calibration");

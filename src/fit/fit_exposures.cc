@@ -232,7 +232,7 @@ bool FitExposures(const std::vector<Exposure>& exposures, const Quality& set_qua
   std::unique_ptr<FitModel> model = FitModel::Create(stamps, model_options, error);
   if (!model) return false;
   MapResult map;
-  if (!FindMap(*model, options.config.fit.MapWithThreadLimit(), &map, error)) return false;
+  if (!FindMap(*model, options.config.fit.map, &map, error)) return false;
 
   // Outliers: mask, refit from where the MAP was, repeat.
   for (int round = 0; round < options.outliers.max_rounds; ++round) {
@@ -248,7 +248,7 @@ bool FitExposures(const std::vector<Exposure>& exposures, const Quality& set_qua
     MapResult refit;
     std::string why;
     if (!RefineMap(*masked, map.theta, options.config.fit.map, &refit, &why) &&
-        !FindMap(*masked, options.config.fit.MapWithThreadLimit(), &refit, error)) {
+        !FindMap(*masked, options.config.fit.map, &refit, error)) {
       return false;
     }
     model = std::move(masked);
@@ -263,7 +263,7 @@ bool FitExposures(const std::vector<Exposure>& exposures, const Quality& set_qua
       out->notes.push_back("flux: " + ToString(again) + " after masking outliers (" + why + ")");
       std::unique_ptr<FitModel> remade = FitModel::Create(stamps, model_options, error);
       if (!remade) return false;
-      if (!FindMap(*remade, options.config.fit.MapWithThreadLimit(), &map, error)) return false;
+      if (!FindMap(*remade, options.config.fit.map, &map, error)) return false;
       model = std::move(remade);
     }
   }

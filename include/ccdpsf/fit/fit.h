@@ -4,7 +4,6 @@
 #ifndef CCDPSF_FIT_FIT_H_
 #define CCDPSF_FIT_FIT_H_
 
-#include <algorithm>
 #include <map>
 #include <string>
 #include <vector>
@@ -30,14 +29,6 @@ struct FitOptions {
   // the peak pixel, which needs a render per draw and exposure, uses at most peak_draws.
   int derived_draws = 4000;
   int peak_draws = 400;
-
-  // The MAP search's options, using no more threads than the MCMC may (a grid process or a
-  // trend group given one core keeps to it).
-  MapOptions MapWithThreadLimit() const {
-    MapOptions m = map;
-    m.num_threads = std::max(1, std::min(mcmc.num_threads, map.num_threads));
-    return m;
-  }
 };
 
 // Centre and intervals of one quantity: the MAP value with its Laplace sd (NaN when the

@@ -42,7 +42,7 @@ struct MapOptions {
   int max_iterations = 1000;
   // Threads of the search: the pixel_centre screening's grid scores, position refinements
   // and local solves, and Ceres' residual evaluation (one block per exposure). The MAP is the
-  // same for any number. FitOptions::MapWithThreadLimit caps it at the MCMC's threads.
+  // same for any number. --threads (FIT.json mcmc.threads) sets it with the MCMC's.
   int num_threads = 2;
   // Grid screening before the local solves: the log-likelihood is evaluated on a coarse grid
   // of (Airy radius, defocus, sigma_x, sigma_y) with the flux set by least squares, and the
