@@ -163,7 +163,7 @@ StartOutcome Solve(const FitModel& model, std::vector<double> theta, const MapOp
   solver.function_tolerance = 1e-12;
   solver.gradient_tolerance = 1e-12;
   solver.parameter_tolerance = 1e-10;
-  solver.num_threads = options.num_threads;
+  solver.num_threads = options.solver_threads;
   solver.logging_type = ceres::SILENT;
   ceres::Solver::Summary summary;
   ceres::Solve(solver, &problem, &summary);
@@ -328,10 +328,10 @@ std::vector<std::vector<double>> JointScreenStarts(const FitModel& model,
   auto sub = FitModel::Create(sub_stamps, model.options(), &error);
   if (!sub) return {};
   // Each kept grid point's local solve and scoring is independent of the others': they run
-  // on options.num_threads threads, each solve on one (Ceres' own threads would only contend).
+  // on options.num_threads threads, each solve on one Ceres thread whatever that number.
   const std::vector<std::vector<double>> screened = ScreenStarts(*sub, options);
   MapOptions one_thread = options;
-  one_thread.num_threads = 1;
+  one_thread.solver_threads = 1;
   std::vector<std::pair<double, std::vector<double>>> outcomes(screened.size(), {-INFINITY, {}});
   ForEachIndex(model, static_cast<int>(screened.size()), options.num_threads,
                [&](int s, FitEvaluator* ev) {

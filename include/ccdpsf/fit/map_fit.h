@@ -40,10 +40,14 @@ struct MapOptions {
   // Generous: at low signal (~7 ke- peaks) the rugged pixel_centre joint problem needs several
   // hundred iterations; converging fits stop long before.
   int max_iterations = 1000;
-  // Threads of the search: the pixel_centre screening's grid scores, position refinements
-  // and local solves, and Ceres' residual evaluation (one block per exposure). The MAP is the
-  // same for any number. --threads (FIT.json mcmc.threads) sets it with the MCMC's.
+  // Threads of the pixel_centre screening's grid scores, position refinements and local
+  // solves; the MAP is the same for any number. --threads (FIT.json mcmc.threads) sets it
+  // with the MCMC's.
   int num_threads = 2;
+  // Threads of Ceres' residual evaluation in the final solves (one block per exposure). Fixed,
+  // not --threads: Ceres sums the cost over its threads, so the MAP's last bits depend on
+  // their number (seen under the sanitizers' codegen).
+  int solver_threads = 2;
   // Grid screening before the local solves: the log-likelihood is evaluated on a coarse grid
   // of (Airy radius, defocus, sigma_x, sigma_y) with the flux set by least squares, and the
   // best `screen_keep` grid points, with the best point of every Airy radius, become extra
