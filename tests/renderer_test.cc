@@ -223,6 +223,56 @@ TEST(Renderer, ModelIsLinearInTheFlux) {
   }
 }
 
+// A renderer reuses the radially symmetric image of its last render when the Airy radius and
+// the widths are the same (the exposures of a joint fit): a sequence of renders on one
+// renderer (other centres, grids, with and without the Jacobian, a changed radius and back)
+// must give exactly, bit for bit, what a new renderer gives for each.
+TEST(Renderer, ReusedWorkspaceGivesTheValuesOfAFreshRenderer) {
+  struct Step {
+    SpotParams p;
+    PixelGrid grid;
+    bool jacobian;
+  };
+  const SpotParams a = {2.0e4, 6.13, 5.71, 0.52, 0.45, 0.31, 0.27};
+  SpotParams shifted = a, moved = a, other_radius = a, pillbox_disc = a;
+  shifted[kCentreX] += 0.37;  // same stamp, another centre: the same S
+  shifted[kCentreY] -= 0.21;
+  moved[kCentreX] += 3.6;  // a stamp further on: more node columns
+  moved[kCentreY] += 2.2;
+  other_radius[kAiryRadius] = 0.53;  // the same node spacings, another S
+  pillbox_disc[kDefocus] = 0.7;
+  const std::vector<Step> steps = {{a, Grid(13, 12), false},
+                                   {shifted, Grid(13, 12), true},
+                                   {a, Grid(13, 12), true},
+                                   {shifted, Grid(13, 12), false},
+                                   {moved, Grid(15, 14, 1.0, -1.0), false},
+                                   {shifted, Grid(11, 10), false},
+                                   {other_radius, Grid(13, 12), false},
+                                   {a, Grid(13, 12), true},
+                                   {pillbox_disc, Grid(13, 12), true},
+                                   {a, Grid(13, 12), false}};
+  for (DefocusKind kind : {DefocusKind::kGaussian, DefocusKind::kPillbox}) {
+    const ModelOptions options = Options(Sampling::kIntegrated, kind);
+    SpotRenderer reused(options);
+    for (size_t i = 0; i < steps.size(); ++i) {
+      const Step& step = steps[i];
+      const int n = step.grid.size();
+      std::vector<double> m1(n), m2(n), j1(n * kNumSpotParams), j2(n * kNumSpotParams);
+      reused.Render(step.p, step.grid, m1.data(), step.jacobian ? j1.data() : nullptr);
+      SpotRenderer fresh(options);
+      fresh.Render(step.p, step.grid, m2.data(), step.jacobian ? j2.data() : nullptr);
+      for (int q = 0; q < n; ++q) {
+        ASSERT_EQ(m1[q], m2[q]) << Describe(options, step.p) << " step " << i << " pixel " << q;
+      }
+      if (step.jacobian) {
+        for (size_t q = 0; q < j1.size(); ++q) {
+          ASSERT_EQ(j1[q], j2[q]) << Describe(options, step.p) << " step " << i << " entry " << q;
+        }
+      }
+    }
+  }
+}
+
 // Moving the spot by exactly one pixel moves the integrated image by one pixel: the model
 // depends only on pixel centre - spot centre. Compared away from the stamp edges (two
 // pixels), to 2 x relative_tolerance x flux: each render is within relative_tolerance x flux

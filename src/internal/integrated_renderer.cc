@@ -91,7 +91,9 @@ inline void AiryIntensity(double d, double k, double* value, double* d_dk) {
 
 // The Airy amplitude a(v) and da/dv for v >= 0 from the table's quintic pieces (airy.h), as
 // AiryAmplitudeAndDerivativeInline computes them, except that v at or past kAiryTableMax
-// reads the last piece: the caller redoes those.
+// reads the last piece: the caller redoes those. Every operation is the one TablePolynomial4
+// does in its lane, rounded the same (explicit fused multiply-adds), so that a node's value
+// does not depend on whether it fell in a vector of four or in the remainder.
 inline void TablePolynomial(const double* table, double v, double* amp, double* damp) {
   constexpr double kInvStep = 1.0 / model::kAiryTableStep;
   constexpr int kLast = static_cast<int>(model::kAiryTableMax * kInvStep + 0.5) - 1;
@@ -99,9 +101,17 @@ inline void TablePolynomial(const double* table, double v, double* amp, double* 
   const int i = std::min(static_cast<int>(sv), kLast);
   const double u = sv - i;
   const double* c = table + 6 * static_cast<long>(i);
-  *amp = c[0] + u * (c[1] + u * (c[2] + u * (c[3] + u * (c[4] + u * c[5]))));
+  double a = std::fma(u, c[5], c[4]);
+  a = std::fma(u, a, c[3]);
+  a = std::fma(u, a, c[2]);
+  a = std::fma(u, a, c[1]);
+  *amp = std::fma(u, a, c[0]);
   if (damp != nullptr) {
-    *damp = (c[1] + u * (2 * c[2] + u * (3 * c[3] + u * (4 * c[4] + u * 5 * c[5])))) * kInvStep;
+    double d = std::fma(u, 5.0 * c[5], 4.0 * c[4]);
+    d = std::fma(u, d, 3.0 * c[3]);
+    d = std::fma(u, d, c[2] + c[2]);
+    d = std::fma(u, d, c[1]);
+    *damp = d * kInvStep;
   }
 }
 
@@ -182,24 +192,27 @@ void FillAiryColumn(const double* table, double k, double norm, double dnorm, do
     }
   }
 #endif
+  // The remainder, rounded as the vector lanes are.
   for (; iu < rows; ++iu) {
     const double x = iu * hx;
-    const double v = k * std::sqrt(x * x + y2);
+    const double v = k * std::sqrt(std::fma(x, x, y2));
     double a, da;
     TablePolynomial(table, v, &a, col_dr != nullptr ? &da : nullptr);
-    col[iu] = norm * a * a;
-    if (col_dr != nullptr) col_dr[iu] = dnorm * (a * a + a * da * v);
+    const double a2 = a * a;
+    col[iu] = norm * a2;
+    if (col_dr != nullptr) col_dr[iu] = dnorm * std::fma(a * da, v, a2);
   }
   const double x_last = (rows - 1) * hx;
-  if (k * std::sqrt(x_last * x_last + y2) < model::kAiryTableMax) return;
+  if (k * std::sqrt(std::fma(x_last, x_last, y2)) < model::kAiryTableMax) return;
   for (iu = first; iu < rows; ++iu) {
     const double x = iu * hx;
-    const double v = k * std::sqrt(x * x + y2);
+    const double v = k * std::sqrt(std::fma(x, x, y2));
     if (v < model::kAiryTableMax) continue;
     double a, da;
     model::AiryAmplitudeAndDerivative(v, &a, &da);
-    col[iu] = norm * a * a;
-    if (col_dr != nullptr) col_dr[iu] = dnorm * (a * a + a * da * v);
+    const double a2 = a * a;
+    col[iu] = norm * a2;
+    if (col_dr != nullptr) col_dr[iu] = dnorm * std::fma(a * da, v, a2);
   }
 }
 
@@ -518,27 +531,50 @@ void RenderIntegrated(const model::ModelOptions& options, const model::SpotParam
   // Radial image S on the nodes, through the symmetric quadrant.
   const int iu_max = std::max(std::abs(i_lo), std::abs(i_hi));
   const int ju_max = std::max(std::abs(j_lo), std::abs(j_hi));
-  // The Airy table must reach the farthest node (plus the disc's radius for the pillbox).
-  // The padding rows below reach 3 nodes further.
-  model::EnsureAiryTable(k *
-                         (std::hypot((iu_max + 3) * hx, ju_max * hy) + (pillbox ? defocus : 0.0)));
   // Rows |i| of the half problem, padded to whole vectors of four (the extra rows hold S at
   // further nodes, computed like the others and never read into the output).
   const int nh = (iu_max + 1 + 3) / 4 * 4;
-  ws->quadrant.Resize(nh, ju_max + 1);
-  ws->quadrant_dr.Resize(nh, ju_max + 1);
-  if (pillbox && defocus > 0.0) {
-    ws->quadrant_dR.Resize(nh, ju_max + 1);
-    FillPillboxQuadrant(k, dk_dr, rho_c, defocus, hx, hy, &ws->quadrant, &ws->quadrant_dr,
-                        &ws->quadrant_dR);
-  } else {
-    FillAiryQuadrant(k, dk_dr, hx, hy, jacobian != nullptr, &ws->quadrant, &ws->quadrant_dr);
-    // A pillbox of zero radius: S = Airy, and dS/dR = 0 there (S - Airy is O(R^2)).
-    if (pillbox) {
-      ws->quadrant_dR.Resize(nh, ju_max + 1);
-      std::fill_n(ws->quadrant_dR.data(), static_cast<size_t>(nh) * (ju_max + 1), 0.0);
+  // With equal spacings the fill mirrors S(|i|, |j|) = S(|j|, |i|) on a square quadrant, so
+  // that which nodes are computed and which copied does not depend on the stamp.
+  const bool square = hx == hy;
+  QuadrantKey key{k, hx, hy, pillbox ? defocus : -1.0, nh, ju_max + 1, derivs};
+  if (square) key.rows = key.cols = std::max(nh, (ju_max + 1 + 3) / 4 * 4);
+  // S depends on neither the centre nor the grid's place, so the exposures of a joint fit
+  // (one Airy radius and one set of widths) share it: it is filled only when the last fill
+  // does not serve. A fill is a pure function of the key, and the passes below read only the
+  // nh x (ju_max + 1) nodes they need, so reuse changes no value.
+  if (!ws->quadrant_key.Serves(key)) {
+    const QuadrantKey last = ws->quadrant_key;
+    if (last.k == k && last.hx == hx && last.hy == hy &&
+        last.pillbox_radius == key.pillbox_radius) {
+      // The same S for another stamp (a joint fit's exposures sit at other sub-pixel places
+      // in their stamps, which moves the farthest node by up to q / 2): room for them too.
+      key.rows = std::max(key.rows, last.rows) + 4;
+      key.cols = square ? key.rows : std::max(key.cols, last.cols) + 4;
+      key.derivs = key.derivs || last.derivs;
     }
+    ws->quadrant_key = QuadrantKey();  // nothing valid while the fill runs
+    const int rows = key.rows, cols = key.cols;
+    // The Airy table must reach the farthest node (plus the disc's radius for the pillbox).
+    model::EnsureAiryTable(
+        k * (std::hypot((rows - 1) * hx, (cols - 1) * hy) + (pillbox ? defocus : 0.0)));
+    ws->quadrant.Resize(rows, cols);
+    ws->quadrant_dr.Resize(rows, cols);
+    if (pillbox && defocus > 0.0) {
+      ws->quadrant_dR.Resize(rows, cols);
+      FillPillboxQuadrant(k, dk_dr, rho_c, defocus, hx, hy, &ws->quadrant, &ws->quadrant_dr,
+                          &ws->quadrant_dR);
+    } else {
+      FillAiryQuadrant(k, dk_dr, hx, hy, key.derivs, &ws->quadrant, &ws->quadrant_dr);
+      // A pillbox of zero radius: S = Airy, and dS/dR = 0 there (S - Airy is O(R^2)).
+      if (pillbox) {
+        ws->quadrant_dR.Resize(rows, cols);
+        std::fill_n(ws->quadrant_dR.data(), static_cast<size_t>(rows) * cols, 0.0);
+      }
+    }
+    ws->quadrant_key = key;
   }
+  const int stride = ws->quadrant.rows;  // between node columns of S
 
   // First pass, along y: B(|i|, b) = hy sum_j S(|i|, j) ky(yb - cy - j hy), and the same
   // with d ky / d cy, d ky / d sY, and with dS / dr (and dS / dR): nr right-hand sides.
@@ -567,7 +603,7 @@ void RenderIntegrated(const model::ModelOptions& options, const model::SpotParam
         continue;
       }
       for (int m = 0; m < wy_size; ++m) {
-        offset[m] = static_cast<size_t>(std::abs(j_lo + qy * b + m)) * nh;
+        offset[m] = static_cast<size_t>(std::abs(j_lo + qy * b + m)) * stride;
       }
       if (derivs) {
         WeightedSums3(wy_size, ws->quadrant.data(), offset, wy.w.data(), wy_size, nh, row, nh);

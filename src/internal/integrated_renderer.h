@@ -42,11 +42,30 @@ struct NodeImage {
   double* data() { return values.data(); }
 };
 
+// What the radially symmetric image S on the quadrant depends on. S does not depend on the
+// centre or the grid's place: renders that share these (the exposures of a joint fit, which
+// share the Airy radius and the widths) reuse it.
+struct QuadrantKey {
+  double k = 0.0;                // Airy wavenumber pi Rz / r [1/px]
+  double hx = 0.0, hy = 0.0;     // node spacings [px]
+  double pillbox_radius = -1.0;  // [px]; -1: the Gaussian-defocus model (S is the Airy pattern)
+  int rows = 0, cols = 0;        // quadrant size [nodes]
+  bool derivs = false;           // quadrant_dr (and quadrant_dR) filled too
+  // Whether a quadrant made for this key serves a render that needs `wanted`: the same S, at
+  // least its rows and columns and, if wanted, derivatives.
+  bool Serves(const QuadrantKey& wanted) const {
+    return k == wanted.k && hx == wanted.hx && hy == wanted.hy &&
+           pillbox_radius == wanted.pillbox_radius && rows >= wanted.rows && cols >= wanted.cols &&
+           (derivs || !wanted.derivs);
+  }
+};
+
 // Scratch space reused between renders (sizes change with the parameters).
 struct IntegratedWorkspace {
   // The radially symmetric image S (unit flux) at the nodes (|i|, |j|) of one quadrant, and
   // its derivatives by the Airy radius and (pillbox only) the pillbox radius.
   NodeImage quadrant, quadrant_dr, quadrant_dR;
+  QuadrantKey quadrant_key;    // what the quadrant holds now (rows 0: nothing yet)
   AlignedDoubles row;          // first pass: the right-hand sides of one output row, by |i|
   AlignedDoubles bt;           // first pass output, [(|i| * rhs count + rhs) * ny_pad + b]
   std::vector<double> acc;     // second pass accumulators, [quantity * ny_pad + b]
