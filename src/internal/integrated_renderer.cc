@@ -44,6 +44,7 @@
 #include "ccdpsf/model/airy.h"
 #include "glog/logging.h"
 #include "internal/gauss_legendre.h"
+#include "internal/normal_tail.h"
 
 namespace ccdpsf::internal {
 
@@ -346,8 +347,6 @@ struct AxisWeights {
 void ComputeAxisWeights(double pixel0, double centre, double h, int q, double half_width, double s,
                         double window, bool derivs, AxisWeights* aw,
                         std::vector<double>* edge_scratch) {
-  constexpr double kInvSqrt2 = 0.70710678118654752440;
-  constexpr double kInvSqrt2Pi = 0.39894228040143267794;
   aw->q = q;
   aw->first = static_cast<int>(std::ceil((pixel0 - centre - half_width) * q));
   const int last = static_cast<int>(std::floor((pixel0 - centre + half_width) * q));
@@ -369,9 +368,8 @@ void ComputeAxisWeights(double pixel0, double centre, double h, int q, double ha
     const int node = e < n_upper ? e : e - n_upper;
     const double t = pixel0 - centre - (aw->first + node) * h;
     z[e] = (e < n_upper ? t + half : t - half) / s;
-    tail[e] = 0.5 * std::erfc(std::fabs(z[e]) * kInvSqrt2);
-    if (derivs) density[e] = kInvSqrt2Pi * std::exp(-0.5 * z[e] * z[e]);
   }
+  NormalTailsAndDensities(z, n_edges, tail, derivs ? density : nullptr);
   for (int m = 0; m < size; ++m) {
     const int up = m, lo = shared ? m + q : n_upper + m;
     const double zp = z[up], zm = z[lo];
