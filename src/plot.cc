@@ -680,7 +680,9 @@ bool WriteCornerPlot(const std::string& dir, const std::string& stem, const Corn
   std::string s = ScriptPreamble(stem, "corner plot of posterior samples", width, height, 9, files);
   s += "\n# Styles: 1 samples, 2 MAP, 3 Laplace curve and 68% ellipse, 4 Laplace 95% ellipse,\n";
   s += "# 5 true values, 6 histogram bars. Colours are '#AARRGGBB' (AA = transparency).\n";
-  s += "set style line 1 pt 7 ps 0.25 lc rgb '#A0303030'\n";
+  // Samples as small filled squares: at this size they look as the circles did, and cairo
+  // draws them in about half the time (the circles were most of a single fit's run).
+  s += "set style line 1 pt 5 ps 0.2 lc rgb '#A0303030'\n";
   s += "set style line 2 lw 1.5 pt 7 ps 0.7 lc rgb '#D62728'\n";
   s += "set style line 3 lw 1.5 dt 1 lc rgb '#D62728'\n";
   s += "set style line 4 lw 1.3 dt 2 lc rgb '#E36464'\n";
@@ -796,7 +798,7 @@ bool WriteCornerPlot(const std::string& dir, const std::string& stem, const Corn
         s += "set key at screen " + Screen(key_x, width) + "," + Screen(height - top, height) +
              " right top Left reverse box opaque samplen 2.5 spacing 1.3 width 1 font ',10'\n";
         plots.push_back(
-            "keyentry with points pt 7 ps 0.6 lc rgb '#303030' title " +
+            "keyentry with points pt 5 ps 0.5 lc rgb '#303030' title " +
             GpString("samples (" + std::to_string(n) + ", " + std::to_string(kept) + " plotted)"));
         plots.push_back("keyentry with lines ls 8 title 'median, 68 % interval (15.87-84.13 %)'");
         if (!input.map.empty()) plots.push_back("keyentry with linespoints ls 2 title 'MAP'");

@@ -271,13 +271,16 @@ bool WriteFitReport(const std::string& out_dir, const ExposuresFit& fit, const j
                         {"CHI2", r.map.chi2, "sum of squared normalised residuals"},
                         {"DOF", static_cast<long long>(r.map.dof), "pixels - parameters"}};
   if (!WriteFitsImagesF64(out.Path("residuals.fits"), primary, hdus, error)) return false;
+  // gnuplot draws the residual maps on their own thread while the chain is written and the
+  // corner drawn (each writes its own files; RunSubprocess may be called from several
+  // threads). On an early return below, the future's destructor waits for it.
   PlotResult plot;
-  if (!WriteResidualMaps(out.staging_dir(), "residuals", panels, &plot, error, options.plot)) {
-    return false;
-  }
-  if (!plot.image_written) {
-    warnings->push_back("residuals" + extension + " not made: " + plot.message);
-  }
+  std::string residuals_error;
+  const size_t residuals_warning_at = warnings->size();
+  std::future<bool> residuals_done = std::async(std::launch::async, [&] {
+    return WriteResidualMaps(out.staging_dir(), "residuals", panels, &plot, &residuals_error,
+                             options.plot);
+  });
   std::vector<std::string> truth_names;  // the parameters whose true value the corner shows
 
   // chain.fits and the corner plot.
@@ -389,6 +392,15 @@ bool WriteFitReport(const std::string& out_dir, const ExposuresFit& fit, const j
     if (!corner_plot.image_written) {
       warnings->push_back("corner" + extension + " not made: " + corner_plot.message);
     }
+  }
+
+  if (!residuals_done.get()) {
+    *error = residuals_error;
+    return false;
+  }
+  if (!plot.image_written) {
+    warnings->insert(warnings->begin() + residuals_warning_at,
+                     "residuals" + extension + " not made: " + plot.message);
   }
 
   // report.md: the numbers people come for, and the plots.
