@@ -1,15 +1,14 @@
 #include "ccdpsf/diagnose/statistics.h"
 
 #include <algorithm>
-#include <atomic>
 #include <cmath>
-#include <thread>
 
 #include "ccdpsf/chi_square.h"
 #include "ccdpsf/fit/pixel_likelihood.h"
 #include "ccdpsf/noise.h"
 #include "ccdpsf/random.h"
 #include "glog/logging.h"
+#include "internal/parallel_for.h"
 
 namespace ccdpsf::diagnose {
 
@@ -328,14 +327,7 @@ void PredictiveCheck(const EffectModel& model, const std::vector<double>& p,
       rows[s][i] = sim.values[i].value;
     }
   };
-  std::atomic<int> next{0};
-  auto worker = [&]() {
-    for (int s = next.fetch_add(1); s < num; s = next.fetch_add(1)) simulate(s);
-  };
-  std::vector<std::thread> pool;
-  for (int t = 1; t < std::clamp(options.threads, 1, std::max(1, num)); ++t) pool.emplace_back(worker);
-  worker();
-  for (std::thread& t : pool) t.join();
+  internal::ParallelFor(num, options.threads, [&](int s, int) { simulate(s); });
   std::vector<std::vector<double>> values(ns);
   for (int s = 0; s < num; ++s) {
     for (int i = 0; i < ns; ++i) values[i].push_back(rows[s][i]);

@@ -1,15 +1,14 @@
 #include "ccdpsf/fit/map_fit.h"
 
 #include <algorithm>
-#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <functional>
 #include <limits>
-#include <thread>
 
 #include "ceres/ceres.h"
 #include "glog/logging.h"
+#include "internal/parallel_for.h"
 
 namespace ccdpsf::fit {
 namespace {
@@ -234,15 +233,11 @@ void RefinePositions(const FitModel& model, FitEvaluator* ev, std::vector<double
 // on --threads).
 void ForEachIndex(const FitModel& model, int n, int threads,
                   const std::function<void(int, FitEvaluator*)>& task) {
-  std::atomic<int> next{0};
-  auto worker = [&]() {
-    std::unique_ptr<FitEvaluator> ev = model.NewEvaluator();
-    for (int i = next.fetch_add(1); i < n; i = next.fetch_add(1)) task(i, ev.get());
-  };
-  std::vector<std::thread> pool;
-  for (int t = 1; t < std::clamp(threads, 1, std::max(1, n)); ++t) pool.emplace_back(worker);
-  worker();
-  for (std::thread& t : pool) t.join();
+  std::vector<std::unique_ptr<FitEvaluator>> evaluators(std::max(1, threads));
+  internal::ParallelFor(n, threads, [&](int i, int worker) {
+    if (!evaluators[worker]) evaluators[worker] = model.NewEvaluator();
+    task(i, evaluators[worker].get());
+  });
 }
 
 // Grid points ranked by log-likelihood (flux by least squares, positions refined once for a

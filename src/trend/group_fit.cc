@@ -1,13 +1,11 @@
 #include "ccdpsf/trend/group_fit.h"
 
 #include <algorithm>
-#include <cmath>
-#include <atomic>
 #include <chrono>
+#include <cmath>
 #include <filesystem>
 #include <mutex>
 #include <numeric>
-#include <thread>
 
 #include "ccdpsf/exposure.h"
 #include "ccdpsf/exposure_set.h"
@@ -16,6 +14,7 @@
 #include "ccdpsf/provenance.h"
 #include "ccdpsf/random.h"
 #include "ccdpsf/trend/group_store.h"
+#include "internal/parallel_for.h"
 
 namespace ccdpsf::trend {
 namespace {
@@ -155,47 +154,36 @@ std::vector<GroupResult> FitGroups(const std::vector<CampaignGroup>& groups,
   // Largest groups first, so that the last to start are the quick ones.
   std::vector<int> order(total);
   std::iota(order.begin(), order.end(), 0);
-  std::stable_sort(order.begin(), order.end(), [&](int a, int b) {
-    return groups[a].files.size() > groups[b].files.size();
-  });
-  std::atomic<int> next{0};
+  std::stable_sort(order.begin(), order.end(),
+                   [&](int a, int b) { return groups[a].files.size() > groups[b].files.size(); });
   std::mutex mutex;
   int done = 0;
-  auto worker = [&]() {
-    while (true) {
-      const int i = next.fetch_add(1);
-      if (i >= total) return;
-      const int g = order[i];
-      const int index = options.seed_indices.empty() ? g : options.seed_indices[g];
-      GroupResult r;
-      std::string stored;
-      if (!options.store_dir.empty()) {
-        stored = options.store_dir + "/" + GroupStoreName(options.run_signature, groups[g], index);
-        r.group = groups[g];
-        r.resumed = LoadGroupResult(stored, &r);
-      }
-      if (!r.resumed) {
-        // A report folder left by an interrupted fit of this group goes first.
-        if (!options.reports_dir.empty()) {
-          std::error_code ec;
-          std::filesystem::remove_all(options.reports_dir + "/" + groups[g].name, ec);
-        }
-        r = FitOne(groups[g], g, index, options);
-        std::string error;
-        // A group that cannot be stored is only refitted by a resumed run.
-        if (!stored.empty() && !SaveGroupResult(stored, r, &error)) r.warnings.push_back(error);
-      }
-      std::lock_guard<std::mutex> lock(mutex);
-      results[g] = std::move(r);
-      ++done;
-      if (progress) progress(results[g], done, total);
+  internal::ParallelFor(total, options.parallel_groups, [&](int i, int) {
+    const int g = order[i];
+    const int index = options.seed_indices.empty() ? g : options.seed_indices[g];
+    GroupResult r;
+    std::string stored;
+    if (!options.store_dir.empty()) {
+      stored = options.store_dir + "/" + GroupStoreName(options.run_signature, groups[g], index);
+      r.group = groups[g];
+      r.resumed = LoadGroupResult(stored, &r);
     }
-  };
-  const int threads = std::clamp(options.parallel_groups, 1, std::max(1, total));
-  std::vector<std::thread> pool;
-  for (int t = 1; t < threads; ++t) pool.emplace_back(worker);
-  worker();
-  for (std::thread& t : pool) t.join();
+    if (!r.resumed) {
+      // A report folder left by an interrupted fit of this group goes first.
+      if (!options.reports_dir.empty()) {
+        std::error_code ec;
+        std::filesystem::remove_all(options.reports_dir + "/" + groups[g].name, ec);
+      }
+      r = FitOne(groups[g], g, index, options);
+      std::string error;
+      // A group that cannot be stored is only refitted by a resumed run.
+      if (!stored.empty() && !SaveGroupResult(stored, r, &error)) r.warnings.push_back(error);
+    }
+    std::lock_guard<std::mutex> lock(mutex);
+    results[g] = std::move(r);
+    ++done;
+    if (progress) progress(results[g], done, total);
+  });
   return results;
 }
 
