@@ -379,5 +379,38 @@ TEST_F(RealFrames, JointFitOverDifferentExposureTimes) {
   EXPECT_NE(output.find("given twice"), std::string::npos) << output;
 }
 
+TEST_F(RealFrames, AllTenJointlyWithoutExposureTimes) {
+  // Nothing says the frames differ in light: no exposure times, and the 8-bit wings are too
+  // faint to compare. A shared flux there made the 0.1 s spot's whole core an outlier, masked
+  // it and failed the run ("no spot to fit"). The spots' cores (76 to 423 ADU in their 5 x 5
+  // boxes) show the light differs: a flux each, and a run that completes with a verdict.
+  std::string files;
+  for (const char* t : {"0.1", "0.2", "0.3", "0.4", "0.5", "0.6", "0.7", "0.8", "0.9", "1.0"}) {
+    files += File(t) + " ";
+  }
+  std::string output;
+  const json fit = Fit("real_ten", "--joint --nomcmc " + Flags() + files, &output);
+  ASSERT_TRUE(fit.is_object()) << output;
+  EXPECT_EQ(fit["model"]["flux"], "per_exposure") << output;
+  EXPECT_NE(output.find("5 x 5 cores"), std::string::npos) << output;
+  // The 1.0 s spot holds several times the 0.1 s spot's light (its core compressed: not 10x).
+  EXPECT_GT(fit["exposures"][9]["flux_scale"].get<double>(), 2.5);
+  // Frames from 0.5 s on sit near the 8-bit full scale: not ok.
+  EXPECT_NE(fit["quality"]["verdict"], "ok");
+  // Told to share one flux, the run still completes: the outlier masking stops before it
+  // would mask the faint spot away, and the verdict says why. (At one electron per ADU and of
+  // read noise, where the 0.1 s spot's core is its only pixel above 5 sd; at 41 e-/ADU the
+  // masking ends earlier and the verdict is a gross misfit.)
+  const json shared = Fit("real_ten_shared",
+                          "--joint --nomcmc --flux=shared --pixel_um=4.65 --bias_adu=0 "
+                          "--gain_e_per_adu=1 --read_noise_e=1 " +
+                              files,
+                          &output);
+  ASSERT_TRUE(shared.is_object()) << output;
+  EXPECT_TRUE(Codes(shared, "reasons").count("outlier_masking_stopped"))
+      << shared["quality"].dump(1);
+  EXPECT_NE(shared["quality"]["verdict"], "ok");
+}
+
 }  // namespace
 }  // namespace ccdpsf

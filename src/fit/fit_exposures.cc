@@ -38,6 +38,57 @@ std::vector<double> Residuals(const FitModel& model, FitEvaluator* ev, const dou
   return z;
 }
 
+// Whether the spots' cores alone prove that the exposures hold different light, for when the
+// wings are too faint to compare. The 5 x 5 box around a stamp's centre (its peak pixel) holds
+// nearly all of a compact spot's light wherever in the pixel its centre falls, and a clipped,
+// compressed or saturated core only lowers a box. So a box far below another's (by more than
+// kCoreBoxSpread and 5 sd) means less light, unless that stamp's own core is cut: its peak
+// must sit well below the brightest stamp's peak (not at a level where all are clipped) and
+// none of its box pixels be saturated (censored from above; one censored from below, at a
+// clipped black level, can only hold less).
+constexpr double kCoreBoxSpread = 0.25;
+bool CoresShowDifferentLight(const std::vector<Stamp>& stamps, std::string* what) {
+  const Stamp& first = stamps[0];
+  const int c = (first.nx() - 1) / 2;
+  std::vector<double> box, variance, peak;
+  std::vector<bool> censored;
+  for (const Stamp& s : stamps) {
+    double sum = 0.0, var = 0.0, top = -INFINITY;
+    bool cut = false;
+    for (int y = c - 2; y <= c + 2; ++y) {
+      for (int x = c - 2; x <= c + 2; ++x) {
+        if (x < 0 || y < 0 || x >= s.nx() || y >= s.ny()) continue;
+        const size_t q = static_cast<size_t>(y) * s.nx() + x;
+        // A pixel masked in any stamp is left out of every box.
+        bool everywhere = true;
+        for (const Stamp& o : stamps) everywhere = everywhere && o.valid[q];
+        if (!everywhere) continue;
+        const double v = s.electrons.data[q];
+        sum += v;
+        var += std::max(0.0, v) + s.read_noise_e * s.read_noise_e;
+        top = std::max(top, v);
+        cut = cut || s.CensorAt(q) == Censor::kAtOrAbove;
+      }
+    }
+    box.push_back(sum);
+    variance.push_back(var);
+    peak.push_back(top);
+    censored.push_back(cut);
+  }
+  const size_t lo = std::min_element(box.begin(), box.end()) - box.begin();
+  const size_t hi = std::max_element(box.begin(), box.end()) - box.begin();
+  const double top_peak = *std::max_element(peak.begin(), peak.end());
+  if (!(box[lo] > 0) || censored[lo] || !(peak[lo] < 0.9 * top_peak)) return false;
+  const bool differ = box[hi] > (1.0 + kCoreBoxSpread) * box[lo] &&
+                      box[hi] - box[lo] > 5.0 * std::sqrt(variance[lo] + variance[hi]);
+  if (differ) {
+    *what = "but the spots' 5 x 5 cores hold " + Fmt(box[lo], 3) + " to " + Fmt(box[hi], 3) +
+            " e- (exposures " + std::to_string(lo) + " and " + std::to_string(hi) +
+            "; clipping or compression only lowers a core)";
+  }
+  return differ;
+}
+
 }  // namespace
 
 FluxMode ChooseFluxMode(const std::vector<Stamp>& stamps, std::string* why) {
@@ -93,6 +144,11 @@ FluxMode ChooseFluxMode(const std::vector<Stamp>& stamps, std::string* why) {
                               "every exposure, is too faint to compare their fluxes";
     if (times_known && spread(time) > kSameExptime) {
       *why = which + "; exposure times differ: a flux per exposure";
+      return FluxMode::kPerExposure;
+    }
+    std::string cores;
+    if (CoresShowDifferentLight(stamps, &cores)) {
+      *why = which + "; " + cores + ": a flux per exposure";
       return FluxMode::kPerExposure;
     }
     *why = which + "; " + (times_known ? "one exposure time" : "no exposure times") +
@@ -238,13 +294,26 @@ bool FitExposures(const std::vector<Exposure>& exposures, const Quality& set_qua
   for (int round = 0; round < options.outliers.max_rounds; ++round) {
     const std::vector<OutlierMask> found = FindOutliers(*model, map.theta, options.outliers);
     if (found.empty()) break;
+    const std::vector<Stamp> before = stamps;
     for (const OutlierMask& m : found) {
       Stamp& s = stamps[m.exposure];
       s.valid[static_cast<size_t>(m.y_px - s.origin_y) * s.nx() + (m.x_px - s.origin_x)] = 0;
-      out->outliers.push_back(m);
     }
-    std::unique_ptr<FitModel> masked = FitModel::Create(stamps, model_options, error);
-    if (!masked) return false;
+    std::string masked_error;
+    std::unique_ptr<FitModel> masked = FitModel::Create(stamps, model_options, &masked_error);
+    if (!masked) {
+      // Masking ate a spot (a model far from one exposure, e.g. a flux shared across
+      // exposures that differ, makes its whole core look deviant): keep the fit before this
+      // round and say so, instead of failing the run.
+      stamps = before;
+      out->quality.Add("outlier_masking_stopped", Severity::kSuspect,
+                       "outlier masking stopped after " + std::to_string(round) +
+                           " round(s): masking the next " + std::to_string(found.size()) +
+                           " pixel(s) would have left no spot to fit (" + masked_error +
+                           "); the model misses these exposures as a whole, not a few pixels");
+      break;
+    }
+    out->outliers.insert(out->outliers.end(), found.begin(), found.end());
     MapResult refit;
     std::string why;
     if (!RefineMap(*masked, map.theta, options.config.fit.map, &refit, &why) &&
