@@ -230,6 +230,9 @@ constexpr double kSourceMinDistancePx = 3.0;
 constexpr double kSourceProtectPx = 2.5;
 // Column defects: significance in robust sds of the column-to-neighbours differences.
 constexpr double kColumnSignificance = 6.0;
+// On a frame with too few rows clear of the stamp, the rows more than this from the spot's
+// peak row [px] judge the columns (a 21-row frame keeps 14).
+constexpr int kColumnRowsFromSpot = 3;
 // A clipped top: tied maximal pixels must stand this many pixel sds above the background.
 constexpr double kFlatTopSignificance = 20.0;
 // A peak this close to the ADC's full scale with no saturation level known may be compressed.
@@ -888,10 +891,18 @@ std::optional<Exposure> CalibrateExposure(const FitsImage& image, const std::str
 
   // Columns that differ from their neighbours, crossing the stamp.
   if (options.mask_column_defects) {
-    const std::vector<ColumnDefect> defects = FindColumnDefects(
-        adu, frame.valid, frame.region, origin_x, origin_x + n - 1, peak_y, c + 2,
-        std::max(report.background_sd_adu, std::sqrt(1.0 / 12.0)), kColumnSignificance,
-        &report.columns_checked);
+    const double column_sd = std::max(report.background_sd_adu, std::sqrt(1.0 / 12.0));
+    std::vector<ColumnDefect> defects =
+        FindColumnDefects(adu, frame.valid, frame.region, origin_x, origin_x + n - 1, peak_y, c + 2,
+                          column_sd, kColumnSignificance, &report.columns_checked);
+    if (!report.columns_checked) {
+      // A frame little taller than the stamp has no rows clear of it: judge the columns on the
+      // rows more than kColumnRowsFromSpot from the spot. A column of the spot's own light is
+      // no defect there: its neighbours carry the same light (the test is against them).
+      defects = FindColumnDefects(adu, frame.valid, frame.region, origin_x, origin_x + n - 1,
+                                  peak_y, kColumnRowsFromSpot, column_sd, kColumnSignificance,
+                                  &report.columns_checked);
+    }
     for (const ColumnDefect& d : defects) {
       StampMask mask;
       char text[160];

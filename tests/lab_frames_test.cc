@@ -184,6 +184,47 @@ TEST_F(LabDefects, HotColumnThroughTheStamp) {
       << masks.dump();
 }
 
+// The same column on a frame no bigger than the stamp (21 x 21, as many bench cameras' cut-outs
+// are): no rows lie clear of the stamp, so the columns are judged on the rows away from the
+// spot. Before, the column was taken for nine "other sources" and 205 of the 441 pixels were
+// masked around them.
+TEST_F(LabDefects, HotColumnThroughAStampSizedFrame) {
+  const std::string dir = Fresh("stamp_sized");
+  {
+    std::ofstream config(dir + "/sim.json");
+    config << R"({"seed": 5, "image": {"nx": 21, "ny": 21},
+      "detector": {"gain_e_per_adu": 3.1, "read_noise_e": 4.5, "bias_adu": 1000.0,
+                   "pixel_um": 12.0, "saturation_adu": 65535},
+      "model": {"sampling": "integrated", "airy_radius_px": 0.47,
+                "defocus": {"kind": "gaussian", "sigma_px": 0.41},
+                "ccd_sigma_x_px": 0.291, "ccd_sigma_y_px": 0.335},
+      "wavelength_nm": 800, "exptime_s": 4.1,
+      "exposures": [{"flux_e": 4.26e5, "x_px": 10.07, "y_px": 9.96}]})";
+  }
+  RunResult r = RunCcdpsf("simulate --config=" + dir + "/sim.json --out=" + dir + "/frames");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  std::string output;
+  ASSERT_EQ(Shell("/usr/bin/python3 " + Script() + " hot_column " + dir +
+                      "/frames/exposure_000.fits " + dir + "/hot.fits",
+                  &output),
+            0)
+      << output;
+  const json fit = Fit("hot_stamp", dir + "/hot.fits", &output);
+  ExpectHandled(fit, {"column_defect"}, "column_defect", output);
+  const json& calibration = fit["exposures"][0]["calibration"];
+  EXPECT_TRUE(calibration["columns_checked"].get<bool>());
+  ASSERT_EQ(calibration["column_defects"].size(), 1u) << calibration["column_defects"].dump();
+  EXPECT_EQ(calibration["column_defects"][0]["x"], 14);  // x + 4 of the peak pixel (10, 10)
+  EXPECT_FALSE(Codes(fit, "notes").count("another_source")) << fit["quality"].dump(1);
+  int masked = 0;
+  for (const json& m : calibration["masks"]) masked += m["pixels"].get<int>();
+  EXPECT_EQ(masked, 21) << calibration["masks"].dump();
+  // And the clean frame has no column defect.
+  const json clean = Fit("clean_stamp", dir + "/frames/exposure_000.fits", &output);
+  ASSERT_TRUE(clean.is_object()) << output;
+  EXPECT_TRUE(clean["exposures"][0]["calibration"]["column_defects"].empty());
+}
+
 TEST_F(LabDefects, SecondSpotSixPixelsAway) {
   std::string output;
   const json fit = Fit("second", WithDefect("second_spot"), &output);
