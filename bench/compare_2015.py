@@ -22,6 +22,7 @@ from each run's emcee steps) and the ratio. Nothing is written outside a tempora
 """
 
 import argparse
+import json
 import os
 import platform
 import resource
@@ -41,19 +42,22 @@ from make_pixel_centre_reference import pixel_centre_model  # noqa: E402
 
 FRAME = 'testdata/campaign_small/g02_800nm_157800e/exposure_000.fits'
 STAMP = 21
-# The paper's simulation (section 3.3) in the 2015 model itself, on a 21 x 21 frame: the
-# 2015 approach and `ccdpsf fit --sampling=pixel_centre` fit this one.
-SIMULATION_2015 = '''{"seed": 2015,
- "image": {"nx": 21, "ny": 21},
- "detector": {"gain_e_per_adu": 3.1, "read_noise_e": 4.5, "bias_adu": 1000.0,
-              "pixel_um": 12.0, "saturation_adu": 65535},
- "model": {"sampling": "pixel_centre", "airy_radius_px": 0.47,
-           "defocus": {"kind": "gaussian", "sigma_px": 0.41},
-           "ccd_sigma_x_px": 0.291, "ccd_sigma_y_px": 0.335},
- "wavelength_nm": 800, "exptime_s": 4.1,
- "exposures": [{"peak_e": 1.5e5, "x_px": 10.07, "y_px": 9.96}]}'''
 STEPS_2015 = 1700
 WALKERS_2015 = 1000
+
+
+def simulation_2015():
+    """The paper's simulation (section 3.3, testdata/demo_simulation.json) in the 2015 model
+    itself, on a 21 x 21 frame: the 2015 approach and `ccdpsf fit --sampling=pixel_centre`
+    fit this one."""
+    here = os.path.dirname(os.path.abspath(__file__))
+    with open(os.path.join(here, '..', 'testdata', 'demo_simulation.json')) as f:
+        config = json.load(f)
+    config['seed'] = 2015
+    config['image'] = {'nx': STAMP, 'ny': STAMP}
+    config['model']['sampling'] = 'pixel_centre'
+    config['exposures'] = [{'peak_e': 1.5e5, 'x_px': 10.07, 'y_px': 9.96}]
+    return config
 
 
 def cpu_model():
@@ -158,7 +162,7 @@ def main():
     with tempfile.TemporaryDirectory() as scratch:
         config = os.path.join(scratch, 'sim_2015.json')
         with open(config, 'w') as f:
-            f.write(SIMULATION_2015)
+            json.dump(simulation_2015(), f)
         simulated = os.path.join(scratch, 'sim_2015')
         subprocess.run([args.ccdpsf, 'simulate', '--config=' + config, '--out=' + simulated],
                        check=True, stdout=subprocess.DEVNULL)
