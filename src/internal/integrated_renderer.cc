@@ -37,13 +37,10 @@
 #include <cmath>
 #include <cstring>
 
-#if defined(__AVX2__) && defined(__FMA__)
-#include <immintrin.h>
-#endif
-
 #include "ccdpsf/model/airy.h"
 #include "glog/logging.h"
-#include "internal/gauss_legendre.h"
+#include "internal/airy_disc_average.h"
+#include "internal/airy_table_simd.h"
 #include "internal/normal_tail.h"
 
 namespace ccdpsf::internal {
@@ -78,95 +75,6 @@ constexpr double kMaxNodes = 3.0e7;
 double KernelHalfWidthSigmas(double tolerance) {
   return std::sqrt(2.0 * std::log(0.5 / tolerance)) + 0.5;
 }
-
-// Unit-flux Airy intensity at distance d [px] for wavenumber k = pi Rz / r [1/px], and its
-// derivative with respect to k. I = k^2 / (4 pi) a(k d)^2 integrates to 1 over the plane.
-inline void AiryIntensity(double d, double k, double* value, double* d_dk) {
-  static const double* const table = model::AiryTableCoefficients();
-  double a, da;
-  model::AiryAmplitudeAndDerivativeInline(k * d, table, &a, &da);
-  const double norm = k * k / (4.0 * M_PI);
-  *value = norm * a * a;
-  *d_dk = k / (2.0 * M_PI) * (a * a + a * da * k * d);
-}
-
-// The Airy amplitude a(v) and da/dv for v >= 0 from the table's quintic pieces (airy.h), as
-// AiryAmplitudeAndDerivativeInline computes them, except that v at or past kAiryTableMax
-// reads the last piece: the caller redoes those. Every operation is the one TablePolynomial4
-// does in its lane, rounded the same (explicit fused multiply-adds), so that a node's value
-// does not depend on whether it fell in a vector of four or in the remainder.
-inline void TablePolynomial(const double* table, double v, double* amp, double* damp) {
-  constexpr double kInvStep = 1.0 / model::kAiryTableStep;
-  constexpr int kLast = static_cast<int>(model::kAiryTableMax * kInvStep + 0.5) - 1;
-  const double sv = std::min(v, model::kAiryTableMax) * kInvStep;
-  const int i = std::min(static_cast<int>(sv), kLast);
-  const double u = sv - i;
-  const double* c = table + 6 * static_cast<long>(i);
-  double a = std::fma(u, c[5], c[4]);
-  a = std::fma(u, a, c[3]);
-  a = std::fma(u, a, c[2]);
-  a = std::fma(u, a, c[1]);
-  *amp = std::fma(u, a, c[0]);
-  if (damp != nullptr) {
-    double d = std::fma(u, 5.0 * c[5], 4.0 * c[4]);
-    d = std::fma(u, d, 3.0 * c[3]);
-    d = std::fma(u, d, c[2] + c[2]);
-    d = std::fma(u, d, c[1]);
-    *damp = d * kInvStep;
-  }
-}
-
-#if defined(__AVX2__) && defined(__FMA__)
-// TablePolynomial at four points. A point's six coefficients are contiguous, so two loads
-// fetch them, and a 4 x 4 (plus a 4 x 2) transpose turns four points' coefficients into one
-// vector per coefficient; the polynomial then runs four points per instruction. (AVX2 gathers
-// of the coefficients measured slower on the development machine, the scalar loop about 2x
-// slower than this.) damp may be null.
-inline __m256d TablePolynomial4(const double* table, __m256d v, __m256d* damp) {
-  constexpr double kInvStep = 1.0 / model::kAiryTableStep;
-  constexpr int kLast = static_cast<int>(model::kAiryTableMax * kInvStep + 0.5) - 1;
-  const __m256d inv_step = _mm256_set1_pd(kInvStep);
-  const __m256d sv =
-      _mm256_mul_pd(_mm256_min_pd(v, _mm256_set1_pd(model::kAiryTableMax)), inv_step);
-  const __m128i index = _mm_min_epi32(_mm256_cvttpd_epi32(sv), _mm_set1_epi32(kLast));  // sv >= 0
-  const __m256d u = _mm256_sub_pd(sv, _mm256_cvtepi32_pd(index));
-  // (Extracted from the register: storing the vector and reading its parts back stalls on
-  // store forwarding.)
-  const double* c[4] = {table + 6 * static_cast<long>(_mm_cvtsi128_si32(index)),
-                        table + 6 * static_cast<long>(_mm_extract_epi32(index, 1)),
-                        table + 6 * static_cast<long>(_mm_extract_epi32(index, 2)),
-                        table + 6 * static_cast<long>(_mm_extract_epi32(index, 3))};
-  // Rows r_l = (c0, c1, c2, c3) of point l, transposed to columns C0..C3 over the points.
-  const __m256d r0 = _mm256_loadu_pd(c[0]), r1 = _mm256_loadu_pd(c[1]);
-  const __m256d r2 = _mm256_loadu_pd(c[2]), r3 = _mm256_loadu_pd(c[3]);
-  const __m256d t0 = _mm256_unpacklo_pd(r0, r1), t1 = _mm256_unpackhi_pd(r0, r1);
-  const __m256d t2 = _mm256_unpacklo_pd(r2, r3), t3 = _mm256_unpackhi_pd(r2, r3);
-  const __m256d c0 = _mm256_permute2f128_pd(t0, t2, 0x20);
-  const __m256d c1 = _mm256_permute2f128_pd(t1, t3, 0x20);
-  const __m256d c2 = _mm256_permute2f128_pd(t0, t2, 0x31);
-  const __m256d c3 = _mm256_permute2f128_pd(t1, t3, 0x31);
-  // (c4, c5) of points 0 and 2, of points 1 and 3; then columns C4, C5.
-  const __m256d s02 = _mm256_insertf128_pd(_mm256_castpd128_pd256(_mm_loadu_pd(c[0] + 4)),
-                                           _mm_loadu_pd(c[2] + 4), 1);
-  const __m256d s13 = _mm256_insertf128_pd(_mm256_castpd128_pd256(_mm_loadu_pd(c[1] + 4)),
-                                           _mm_loadu_pd(c[3] + 4), 1);
-  const __m256d c4 = _mm256_unpacklo_pd(s02, s13), c5 = _mm256_unpackhi_pd(s02, s13);
-  __m256d a = _mm256_fmadd_pd(u, c5, c4);
-  a = _mm256_fmadd_pd(u, a, c3);
-  a = _mm256_fmadd_pd(u, a, c2);
-  a = _mm256_fmadd_pd(u, a, c1);
-  a = _mm256_fmadd_pd(u, a, c0);
-  if (damp != nullptr) {
-    __m256d d = _mm256_fmadd_pd(u, _mm256_mul_pd(_mm256_set1_pd(5.0), c5),
-                                _mm256_mul_pd(_mm256_set1_pd(4.0), c4));
-    d = _mm256_fmadd_pd(u, d, _mm256_mul_pd(_mm256_set1_pd(3.0), c3));
-    d = _mm256_fmadd_pd(u, d, _mm256_add_pd(c2, c2));
-    d = _mm256_fmadd_pd(u, d, c1);
-    *damp = _mm256_mul_pd(d, inv_step);
-  }
-  return a;
-}
-#endif
 
 // S for the Gaussian-defocus model, the Airy pattern, on quadrant column ju from row `first`:
 // S = norm a(v)^2 at v = k d, and dS/dr = dnorm (a^2 + a da v) when col_dr is not null.
@@ -267,25 +175,11 @@ void FillAiryQuadrant(double k, double dk_dr, double hx, double hy, bool derivs,
 }
 
 // S for the pillbox model: the mean of the Airy intensity over a disc of radius R around
-// each node, by Gauss-Legendre in radius and the (spectrally accurate) midpoint rule in
-// angle. The angular integrand has Fourier modes up to about 2 pi rho_c R, the radial one is
-// entire; node counts follow with a margin that the reference tests confirm.
-void FillPillboxQuadrant(double k, double dk_dr, double rho_c, double radius, double hx, double hy,
+// each node (AiryDiscAverage: one integral round the disc's edge per node), and when derivs
+// its derivatives by the Airy radius and by R. S depends on the node's distance only.
+void FillPillboxQuadrant(double k, double dk_dr, double radius, double hx, double hy, bool derivs,
                          NodeImage* q, NodeImage* q_dr, NodeImage* q_dR) {
-  const int n_full = static_cast<int>(std::ceil(2.0 * M_PI * rho_c * radius * 1.1 + 20.0));
-  const int n_theta = (n_full + 1) / 2;  // midpoints on [0, pi]; the integrand is even in theta
-  const int n_rho = static_cast<int>(std::ceil(M_PI * rho_c * radius + 10.0));
-  const GaussLegendreRule& gl = GaussLegendre(n_rho);
-  std::vector<double> cos_theta(n_theta);
-  for (int l = 0; l < n_theta; ++l) cos_theta[l] = std::cos(M_PI * (l + 0.5) / n_theta);
-  std::vector<double> rho(n_rho), w_rho(n_rho);
-  const double area = M_PI * radius * radius;
-  for (int m = 0; m < n_rho; ++m) {
-    rho[m] = 0.5 * radius * (gl.nodes[m] + 1.0);
-    // Integral over the disc = sum_m (R/2) w_m rho_m * (2 pi / n_full_equiv) sum_l A; divided
-    // by the disc area to make the mean.
-    w_rho[m] = 0.5 * radius * gl.weights[m] * rho[m] * (2.0 * M_PI / (2.0 * n_theta)) * 2.0 / area;
-  }
+  const AiryDiscAverage average(k, radius);
   // With equal spacings S(|i|, |j|) = S(|j|, |i|): compute the lower triangle, mirror the rest
   // (this fill is most of a pillbox render's time).
   const bool mirror = hx == hy;
@@ -294,37 +188,18 @@ void FillPillboxQuadrant(double k, double dk_dr, double rho_c, double radius, do
     const int first = (mirror && ju < rows) ? ju : 0;
     for (int iu = first; iu < rows; ++iu) {
       const double d = std::hypot(iu * hx, ju * hy);
-      double s = 0.0, s_dk = 0.0;
-      for (int m = 0; m < n_rho; ++m) {
-        double ring = 0.0, ring_dk = 0.0;
-        const double base = d * d + rho[m] * rho[m];
-        for (int l = 0; l < n_theta; ++l) {
-          const double dist = std::sqrt(std::max(0.0, base - 2.0 * d * rho[m] * cos_theta[l]));
-          double v, v_dk;
-          AiryIntensity(dist, k, &v, &v_dk);
-          ring += v;
-          ring_dk += v_dk;
-        }
-        s += w_rho[m] * ring;
-        s_dk += w_rho[m] * ring_dk;
+      if (!derivs) {
+        average.Evaluate(d, &(*q)(iu, ju), nullptr, nullptr);
+        continue;
       }
-      // Edge circle for dS/dR = (2/R) (mean on the circle of radius R - S).
-      double circle = 0.0;
-      const double base = d * d + radius * radius;
-      for (int l = 0; l < n_theta; ++l) {
-        const double dist = std::sqrt(std::max(0.0, base - 2.0 * d * radius * cos_theta[l]));
-        double v, v_dk;
-        AiryIntensity(dist, k, &v, &v_dk);
-        circle += v;
-      }
-      circle /= n_theta;
-      (*q)(iu, ju) = s;
-      (*q_dr)(iu, ju) = s_dk * dk_dr;
-      (*q_dR)(iu, ju) = 2.0 / radius * (circle - s);
+      double ds_dk;
+      average.Evaluate(d, &(*q)(iu, ju), &ds_dk, &(*q_dR)(iu, ju));
+      (*q_dr)(iu, ju) = ds_dk * dk_dr;
     }
   }
   if (!mirror) return;
   MirrorLowerTriangle(q);
+  if (!derivs) return;
   MirrorLowerTriangle(q_dr);
   MirrorLowerTriangle(q_dR);
 }
@@ -560,7 +435,7 @@ void RenderIntegrated(const model::ModelOptions& options, const model::SpotParam
     ws->quadrant_dr.Resize(rows, cols);
     if (pillbox && defocus > 0.0) {
       ws->quadrant_dR.Resize(rows, cols);
-      FillPillboxQuadrant(k, dk_dr, rho_c, defocus, hx, hy, &ws->quadrant, &ws->quadrant_dr,
+      FillPillboxQuadrant(k, dk_dr, defocus, hx, hy, key.derivs, &ws->quadrant, &ws->quadrant_dr,
                           &ws->quadrant_dR);
     } else {
       FillAiryQuadrant(k, dk_dr, hx, hy, key.derivs, &ws->quadrant, &ws->quadrant_dr);
