@@ -32,12 +32,58 @@ class AiryDiscAverage {
 
   // S at distance d >= 0 [px], and (when the pointers are not null) dS/dk and dS/dR.
   void Evaluate(double d, double* value, double* d_dk, double* d_dR) const;
+  // The same at four distances d[0..4) at once (the vector unit's width), into value[0..4)
+  // and, when d_dk is not null, d_dk[0..4) and d_dR[0..4).
+  void Evaluate4(const double* d, double* value, double* d_dk, double* d_dR) const;
 
   int nodes() const { return static_cast<int>(cos_theta_.size()); }
 
  private:
   double k_, radius_;
   std::vector<double> cos_theta_;
+};
+
+// S(d) and its derivatives on [0, d_max] as piecewise Chebyshev series, for filling many
+// nodes: S is band-limited to angular frequency 2 k (its transform is the pupil OTF times the
+// disc's), so on a piece of half-length H the Chebyshev coefficients fall like J_m(2 k H),
+// below 1e-16 of the peak by m = kTerms at 2 k H = 16. Building takes kTerms AiryDiscAverage
+// evaluations per piece; each node then costs a Clenshaw sum instead of a circle integral.
+class AiryDiscProfile {
+ public:
+  static constexpr int kTerms = 48;  // a multiple of 4 (Build evaluates four points at once)
+
+  // Same k and radius as AiryDiscAverage; derivs: also dS/dk and dS/dR. Reuses its storage.
+  // model::EnsureAiryTable(k (Reach(k, d_max) + radius)) must have been called.
+  void Build(double k, double radius, double d_max, bool derivs);
+  // The largest distance [px] Build evaluates S at: the end of the last piece.
+  static double Reach(double k, double d_max);
+
+  // S at d[0..n) (each in [0, d_max]) into value[], and when derivs, dS/dk and dS/dR.
+  void Evaluate(const double* d, int n, double* value, double* d_dk, double* d_dR) const;
+
+  int pieces() const { return pieces_; }
+
+ private:
+  int pieces_ = 0;
+  double half_length_ = 0.0;  // H [px]
+  bool derivs_ = false;
+  // Coefficients c_m of piece p and quantity q (value, d/dk, d/dR) at
+  // [(p * 3 + q) * kTerms + m], with c_0 already halved.
+  std::vector<double> coefficients_;
+  std::vector<double> scratch_;
+
+ public:
+  // One vector sum of Evaluate: four points' t on one piece, which of the four lanes belong
+  // to the piece (all bits set, as doubles), the piece's coefficients, the first point's index.
+  struct alignas(32) SumItem {
+    double t[4];
+    double use[4];
+    const double* c;
+    int at;
+  };
+
+ private:
+  mutable std::vector<SumItem> items_;  // Evaluate's scratch space, not state
 };
 
 }  // namespace ccdpsf::internal

@@ -175,26 +175,29 @@ void FillAiryQuadrant(double k, double dk_dr, double hx, double hy, bool derivs,
 }
 
 // S for the pillbox model: the mean of the Airy intensity over a disc of radius R around
-// each node (AiryDiscAverage: one integral round the disc's edge per node), and when derivs
-// its derivatives by the Airy radius and by R. S depends on the node's distance only.
+// each node, and when derivs its derivatives by the Airy radius and by R. S depends on the
+// node's distance only: AiryDiscProfile tabulates it over the quadrant's distances, node
+// values come from its series.
 void FillPillboxQuadrant(double k, double dk_dr, double radius, double hx, double hy, bool derivs,
-                         NodeImage* q, NodeImage* q_dr, NodeImage* q_dR) {
-  const AiryDiscAverage average(k, radius);
-  // With equal spacings S(|i|, |j|) = S(|j|, |i|): compute the lower triangle, mirror the rest
-  // (this fill is most of a pillbox render's time).
+                         NodeImage* q, NodeImage* q_dr, NodeImage* q_dR, AiryDiscProfile* profile,
+                         std::vector<double>* distances) {
+  const int rows = q->rows;
+  profile->Build(k, radius, std::hypot((rows - 1) * hx, (q->cols - 1) * hy), derivs);
+  // With equal spacings S(|i|, |j|) = S(|j|, |i|): compute the lower triangle, mirror the rest.
   const bool mirror = hx == hy;
-  const int rows = static_cast<int>(q->rows);
+  distances->resize(rows);
   for (int ju = 0; ju < q->cols; ++ju) {
     const int first = (mirror && ju < rows) ? ju : 0;
+    const size_t at = static_cast<size_t>(ju) * rows + first;
+    const double y = ju * hy;
     for (int iu = first; iu < rows; ++iu) {
-      const double d = std::hypot(iu * hx, ju * hy);
-      if (!derivs) {
-        average.Evaluate(d, &(*q)(iu, ju), nullptr, nullptr);
-        continue;
-      }
-      double ds_dk;
-      average.Evaluate(d, &(*q)(iu, ju), &ds_dk, &(*q_dR)(iu, ju));
-      (*q_dr)(iu, ju) = ds_dk * dk_dr;
+      const double x = iu * hx;
+      (*distances)[iu] = std::sqrt(std::fma(x, x, y * y));
+    }
+    profile->Evaluate(distances->data() + first, rows - first, q->data() + at,
+                      derivs ? q_dr->data() + at : nullptr, derivs ? q_dR->data() + at : nullptr);
+    if (derivs) {
+      for (int iu = first; iu < rows; ++iu) (*q_dr)(iu, ju) *= dk_dr;  // dS/dr = dS/dk dk/dr
     }
   }
   if (!mirror) return;
@@ -380,8 +383,12 @@ void RenderIntegrated(const model::ModelOptions& options, const model::SpotParam
   const double dk_dr = -k / r;
   const double tol = options.relative_tolerance;
 
-  const double hx = QuadratureStep(rho_c, sx, tol);
-  const double hy = QuadratureStep(rho_c, sy, tol);
+  // With the pillbox, S is the expensive part and the passes cheap: one spacing for both
+  // axes (the finer; a finer spacing only lowers the error bound) makes the quadrant
+  // symmetric, S(|i|, |j|) = S(|j|, |i|), which halves the nodes to fill.
+  const double step_x = QuadratureStep(rho_c, sx, tol), step_y = QuadratureStep(rho_c, sy, tol);
+  const double hx = pillbox ? std::min(step_x, step_y) : step_x;
+  const double hy = pillbox ? std::min(step_x, step_y) : step_y;
   const int qx = static_cast<int>(std::lround(1.0 / hx));
   const int qy = static_cast<int>(std::lround(1.0 / hy));
   const double tw = KernelHalfWidthSigmas(tol);
@@ -429,14 +436,14 @@ void RenderIntegrated(const model::ModelOptions& options, const model::SpotParam
     ws->quadrant_key = QuadrantKey();  // nothing valid while the fill runs
     const int rows = key.rows, cols = key.cols;
     // The Airy table must reach the farthest node (plus the disc's radius for the pillbox).
-    model::EnsureAiryTable(
-        k * (std::hypot((rows - 1) * hx, (cols - 1) * hy) + (pillbox ? defocus : 0.0)));
+    const double d_max = std::hypot((rows - 1) * hx, (cols - 1) * hy);
+    model::EnsureAiryTable(k * (pillbox ? AiryDiscProfile::Reach(k, d_max) + defocus : d_max));
     ws->quadrant.Resize(rows, cols);
     ws->quadrant_dr.Resize(rows, cols);
     if (pillbox && defocus > 0.0) {
       ws->quadrant_dR.Resize(rows, cols);
       FillPillboxQuadrant(k, dk_dr, defocus, hx, hy, key.derivs, &ws->quadrant, &ws->quadrant_dr,
-                          &ws->quadrant_dR);
+                          &ws->quadrant_dR, &ws->pillbox_profile, &ws->distances);
     } else {
       FillAiryQuadrant(k, dk_dr, hx, hy, key.derivs, &ws->quadrant, &ws->quadrant_dr);
       // A pillbox of zero radius: S = Airy, and dS/dR = 0 there (S - Airy is O(R^2)).

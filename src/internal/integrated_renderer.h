@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "ccdpsf/model/spot_model.h"
+#include "internal/airy_disc_average.h"
 
 namespace ccdpsf::internal {
 
@@ -71,6 +72,8 @@ struct IntegratedWorkspace {
   std::vector<double> acc;     // second pass accumulators, [quantity * ny_pad + b]
   std::vector<double> edges;   // kernel weights: the normal's values at the window edges
   std::vector<size_t> offset;  // where each kernel node's input starts, for one output line
+  AiryDiscProfile pillbox_profile;  // the pillbox model's S by distance
+  std::vector<double> distances;    // node distances of one quadrant column [px]
 };
 
 // Renders with unit flux semantics handled inside; see renderer.h for the output layout.
