@@ -433,6 +433,49 @@ TEST(EnsembleSampler, ConvergesWithEnoughStepsAndSaysWhyNotOtherwise) {
   EXPECT_NE(r.stop_reason.find("< target 1e+09"), std::string::npos) << r.stop_reason;
 }
 
+// Convergence is judged on the reported quantities too (SamplerOptions::reported). A copy of
+// the state changes nothing: the same taus, so the same stopping step and chain. A reported
+// quantity that drifts with the step number (a slowly mixing function of the chain, at the
+// extreme) has no finite tau on any window, so the run cannot converge, and the reason names
+// it; the state's own tau and ESS are still those reported.
+TEST(EnsembleSampler, ConvergenceIsJudgedOnTheReportedQuantities) {
+  const Gaussian g = Correlated2d();
+  const std::vector<double> initial = InitialBall(g, 16, 0.5, 6);
+  SamplerOptions options = QuietOptions(17);
+  SamplerResult plain, copied, drifting;
+  std::string error;
+  ASSERT_TRUE(RunEnsembleSampler(PerThread(g, 2), 2, initial, options, &plain, &error)) << error;
+  ASSERT_TRUE(plain.converged) << plain.stop_reason;
+
+  options.reported = [](size_t, const double* state, double* out) {
+    out[0] = state[0];
+    out[1] = state[1];
+  };
+  options.reported_dim = 2;
+  ASSERT_TRUE(RunEnsembleSampler(PerThread(g, 2), 2, initial, options, &copied, &error)) << error;
+  EXPECT_TRUE(copied.converged) << copied.stop_reason;
+  EXPECT_EQ(copied.num_steps, plain.num_steps);
+  EXPECT_EQ(copied.chain, plain.chain);
+  EXPECT_EQ(copied.tau, plain.tau);
+
+  constexpr int kWalkers = 16;
+  options.reported = [](size_t index, const double* state, double* out) {
+    out[0] = state[0] + 0.01 * static_cast<double>(index / kWalkers);  // + 0.01 x step
+  };
+  options.reported_dim = 1;
+  options.max_steps = 2 * plain.num_steps;
+  ASSERT_TRUE(RunEnsembleSampler(PerThread(g, 2), 2, initial, options, &drifting, &error)) << error;
+  EXPECT_FALSE(drifting.converged) << drifting.stop_reason;
+  EXPECT_EQ(drifting.num_steps, options.max_steps);
+  EXPECT_NE(drifting.stop_reason.find("reported quantity 0"), std::string::npos)
+      << drifting.stop_reason;
+  EXPECT_EQ(drifting.tau.size(), 2u);
+
+  options.reported_dim = 0;
+  EXPECT_FALSE(RunEnsembleSampler(PerThread(g, 2), 2, initial, options, &drifting, &error));
+  EXPECT_NE(error.find("reported_dim"), std::string::npos) << error;
+}
+
 // The largest per-parameter tau of a run, and the log-density evaluations per effective sample
 // (walkers x steps / smallest ESS: the cost measure of issue 18).
 double MaxTau(const SamplerResult& r) { return *std::max_element(r.tau.begin(), r.tau.end()); }

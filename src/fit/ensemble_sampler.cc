@@ -458,6 +458,42 @@ Diagnostics Check(const std::vector<double>& chain, int num_walkers, int dim, in
       min_ess_parameter = k;
     }
   }
+  // The reported quantities, computed from the kept states (ensemble_sampler.h).
+  int reported_from = -1;  // index in diag.tau where they start (-1: none)
+  if (options.reported && options.reported_dim > 0 && kept > 0) {
+    const int rdim = options.reported_dim;
+    const size_t states_per_step = static_cast<size_t>(num_walkers);
+    std::vector<double> reported(static_cast<size_t>(kept) * num_walkers * rdim);
+    const int threads = team->size();
+    team->Run([&](int t) {
+      for (int step = diag.burn_in + t; step < steps; step += threads) {
+        for (int w = 0; w < num_walkers; ++w) {
+          const size_t index = static_cast<size_t>(step) * states_per_step + w;
+          options.reported(index, chain.data() + index * dim,
+                           reported.data() + (index - diag.burn_in * states_per_step) * rdim);
+        }
+      }
+    });
+    reported_from = static_cast<int>(diag.tau.size());
+    for (const AutocorrelationTime& t :
+         TauPerParameter(reported, num_walkers, rdim, 0, kept, team)) {
+      const int k = static_cast<int>(diag.tau.size());
+      diag.tau.push_back(t.tau);
+      diag.ess.push_back(EffectiveSampleSize(num_walkers, kept, t.tau));
+      if (!t.window_found && no_window_parameter < 0) no_window_parameter = k;
+      max_tau = std::max(max_tau, t.window_found ? t.tau : kInf);
+      if (diag.ess.back() < min_ess) {
+        min_ess = diag.ess.back();
+        min_ess_parameter = k;
+      }
+    }
+  }
+  // Names "parameter k" for state coordinates and "reported quantity k" past them.
+  auto name = [reported_from](int k) {
+    return reported_from >= 0 && k >= reported_from
+               ? "reported quantity " + std::to_string(k - reported_from)
+               : "parameter " + std::to_string(k);
+  };
   const double needed = options.min_tau_multiple * max_tau;
   const bool long_enough = kept > needed;
   const bool enough_ess = min_ess >= options.target_ess;
@@ -467,11 +503,11 @@ Diagnostics Check(const std::vector<double>& chain, int num_walkers, int dim, in
   std::ostringstream reason;
   reason << kept << " post-burn-in steps " << (long_enough ? ">" : "<=") << " "
          << FormatNumber(options.min_tau_multiple) << " x max tau (" << FormatNumber(max_tau)
-         << ") = " << FormatNumber(needed) << "; min ESS " << FormatNumber(min_ess)
-         << " (parameter " << min_ess_parameter << ") " << (enough_ess ? ">=" : "<") << " target "
+         << ") = " << FormatNumber(needed) << "; min ESS " << FormatNumber(min_ess) << " ("
+         << name(min_ess_parameter) << ") " << (enough_ess ? ">=" : "<") << " target "
          << FormatNumber(options.target_ess);
   if (no_window_parameter >= 0) {
-    reason << "; no tau estimate for parameter " << no_window_parameter
+    reason << "; no tau estimate for " << name(no_window_parameter)
            << " (chain too short, or a walker never moved)";
   }
   diag.reason = reason.str();
@@ -554,8 +590,14 @@ uint64_t RunFingerprint(const BlockedTarget& target, int dim, const std::vector<
       h *= 1099511628211ULL;
     }
   };
-  const int64_t ints[] = {dim, target.stretch_dim, target.aux_dim, target.conditional_every,
-                          o.max_steps, o.check_interval, static_cast<int64_t>(o.seed)};
+  const int64_t ints[] = {dim,
+                          target.stretch_dim,
+                          target.aux_dim,
+                          target.conditional_every,
+                          o.max_steps,
+                          o.check_interval,
+                          static_cast<int64_t>(o.seed),
+                          o.reported ? o.reported_dim : -1};
   const double reals[] = {o.check_fraction, o.target_ess, o.min_tau_multiple, o.burn_in_taus,
                           o.stretch_a};
   mix(ints, sizeof(ints));
@@ -608,6 +650,7 @@ bool SamplerOptions::IsValid(std::string* error) const {
   if (independence_nu < 1 || independence_nu > 100) {
     return fail("independence_nu must be in [1, 100]");
   }
+  if (reported && reported_dim < 1) return fail("reported_dim must be >= 1 when reported is set");
   return true;
 }
 
@@ -810,8 +853,10 @@ bool RunEnsembleSampler(const BlockedTarget& target, int dim, const std::vector<
 
   out.num_steps = steps;
   out.burn_in = diag.burn_in;
-  out.tau = diag.tau;
-  out.ess = diag.ess;
+  // The state's coordinates only (the reported quantities' are the caller's to measure).
+  const size_t state_entries = std::min(diag.tau.size(), static_cast<size_t>(dim));
+  out.tau.assign(diag.tau.begin(), diag.tau.begin() + state_entries);
+  out.ess.assign(diag.ess.begin(), diag.ess.begin() + state_entries);
   out.converged = diag.converged;
   out.stop_reason =
       (diag.converged ? "converged after " + std::to_string(steps) + " steps: "

@@ -219,6 +219,19 @@ bool RunFit(const FitModel& model, const FitOptions& options, FitResult* result,
                                &mcmc.independence_cholesky)) {
       mcmc.independence_fraction = options.target.laplace_move_fraction;
     }
+    // The reported parameters of stored state `index`; where the defocus is integrated out,
+    // it is drawn from its exact conditional with a uniform fixed by the index, so that the
+    // sampler's convergence check and the chain written here see the same values.
+    const uint64_t defocus_seed = DeriveSeed(options.mcmc.seed, 0xDEF0C05ULL);
+    auto to_theta = [&target, defocus_seed](size_t index, const double* state, double* theta) {
+      const double u =
+          target.marginal_defocus()
+              ? (static_cast<double>(DeriveSeed(defocus_seed, index) >> 11) + 0.5) * 0x1.0p-53
+              : 0.0;
+      target.ToTheta(state, u, theta);
+    };
+    mcmc.reported = to_theta;
+    mcmc.reported_dim = dim;
     if (!RunEnsembleSampler(target.Make(evaluator_ptrs), target.dim(), initial, mcmc,
                             &result->chain, error)) {
       return false;
@@ -231,11 +244,8 @@ bool RunFit(const FitModel& model, const FitOptions& options, FitResult* result,
       const int state_dim = target.dim();
       const size_t states = chain.chain.size() / state_dim;
       std::vector<double> theta_chain(states * dim);
-      std::mt19937_64 defocus_engine(DeriveSeed(options.mcmc.seed, 0xDEF0C05ULL));
-      for (size_t s = 0; s < states; ++s) {
-        const double u = target.marginal_defocus() ? Uniform01(defocus_engine) : 0.0;
-        target.ToTheta(&chain.chain[s * state_dim], u, &theta_chain[s * dim]);
-      }
+      for (size_t s = 0; s < states; ++s)
+        to_theta(s, &chain.chain[s * state_dim], &theta_chain[s * dim]);
       chain.chain = std::move(theta_chain);
       chain.dim = dim;
       chain.tau.assign(dim, INFINITY);

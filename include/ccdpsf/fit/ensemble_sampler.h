@@ -28,7 +28,8 @@
 //   tau, ess  per parameter on steps [burn_in, steps): the ensemble tau of
 //             autocorrelation.h, ess = walkers * (steps - burn_in) / tau.
 //   converged (steps - burn_in) > min_tau_multiple * max(tau) and min(ess) >= target_ess
-//             (and tau was estimable for every parameter).
+//             (and tau was estimable for every parameter), over the state's coordinates and,
+//             when SamplerOptions::reported is set, the reported quantities too.
 //
 // Laplace-informed independence move (optional, off by default: independence_fraction = 0).
 // Each walker update takes, with probability independence_fraction, an independence
@@ -110,6 +111,15 @@ struct SamplerOptions {
   // the proposal's core is still close to the Gaussian (95 % of the t_5's mass lies within
   // 2.6 scale units against 2.0 for the normal, so little is wasted in the tails).
   int independence_nu = 5;
+  // The quantities the caller reports, when they are not the state's own coordinates (a
+  // transformed or augmented state): reported(index, state, out) writes reported_dim values
+  // for the stored state `index` (= step * walkers + walker). When set, convergence also needs
+  // them to pass (their tau enters max tau, their ESS min ESS), so that a chain is never
+  // called converged on coordinates nobody reads. It must be a pure function of its arguments
+  // (safe to call from several threads), which lets the caller recompute exactly the values
+  // that were judged.
+  std::function<void(size_t index, const double* state, double* out)> reported;
+  int reported_dim = 0;
   // Threads used: min(num_threads, number of log-densities given, walkers / 2).
   int num_threads = 2;
   // Walker k's random stream is DeriveSeed(seed, k).
