@@ -87,6 +87,7 @@ int RunTrend(const std::vector<std::string>& inputs) {
   fit_options.flux_given = fit_options.config.flux_given;
   // --threads (or FIT.json's mcmc.threads): groups fitted at a time, each MCMC as many.
   fit_options.parallel_groups = fit_options.config.fit.mcmc.num_threads;
+  report_options.threads = fit_options.parallel_groups;
 
   trend::TrendOptions trend_options;
   trend_options.reference_intensity_e = FLAGS_reference_intensity_e;

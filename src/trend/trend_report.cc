@@ -4,11 +4,13 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <sstream>
 
 #include "ccdpsf/atomic_file.h"
 #include "ccdpsf/plot.h"
 #include "ccdpsf/staged_output.h"
+#include "internal/parallel_for.h"
 
 namespace ccdpsf::trend {
 namespace {
@@ -360,10 +362,9 @@ bool WriteTrendReport(const std::string& out_dir, const TrendResult& r, const js
     }
   }
 
-  // Plots like the paper's figures.
-  std::vector<std::string> pngs;
-  std::vector<std::string> truth_drawn;
-  const PlotContext ctx{&r, &options, dir, &pngs, &truth_drawn, warnings};
+  // Plots like the paper's figures: gnuplot runs options.threads at a time, each plot with
+  // its own lists, joined in this order afterwards (the same report for any thread count).
+  std::vector<std::function<void(const PlotContext&)>> plots;
   const double fwhm_limit = LimitOf(r, "fwhm_um");
   const double e_limit = LimitOf(r, "ellipticity");
   std::vector<HorizontalLine> fwhm_lines, e_lines;
@@ -380,28 +381,59 @@ bool WriteTrendReport(const std::string& out_dir, const TrendResult& r, const js
   const std::vector<PlotLine> fwhm_intensity = {{"FWHM_x", "fwhm_x_um_vs_intensity", "fwhm_x_um"},
                                                 {"FWHM_y", "fwhm_y_um_vs_intensity", "fwhm_y_um"},
                                                 {"FWHM", "fwhm_um_vs_intensity", "fwhm_um"}};
-  PlotFits(ctx, "fwhm_vs_wavelength", "CCD PSF FWHM vs wavelength (at I0)", "wavelength [nm]",
-           "FWHM [um]", fwhm_wavelength, fwhm_lines, false);
-  PlotFits(ctx, "fwhm_vs_intensity", "CCD PSF FWHM vs intensity" + at_i, "peak pixel [e-]",
-           "FWHM [um]", fwhm_intensity, fwhm_lines, true);
-  PlotFits(ctx, "r2_vs_wavelength", "CCD PSF R^2 vs wavelength (at I0)", "wavelength [nm]",
-           "R^2 [px^2]", {{"R^2", "r2_px2_vs_wavelength", "r2_px2"}}, {}, false);
-  PlotFits(ctx, "r2_vs_intensity", "CCD PSF R^2 vs intensity" + at_i, "peak pixel [e-]",
-           "R^2 [px^2]", {{"R^2", "r2_px2_vs_intensity", "r2_px2"}}, {}, true);
-  PlotFits(ctx, "ellipticity_vs_wavelength", "CCD PSF ellipticity vs wavelength (at I0)",
-           "wavelength [nm]", "e", {{"e", "ellipticity_vs_wavelength", "ellipticity"}}, e_lines,
-           false);
-  PlotFits(ctx, "ellipticity_vs_intensity", "CCD PSF ellipticity vs intensity" + at_i,
-           "peak pixel [e-]", "e", {{"e", "ellipticity_vs_intensity", "ellipticity"}}, e_lines,
-           true);
+  plots.push_back([=](const PlotContext& ctx) {
+    PlotFits(ctx, "fwhm_vs_wavelength", "CCD PSF FWHM vs wavelength (at I0)", "wavelength [nm]",
+             "FWHM [um]", fwhm_wavelength, fwhm_lines, false);
+  });
+  plots.push_back([=](const PlotContext& ctx) {
+    PlotFits(ctx, "fwhm_vs_intensity", "CCD PSF FWHM vs intensity" + at_i, "peak pixel [e-]",
+             "FWHM [um]", fwhm_intensity, fwhm_lines, true);
+  });
+  plots.push_back([=](const PlotContext& ctx) {
+    PlotFits(ctx, "r2_vs_wavelength", "CCD PSF R^2 vs wavelength (at I0)", "wavelength [nm]",
+             "R^2 [px^2]", {{"R^2", "r2_px2_vs_wavelength", "r2_px2"}}, {}, false);
+  });
+  plots.push_back([=](const PlotContext& ctx) {
+    PlotFits(ctx, "r2_vs_intensity", "CCD PSF R^2 vs intensity" + at_i, "peak pixel [e-]",
+             "R^2 [px^2]", {{"R^2", "r2_px2_vs_intensity", "r2_px2"}}, {}, true);
+  });
+  plots.push_back([=](const PlotContext& ctx) {
+    PlotFits(ctx, "ellipticity_vs_wavelength", "CCD PSF ellipticity vs wavelength (at I0)",
+             "wavelength [nm]", "e", {{"e", "ellipticity_vs_wavelength", "ellipticity"}}, e_lines,
+             false);
+  });
+  plots.push_back([=](const PlotContext& ctx) {
+    PlotFits(ctx, "ellipticity_vs_intensity", "CCD PSF ellipticity vs intensity" + at_i,
+             "peak pixel [e-]", "e", {{"e", "ellipticity_vs_intensity", "ellipticity"}}, e_lines,
+             true);
+  });
   // No requirement line on the totals: they include the defocus.
-  PlotFits(ctx, "total_fwhm_vs_wavelength",
-           "identified (total) FWHM, defocus included, vs wavelength (at I0)", "wavelength [nm]",
-           "total FWHM [um]", {{"total FWHM", "total_fwhm_um_vs_wavelength", "total_fwhm_um"}}, {},
-           false);
-  PlotFits(ctx, "total_fwhm_vs_intensity", "identified (total) FWHM vs intensity" + at_i,
-           "peak pixel [e-]", "total FWHM [um]",
-           {{"total FWHM", "total_fwhm_um_vs_intensity", "total_fwhm_um"}}, {}, true);
+  plots.push_back([=](const PlotContext& ctx) {
+    PlotFits(ctx, "total_fwhm_vs_wavelength",
+             "identified (total) FWHM, defocus included, vs wavelength (at I0)", "wavelength [nm]",
+             "total FWHM [um]", {{"total FWHM", "total_fwhm_um_vs_wavelength", "total_fwhm_um"}},
+             {}, false);
+  });
+  plots.push_back([=](const PlotContext& ctx) {
+    PlotFits(ctx, "total_fwhm_vs_intensity", "identified (total) FWHM vs intensity" + at_i,
+             "peak pixel [e-]", "total FWHM [um]",
+             {{"total FWHM", "total_fwhm_um_vs_intensity", "total_fwhm_um"}}, {}, true);
+  });
+
+  const int n_plots = static_cast<int>(plots.size());
+  std::vector<std::vector<std::string>> plot_images(n_plots), plot_truths(n_plots),
+      plot_warnings(n_plots);
+  internal::ParallelFor(n_plots, std::max(1, options.threads), [&](int i, int) {
+    const PlotContext ctx{&r, &options, dir, &plot_images[i], &plot_truths[i], &plot_warnings[i]};
+    plots[i](ctx);
+  });
+  std::vector<std::string> pngs;
+  std::vector<std::string> truth_drawn;
+  for (int i = 0; i < n_plots; ++i) {
+    pngs.insert(pngs.end(), plot_images[i].begin(), plot_images[i].end());
+    truth_drawn.insert(truth_drawn.end(), plot_truths[i].begin(), plot_truths[i].end());
+    warnings->insert(warnings->end(), plot_warnings[i].begin(), plot_warnings[i].end());
+  }
 
   // report.md
   std::ostringstream md;

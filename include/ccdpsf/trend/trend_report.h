@@ -40,6 +40,8 @@ struct TrendReportOptions {
   // wavelength is the intensity relations' wavelength.
   std::optional<TruthFile> truth;
   double reference_intensity_e = kReferenceIntensityE;
+  // Plots made at a time (each a gnuplot process); the files and report do not depend on it.
+  int threads = 1;
 };
 
 // Writes the files above into out_dir (staged; trend.json last); run_record goes to
