@@ -446,18 +446,21 @@ Diagnostics Check(const std::vector<double>& chain, int num_walkers, int dim, in
   double min_ess = kInf;
   int min_ess_parameter = 0;
   int no_window_parameter = -1;
-  for (const AutocorrelationTime& t :
-       TauPerParameter(chain, num_walkers, dim, diag.burn_in, steps, team)) {
-    const int k = static_cast<int>(diag.tau.size());
-    diag.tau.push_back(t.tau);
-    diag.ess.push_back(EffectiveSampleSize(num_walkers, kept, t.tau));
-    if (!t.window_found && no_window_parameter < 0) no_window_parameter = k;
-    max_tau = std::max(max_tau, t.window_found ? t.tau : kInf);
-    if (diag.ess.back() < min_ess) {
-      min_ess = diag.ess.back();
-      min_ess_parameter = k;
+  // Appends the taus of one set of quantities to diag and folds them into the criteria.
+  auto add = [&](const std::vector<AutocorrelationTime>& taus) {
+    for (const AutocorrelationTime& t : taus) {
+      const int k = static_cast<int>(diag.tau.size());
+      diag.tau.push_back(t.tau);
+      diag.ess.push_back(EffectiveSampleSize(num_walkers, kept, t.tau));
+      if (!t.window_found && no_window_parameter < 0) no_window_parameter = k;
+      max_tau = std::max(max_tau, t.window_found ? t.tau : kInf);
+      if (diag.ess.back() < min_ess) {
+        min_ess = diag.ess.back();
+        min_ess_parameter = k;
+      }
     }
-  }
+  };
+  add(TauPerParameter(chain, num_walkers, dim, diag.burn_in, steps, team));
   // The reported quantities, computed from the kept states (ensemble_sampler.h).
   int reported_from = -1;  // index in diag.tau where they start (-1: none)
   if (options.reported && options.reported_dim > 0 && kept > 0) {
@@ -475,18 +478,7 @@ Diagnostics Check(const std::vector<double>& chain, int num_walkers, int dim, in
       }
     });
     reported_from = static_cast<int>(diag.tau.size());
-    for (const AutocorrelationTime& t :
-         TauPerParameter(reported, num_walkers, rdim, 0, kept, team)) {
-      const int k = static_cast<int>(diag.tau.size());
-      diag.tau.push_back(t.tau);
-      diag.ess.push_back(EffectiveSampleSize(num_walkers, kept, t.tau));
-      if (!t.window_found && no_window_parameter < 0) no_window_parameter = k;
-      max_tau = std::max(max_tau, t.window_found ? t.tau : kInf);
-      if (diag.ess.back() < min_ess) {
-        min_ess = diag.ess.back();
-        min_ess_parameter = k;
-      }
-    }
+    add(TauPerParameter(reported, num_walkers, rdim, 0, kept, team));
   }
   // Names "parameter k" for state coordinates and "reported quantity k" past them.
   auto name = [reported_from](int k) {
