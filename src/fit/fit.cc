@@ -251,9 +251,10 @@ bool RunFit(const FitModel& model, const FitOptions& options, FitResult* result,
       chain.tau.assign(dim, INFINITY);
       chain.ess.assign(dim, 0.0);
     }
+    // Their tau and ESS for the report: the same values the sampler's convergence check
+    // judged (SamplerOptions::reported), so no second verdict is needed here.
     const int kept_steps = chain.num_steps - chain.burn_in;
     if (kept_steps >= 2) {
-      double min_ess = INFINITY;
       for (int i = 0; i < dim; ++i) {
         const auto t = EnsembleIntegratedAutocorrelationTime(
             chain.chain.data() + static_cast<size_t>(chain.burn_in) * chain.num_walkers * dim + i,
@@ -261,12 +262,6 @@ bool RunFit(const FitModel& model, const FitOptions& options, FitResult* result,
             dim);
         chain.tau[i] = t ? t->tau : INFINITY;
         chain.ess[i] = EffectiveSampleSize(chain.num_walkers, kept_steps, chain.tau[i]);
-        min_ess = std::min(min_ess, chain.ess[i]);
-      }
-      if (chain.converged && min_ess < options.mcmc.target_ess) {
-        chain.converged = false;
-        chain.stop_reason += "; but on the reported parameters the smallest ESS is " +
-                             std::to_string(static_cast<long>(min_ess));
       }
     }
     result->have_mcmc = true;
