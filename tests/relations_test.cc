@@ -109,6 +109,24 @@ struct LinearData {
   }
 };
 
+// The percentiles of the draws 0, 1, ..., 1000 in shuffled order are q x 1000 exactly
+// (linear interpolation between order statistics at position q (n - 1)); non-finite draws
+// are ignored. Tolerance: rounding only.
+TEST(Relations, SummaryPercentilesOfAKnownSample) {
+  std::vector<double> draws;
+  for (int i = 0; i <= 1000; ++i) draws.push_back(i);
+  std::mt19937_64 engine(5);
+  std::shuffle(draws.begin(), draws.end(), engine);
+  draws.push_back(NAN);
+  draws.push_back(INFINITY);
+  const Estimate e = SummarizeDraws(draws);
+  EXPECT_NEAR(e.lo95, 25.0, 1e-9);
+  EXPECT_NEAR(e.lo68, 158.655, 1e-9);
+  EXPECT_NEAR(e.median, 500.0, 1e-9);
+  EXPECT_NEAR(e.hi68, 841.345, 1e-9);
+  EXPECT_NEAR(e.hi95, 975.0, 1e-9);
+}
+
 TEST(Relations, LinearMatchesClosedFormWeightedLeastSquares) {
   const LinearData d;
   const RelationFit fit = MustFit(RelationKind::kLinear, d.points, WithResamples(4000));
@@ -480,7 +498,7 @@ TEST(Relations, JsonHasTheTrendFields) {
   const RelationFit fit = MustFit(RelationKind::kLinear, LinearData().points);
   const nlohmann::json j = ToJson(fit);
   for (const char* c : {"intercept", "slope", "value_at_pivot"}) {
-    for (const char* f : {"median", "lo68", "hi68", "sd"}) {
+    for (const char* f : {"median", "lo68", "hi68", "lo95", "hi95", "sd"}) {
       EXPECT_TRUE(j[c][f].is_number()) << c << "." << f;
     }
   }

@@ -3,6 +3,7 @@
 // hand; missing inputs; the strict JSON configuration.
 #include "ccdpsf/trend/requirements.h"
 
+#include <algorithm>
 #include <cmath>
 #include <map>
 #include <string>
@@ -92,6 +93,32 @@ TEST(Requirements, DefaultsAreTheEuclidVisOnes) {
     std::string error;
     EXPECT_TRUE(r.IsValid(&error)) << error;
   }
+}
+
+// With the x and y FWHM relations present, the ellipticity at (800 nm, I0) is computed from
+// them draw by draw, e_r = |x_r^2 - y_r^2| / (x_r^2 + y_r^2), and the e relation (here 0.175,
+// far off) is not used. Expected: the same formula evaluated here on the ladders; its median
+// by sorting (100 draws: mean of the 50th and 51st).
+TEST(Requirements, EllipticityFollowsFromTheXAndYLaws) {
+  std::map<std::string, RelationFit> relations;
+  const std::vector<double> x = Ladder(8.40, 0.002), y = Ladder(8.50, 0.001);
+  relations["fwhm_x_um_vs_wavelength"] = HandPowerLaw(x, std::vector<double>(100, -0.24));
+  relations["fwhm_y_um_vs_wavelength"] = HandPowerLaw(y, std::vector<double>(100, -0.31));
+  relations["ellipticity_vs_wavelength"] =
+      HandPowerLaw(Ladder(0.175, 0.0005), std::vector<double>(100, -0.15));
+  std::vector<double> e;
+  for (size_t r = 0; r < 100; ++r) {
+    e.push_back(std::fabs(x[r] * x[r] - y[r] * y[r]) / (x[r] * x[r] + y[r] * y[r]));
+  }
+  std::sort(e.begin(), e.end());
+  const std::vector<RequirementResult> results =
+      EvaluateRequirements(DefaultRequirements(), relations);
+  const RequirementResult& got = ByName(results, "ellipticity_800nm");
+  ASSERT_TRUE(got.pass.has_value()) << got.reason;
+  EXPECT_NEAR(got.value.median, 0.5 * (e[49] + e[50]), 1e-14);
+  EXPECT_EQ(got.pass_probability, 1.0);
+  ASSERT_FALSE(got.notes.empty());
+  EXPECT_NE(got.notes.back().find("fwhm_x_um and fwhm_y_um"), std::string::npos);
 }
 
 TEST(Requirements, PassFailAndMarginsByHand) {

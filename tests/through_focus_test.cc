@@ -147,6 +147,33 @@ TEST(ThroughFocus, JointLogLikelihoodIsTheSumOfSingles) {
 // right); every start reaches the same optimum. The exposures fitted one at a time - one
 // focus position each - do not identify them (pitfall 1), nor does the joint fit of the
 // same series with one shared defocus.
+// A series' peak_e is its spot's at best focus, centred on a pixel (fit.cc PeakTheta): the
+// truth is the simulator's noiseless spot with zero defocus at a pixel centre. The series'
+// own exposures are all defocused (0.09-0.69 px), so their mean peak pixel is far lower
+// (checked, so the test can fail). Tolerance: 4 Laplace sds.
+TEST(ThroughFocus, PeakIsThatOfTheSpotAtBestFocus) {
+  const SimulationConfig c =
+      FocusSeriesConfig(kPositionsUm, kBestFocusUm, kRatePxPerUm, kSeriesFluxE, 7);
+  auto peak_of = [&](const SimulatedExposure& exposure) {
+    const Image m = ExpectedElectrons(c, exposure);
+    return *std::max_element(m.data.begin(), m.data.end());
+  };
+  SimulatedExposure centred = c.exposures[0];
+  centred.x_px = centred.y_px = 10.0;
+  centred.defocus_px = 0.0;
+  const double truth = peak_of(centred);
+  double exposures = 0.0;
+  for (const SimulatedExposure& e : c.exposures) exposures += peak_of(e) / c.exposures.size();
+  auto model = MustCreate(SimulateStamps(c, 8), FocusOptions());
+  FitResult r;
+  std::string error;
+  ASSERT_TRUE(RunFit(*model, NoMcmc(), &r, &error)) << error;
+  const Summary& peak = r.derived[DerivedIndex(r, "peak_e")].second;
+  ASSERT_TRUE(std::isfinite(peak.laplace_sd));
+  EXPECT_NEAR(peak.map, truth, 4 * peak.laplace_sd);
+  EXPECT_GT(std::fabs(peak.map - exposures), 20 * peak.laplace_sd);
+}
+
 TEST(ThroughFocus, IdentifiesTheCcdWidths) {
   const SimulationConfig c =
       FocusSeriesConfig(kPositionsUm, kBestFocusUm, kRatePxPerUm, kSeriesFluxE, 7);

@@ -67,6 +67,11 @@ std::string ToString(FluxMode mode) {
   return "shared";
 }
 
+bool CcdSplitUnidentified(const FitModelOptions& options) {
+  return options.model.sampling == model::Sampling::kIntegrated &&
+         options.model.defocus == model::DefocusKind::kGaussian && !options.through_focus;
+}
+
 bool IsFocusSeries(const std::vector<Stamp>& stamps, std::string* why) {
   std::vector<double> z;
   for (size_t k = 0; k < stamps.size(); ++k) {

@@ -86,6 +86,7 @@ GroupResult FitOne(const CampaignGroup& group, int position, int index,
     out.summaries[result.names[model->FocusIndex()]] = result.parameters[model->FocusIndex()];
   }
   out.peak_e = out.summaries["peak_e"];
+  out.ccd_split_unidentified = fit::CcdSplitUnidentified(model->options());
   // In pixel_centre sampling a posterior can also have a plateau down to the bound next to
   // an identified peak (a few % of the mass at 83 ke-): its 0.135th percentile is then within
   // 10 % of (median - bound) of the bound, and its median and sd mix in the prior.

@@ -15,7 +15,7 @@ namespace {
 
 using nlohmann::json;
 
-constexpr int kFormat = 1;
+constexpr int kFormat = 2;
 
 uint64_t Fnv1a(const std::string& text) {
   uint64_t h = 1469598103934665603ULL;
@@ -105,7 +105,8 @@ nlohmann::json GroupResultJson(const GroupResult& r) {
             {"peak_e", SummaryToJson(r.peak_e)},
             {"summaries", summaries},
             {"draws", draws},
-            {"unbounded_below", r.unbounded_below}};
+            {"unbounded_below", r.unbounded_below},
+            {"ccd_split_unidentified", r.ccd_split_unidentified}};
   return j;
 }
 
@@ -135,6 +136,7 @@ bool GroupResultFromJson(const nlohmann::json& j, GroupResult* result) {
     r.converged = j.at("converged").get<bool>();
     r.report_dir = j.at("report_dir").get<std::string>();
     r.unbounded_below = j.at("unbounded_below").get<std::vector<std::string>>();
+    r.ccd_split_unidentified = j.at("ccd_split_unidentified").get<bool>();
     if (!ReadNum(j.at("chi2_per_dof"), &r.chi2_per_dof) || !ReadNum(j.at("seconds"), &r.seconds) ||
         !SummaryFromJson(j.at("peak_e"), &r.peak_e)) {
       return false;

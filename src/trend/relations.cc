@@ -17,6 +17,8 @@ using nlohmann::json;
 // Central 68.27 % interval: 1 sigma of a Gaussian (the same bounds as fit.json).
 constexpr double kLo68 = 0.158655;
 constexpr double kHi68 = 0.841345;
+constexpr double kLo95 = 0.025;
+constexpr double kHi95 = 0.975;
 
 // Percentiles at increasing qs by linear interpolation between order statistics (the
 // same numbers as sorting, by selection: O(n) per percentile). Reorders v; NaN if empty.
@@ -133,6 +135,8 @@ std::string PreparePoint(RelationKind kind, const RelationPoint& p, double pivot
   out->value.median = p.median;
   out->value.lo68 = p.median - p.sd;
   out->value.hi68 = p.median + p.sd;
+  out->value.lo95 = p.median - 1.959964 * p.sd;
+  out->value.hi95 = p.median + 1.959964 * p.sd;
   out->value.sd = p.sd;
   return "";
 }
@@ -182,11 +186,13 @@ Estimate SummarizeDraws(std::vector<double> draws) {
   Estimate e;
   if (draws.empty()) return e;
   e.sd = SampleSd(draws);
-  double q[3];
-  SelectPercentiles(draws, {kLo68, 0.5, kHi68}, q);
-  e.lo68 = q[0];
-  e.median = q[1];
-  e.hi68 = q[2];
+  double q[5];
+  SelectPercentiles(draws, {kLo95, kLo68, 0.5, kHi68, kHi95}, q);
+  e.lo95 = q[0];
+  e.lo68 = q[1];
+  e.median = q[2];
+  e.hi68 = q[3];
+  e.hi95 = q[4];
   return e;
 }
 
@@ -510,10 +516,9 @@ std::optional<RelationFit> FitRelation(RelationKind kind, const std::vector<Rela
 }
 
 json ToJson(const Estimate& e) {
-  return json{{"median", NullIfNan(e.median)},
-              {"lo68", NullIfNan(e.lo68)},
-              {"hi68", NullIfNan(e.hi68)},
-              {"sd", NullIfNan(e.sd)}};
+  return json{{"median", NullIfNan(e.median)}, {"lo68", NullIfNan(e.lo68)},
+              {"hi68", NullIfNan(e.hi68)},     {"lo95", NullIfNan(e.lo95)},
+              {"hi95", NullIfNan(e.hi95)},     {"sd", NullIfNan(e.sd)}};
 }
 
 json ToJson(const RelationFit& fit) {

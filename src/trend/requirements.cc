@@ -263,6 +263,41 @@ void Judge(const std::vector<double>& draws, RequirementResult* res) {
   res->pass_probability = static_cast<double>(passing) / static_cast<double>(finite);
 }
 
+// The draws of `metric` at the requirement's (intensity, wavelength) by the combined model
+// (relations.h EvaluateCombined), adding the relations' notes to *res. False, with the
+// reason in res->reason, when a relation it needs is missing or unusable.
+bool CombinedDraws(const std::map<std::string, RelationFit>& relations, const std::string& metric,
+                   const Requirement& req, double reference_intensity_e, std::vector<double>* draws,
+                   RequirementResult* res) {
+  const std::string wl_name = RelationName(metric, RelationKind::kPowerLaw);
+  const std::string in_name = RelationName(metric, RelationKind::kLinear);
+  const bool at_reference =
+      std::fabs(req.intensity_e - reference_intensity_e) <= 1e-9 * std::fabs(reference_intensity_e);
+  const RelationFit* wl = nullptr;
+  const RelationFit* in = nullptr;
+  res->reason = RelationProblem(relations, wl_name, &wl);
+  if (res->reason.empty() && !at_reference) {
+    res->reason = RelationProblem(relations, in_name, &in);
+    if (!res->reason.empty()) {
+      res->reason += " (needed at intensity " + Num(req.intensity_e) + " e- != I0 " +
+                     Num(reference_intensity_e) + " e-)";
+    }
+  }
+  if (!res->reason.empty()) return false;
+  std::string error;
+  const std::optional<CombinedValue> v =
+      EvaluateCombined(in, *wl, req.intensity_e, req.wavelength_nm, reference_intensity_e, &error);
+  if (!v) {
+    res->reason = error;
+    return false;
+  }
+  *draws = v->draws;
+  AddRelationNotes(wl_name, *wl, &res->notes);
+  if (in != nullptr) AddRelationNotes(in_name, *in, &res->notes);
+  res->notes.insert(res->notes.end(), v->notes.begin(), v->notes.end());
+  return true;
+}
+
 }  // namespace
 
 std::vector<RequirementResult> EvaluateRequirements(
@@ -272,7 +307,7 @@ std::vector<RequirementResult> EvaluateRequirements(
   for (const Requirement& req : requirements) {
     RequirementResult res;
     res.requirement = req;
-    std::vector<double> draws;
+    std::vector<double> draws, fx, fy;
     std::string why;
     if (!req.IsValid(&why)) {
       res.reason = why;
@@ -288,34 +323,24 @@ std::vector<RequirementResult> EvaluateRequirements(
           AddRelationNotes(req.relation, *fit, &res.notes);
         }
       }
+    } else if (req.metric == "ellipticity" &&
+               CombinedDraws(relations, "fwhm_x_um", req, reference_intensity_e, &fx, &res) &&
+               CombinedDraws(relations, "fwhm_y_um", req, reference_intensity_e, &fy, &res)) {
+      // e depends on the widths' ratio: from the x and y laws draw by draw (their points
+      // are the same settings' same MCMC draws, so the pairing keeps their correlation).
+      // Not from a power law of e itself: with different exponents on the two axes e
+      // passes through zero at some wavelength, which no power law follows.
+      for (size_t r = 0; r < std::min(fx.size(), fy.size()); ++r) {
+        const double x2 = fx[r] * fx[r], y2 = fy[r] * fy[r];
+        draws.push_back(std::fabs(x2 - y2) / (x2 + y2));
+      }
+      res.notes.push_back(
+          "from the fwhm_x_um and fwhm_y_um relations, draw by draw: e = |fx^2 - fy^2| / (fx^2 "
+          "+ fy^2) (a power law of e itself cannot follow e through zero)");
     } else {
-      const std::string wl_name = RelationName(req.metric, RelationKind::kPowerLaw);
-      const std::string in_name = RelationName(req.metric, RelationKind::kLinear);
-      const bool at_reference = std::fabs(req.intensity_e - reference_intensity_e) <=
-                                1e-9 * std::fabs(reference_intensity_e);
-      const RelationFit* wl = nullptr;
-      const RelationFit* in = nullptr;
-      res.reason = RelationProblem(relations, wl_name, &wl);
-      if (res.reason.empty() && !at_reference) {
-        res.reason = RelationProblem(relations, in_name, &in);
-        if (!res.reason.empty()) {
-          res.reason += " (needed at intensity " + Num(req.intensity_e) + " e- != I0 " +
-                        Num(reference_intensity_e) + " e-)";
-        }
-      }
-      if (res.reason.empty()) {
-        std::string error;
-        const std::optional<CombinedValue> v = EvaluateCombined(
-            in, *wl, req.intensity_e, req.wavelength_nm, reference_intensity_e, &error);
-        if (!v) {
-          res.reason = error;
-        } else {
-          draws = v->draws;
-          AddRelationNotes(wl_name, *wl, &res.notes);
-          if (in != nullptr) AddRelationNotes(in_name, *in, &res.notes);
-          res.notes.insert(res.notes.end(), v->notes.begin(), v->notes.end());
-        }
-      }
+      res.notes.clear();
+      res.reason.clear();
+      CombinedDraws(relations, req.metric, req, reference_intensity_e, &draws, &res);
     }
     if (res.reason.empty()) Judge(draws, &res);
     results.push_back(std::move(res));
@@ -358,6 +383,8 @@ json ToJson(const RequirementResult& result) {
   j["value"] = NullIfNan(result.value.median);
   j["lo68"] = NullIfNan(result.value.lo68);
   j["hi68"] = NullIfNan(result.value.hi68);
+  j["lo95"] = NullIfNan(result.value.lo95);
+  j["hi95"] = NullIfNan(result.value.hi95);
   j["sd"] = NullIfNan(result.value.sd);
   j["margin"] = NullIfNan(result.margin);
   j["pass"] = result.pass ? json(*result.pass) : json(nullptr);

@@ -15,6 +15,10 @@ std::string Format(double v, int precision = 4) {
   return out.str();
 }
 
+// Whether a trend metric describes the CCD kernel alone (not the total_* widths, which hold
+// the defocus too).
+bool IsCcdOnlyMetric(const std::string& metric) { return metric.rfind("total_", 0) != 0; }
+
 // The CCD width behind a CCD-only metric that the data do not bound from below (group_fit.h
 // unbounded_below), or "".
 std::string WidthAtLowerBound(const GroupResult& g, const std::string& metric) {
@@ -40,6 +44,13 @@ std::string WidthAtLowerBound(const GroupResult& g, const std::string& metric) {
 RelationPoint PointOf(const GroupResult& g, const std::string& metric, double abscissa) {
   const std::string& label = g.group.name;
   if (!g.ok) return RelationPoint::Missing(label, abscissa, g.failure);
+  if (g.ccd_split_unidentified && IsCcdOnlyMetric(metric)) {
+    return RelationPoint::Missing(
+        label, abscissa,
+        "CCD widths not identified: at one focus a Gaussian defocus and the CCD kernel "
+        "convolve to one Gaussian, so only their total widths are measured (docs/trust.md); a "
+        "through-focus series at this setting identifies them");
+  }
   // "Bound only" (see trend.h): not a measurement to fit a line through.
   const std::string width = WidthAtLowerBound(g, metric);
   if (!width.empty()) {
@@ -86,6 +97,47 @@ double NominalOrMeasuredPeak(const GroupResult& g) {
   return g.group.nominal_peak_e.value_or(NAN);
 }
 
+// Whether group g measures `metric` for the relations: a through-focus series only the
+// CCD-only metrics (its total_* describe the PSF at best focus, a different spot from the
+// single-focus settings' defocused one).
+bool MeasuresMetric(const GroupResult& g, const std::string& metric) {
+  return !g.group.focus_series || IsCcdOnlyMetric(metric);
+}
+
+// The group of one wavelength whose point enters the power law: the one nearest I0 within
+// the intensity tolerance, a through-focus series first (its CCD widths are identified); a
+// failed group only if no successful one qualifies, so that its gap shows. nullptr, with
+// the reason in *why_none, when none qualifies.
+const GroupResult* NearestReference(const std::vector<const GroupResult*>& list,
+                                    const TrendOptions& options, std::string* why_none) {
+  const double i0 = options.reference_intensity_e;
+  const GroupResult* best = nullptr;
+  double best_rank = INFINITY;
+  for (const GroupResult* g : list) {
+    const double peak = NominalOrMeasuredPeak(*g);
+    // (A failed group of unknown intensity might have been the one: it ranks as close.)
+    const double distance =
+        std::isfinite(peak) ? std::fabs(peak / i0 - 1.0) : (g->ok ? INFINITY : 0.0);
+    const bool qualifies = distance <= options.intensity_tolerance;
+    // Ranks: a successful series within tolerance, then a successful single-focus setting,
+    // then a failed group; by distance within each.
+    const double rank = distance + (g->ok ? 0.0 : 20.0) +
+                        (qualifies && g->ok && g->group.focus_series ? 0.0 : 10.0);
+    if (rank < best_rank) {
+      best_rank = rank;
+      best = g;
+    }
+  }
+  const double distance =
+      best != nullptr ? std::fabs(NominalOrMeasuredPeak(*best) / i0 - 1.0) : INFINITY;
+  if (best != nullptr && (distance <= options.intensity_tolerance || !best->ok)) return best;
+  *why_none = list.empty() ? "no single-focus setting (a through-focus series measures the "
+                             "CCD-only metrics only)"
+                           : "no setting within " + Format(100 * options.intensity_tolerance, 3) +
+                                 " % of I0 = " + Format(i0, 7) + " e-";
+  return nullptr;
+}
+
 }  // namespace
 
 bool ComputeTrend(std::vector<GroupResult> groups, const TrendOptions& options,
@@ -102,16 +154,24 @@ bool ComputeTrend(std::vector<GroupResult> groups, const TrendOptions& options,
   const std::vector<std::string>& metrics = TrendMetricNames();
   const double i0 = options.reference_intensity_e;
 
-  // Regular (single-focus) groups by wavelength; groups of unknown wavelength fit nowhere.
+  // Groups by wavelength (single-focus settings and through-focus series); groups of unknown
+  // wavelength fit nowhere.
   std::map<double, std::vector<const GroupResult*>> by_wavelength;
   for (const GroupResult& g : all) {
-    if (g.group.focus_series) continue;
     if (!std::isfinite(g.group.wavelength_nm)) {
       result->notes.push_back(g.group.name + " is in no relation: " + g.failure);
       continue;
     }
     by_wavelength[g.group.wavelength_nm].push_back(&g);
   }
+  // The groups of `list` that measure `metric` (see the top of trend.h).
+  auto measuring = [](const std::vector<const GroupResult*>& list, const std::string& metric) {
+    std::vector<const GroupResult*> out;
+    for (const GroupResult* g : list) {
+      if (MeasuresMetric(*g, metric)) out.push_back(g);
+    }
+    return out;
+  };
 
   // Intensity relations.
   double main_wavelength = NAN;
@@ -127,10 +187,11 @@ bool ComputeTrend(std::vector<GroupResult> groups, const TrendOptions& options,
     main_wavelength = options.reference_wavelength_nm;
   }
   result->intensity_wavelength_nm = main_wavelength;
-  for (const auto& [wavelength, list] : by_wavelength) {
+  for (const auto& [wavelength, all_here] : by_wavelength) {
     const bool main = wavelength == main_wavelength;
-    if (!main && list.size() < 2) continue;
     for (const std::string& metric : metrics) {
+      const std::vector<const GroupResult*> list = measuring(all_here, metric);
+      if (!main && list.size() < 2) continue;
       std::vector<RelationPoint> points;
       for (const GroupResult* g : list) {
         points.push_back(PointOf(*g, metric, NominalOrMeasuredPeak(*g)));
@@ -164,36 +225,11 @@ bool ComputeTrend(std::vector<GroupResult> groups, const TrendOptions& options,
     }
   }
 
-  // Wavelength relations: one point per wavelength, nearest I0.
-  std::vector<std::pair<double, const GroupResult*>> chosen;  // wavelength, group or nullptr
-  std::map<double, std::string> why_none;
-  for (const auto& [wavelength, list] : by_wavelength) {
-    const GroupResult* best = nullptr;
-    double best_distance = INFINITY;
-    for (const GroupResult* g : list) {
-      const double peak = NominalOrMeasuredPeak(*g);
-      // (A failed group of unknown intensity might have been the one: it ranks as close.)
-      const double distance = std::isfinite(peak) ? std::fabs(peak / i0 - 1.0)
-                                                  : (g->ok ? INFINITY : 0.0);
-      // A failed group is chosen only if no successful one qualifies: its gap then shows.
-      const double rank = distance + (g->ok ? 0.0 : 10.0);
-      if (rank < best_distance) {
-        best_distance = rank;
-        best = g;
-      }
-    }
-    const double distance =
-        best != nullptr ? std::fabs(NominalOrMeasuredPeak(*best) / i0 - 1.0) : INFINITY;
-    if (best != nullptr && (distance <= options.intensity_tolerance || !best->ok)) {
-      chosen.push_back({wavelength, best});
-    } else {
-      chosen.push_back({wavelength, nullptr});
-      why_none[wavelength] = "no setting within " +
-                             Format(100 * options.intensity_tolerance, 3) + " % of I0 = " +
-                             Format(i0, 7) + " e-";
-    }
-  }
+  // Wavelength relations: one point per wavelength and metric, nearest I0; for a CCD-only
+  // metric a through-focus series within the tolerance comes first (its CCD widths are
+  // identified, a single-focus setting's only in sum with the defocus).
   std::vector<std::string> uncorrected;
+  std::set<std::string> used_for_wavelength;
   for (const std::string& metric : metrics) {
     auto it = result->relations.find(RelationName(metric, RelationKind::kLinear));
     // A correction from a relation the data barely constrain would inject its spread (its
@@ -206,12 +242,14 @@ bool ComputeTrend(std::vector<GroupResult> groups, const TrendOptions& options,
       uncorrected.push_back(metric);
     }
     std::vector<RelationPoint> points;
-    for (const auto& [wavelength, g] : chosen) {
+    for (const auto& [wavelength, all_here] : by_wavelength) {
+      std::string why_none;
+      const GroupResult* g = NearestReference(measuring(all_here, metric), options, &why_none);
       if (g == nullptr) {
-        points.push_back(RelationPoint::Missing(Format(wavelength) + " nm", wavelength,
-                                                why_none[wavelength]));
+        points.push_back(RelationPoint::Missing(Format(wavelength) + " nm", wavelength, why_none));
         continue;
       }
+      used_for_wavelength.insert(g->group.name);
       RelationPoint p = PointOf(*g, metric, wavelength);
       const double peak = NominalOrMeasuredPeak(*g);
       if (options.correct_to_reference_intensity && intensity != nullptr &&
@@ -230,8 +268,12 @@ bool ComputeTrend(std::vector<GroupResult> groups, const TrendOptions& options,
     if (!fit) return false;
     result->relations[RelationName(metric, RelationKind::kPowerLaw)] = std::move(*fit);
   }
-  for (const auto& [wavelength, g] : chosen) {
-    if (g != nullptr) result->wavelength_groups.push_back(g->group.name);
+  for (const auto& [wavelength, list] : by_wavelength) {
+    for (const GroupResult* g : list) {
+      if (used_for_wavelength.count(g->group.name) > 0) {
+        result->wavelength_groups.push_back(g->group.name);
+      }
+    }
   }
   if (options.correct_to_reference_intensity) {
     if (uncorrected.size() < metrics.size()) {
@@ -248,12 +290,16 @@ bool ComputeTrend(std::vector<GroupResult> groups, const TrendOptions& options,
                               "well-constrained intensity relation): " + list);
     }
   }
+  std::string series;
   for (const GroupResult& g : all) {
-    if (g.group.focus_series) {
-      result->notes.push_back(g.group.name +
-                              " is a through-focus series: reported on its own, not in the "
-                              "relations");
-    }
+    if (g.group.focus_series) series += (series.empty() ? "" : ", ") + g.group.name;
+  }
+  if (!series.empty()) {
+    result->notes.push_back(
+        "through-focus series (" + series +
+        ") are in the relations of the CCD-only metrics, "
+        "with their identified CCD widths, and not in the total_* ones: a series' total PSF is "
+        "the one at best focus, not the defocused spot of the single-focus settings");
   }
   result->requirements = EvaluateRequirements(options.requirements, result->relations, i0);
   for (const GroupResult& g : result->groups) {

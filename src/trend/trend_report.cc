@@ -132,13 +132,20 @@ std::optional<Curve> TruthRelationCurve(const PlotContext& ctx, const std::strin
   const nlohmann::json& doc = ctx.options->truth->document;
   if (!doc.contains("relations") || !doc["relations"].is_object()) return std::nullopt;
   const nlohmann::json& relations = doc["relations"];
-  if (!relations.contains(relation) || !relations[relation].is_object()) return std::nullopt;
-  const nlohmann::json& rel = relations[relation];
+  const bool power =
+      relation.size() > 14 && relation.compare(relation.size() - 14, 14, "_vs_wavelength") == 0;
+  const std::string suffix = power ? "_vs_wavelength" : "_vs_intensity";
+  // The ellipticity is not itself one of the truth's laws: it follows from the x and y FWHM
+  // laws, e = |f_x^2 - f_y^2| / (f_x^2 + f_y^2) (e depends on the widths' ratio only).
+  const bool ellipticity = relation == "ellipticity" + suffix;
+  const std::string law_x = ellipticity ? "fwhm_x_um" + suffix : relation;
+  const std::string law_y = ellipticity ? "fwhm_y_um" + suffix : relation;
+  for (const std::string& law : {law_x, law_y}) {
+    if (!relations.contains(law) || !relations[law].is_object()) return std::nullopt;
+  }
   auto number = [](const nlohmann::json& j, const char* key) {
     return j.contains(key) && j[key].is_number() ? j[key].get<double>() : NAN;
   };
-  const bool power =
-      relation.size() > 14 && relation.compare(relation.size() - 14, 14, "_vs_wavelength") == 0;
   if (power) {
     // Holds at the truth's reference intensity: the trend's wavelength points are corrected
     // to its own I0.
@@ -148,14 +155,25 @@ std::optional<Curve> TruthRelationCurve(const PlotContext& ctx, const std::strin
   } else if (number(relations, "reference_wavelength_nm") != ctx.result->intensity_wavelength_nm) {
     return std::nullopt;  // the truth's intensity relation holds at its reference wavelength
   }
-  const double c0 = number(rel, power ? "a" : "intercept");
-  const double c1 = number(rel, power ? "alpha" : "slope");
-  if (!std::isfinite(c0) || !std::isfinite(c1) || !(hi > lo)) return std::nullopt;
+  const nlohmann::json& rx = relations[law_x];
+  const nlohmann::json& ry = relations[law_y];
+  const double x0 = number(rx, power ? "a" : "intercept"),
+               x1 = number(rx, power ? "alpha" : "slope");
+  const double y0 = number(ry, power ? "a" : "intercept"),
+               y1 = number(ry, power ? "alpha" : "slope");
+  for (double v : {x0, x1, y0, y1}) {
+    if (!std::isfinite(v)) return std::nullopt;
+  }
+  if (!(hi > lo)) return std::nullopt;
+  auto law = [power](double c0, double c1, double x) {
+    return power ? c0 * std::pow(x, c1) : c0 + c1 * x;
+  };
   Curve c;
   for (int i = 0; i <= 60; ++i) {
     const double x = lo + (hi - lo) * i / 60.0;
+    const double fx = law(x0, x1, x), fy = law(y0, y1, x);
     c.x.push_back(x);
-    c.y.push_back(power ? c0 * std::pow(x, c1) : c0 + c1 * x);
+    c.y.push_back(ellipticity ? std::fabs(fx * fx - fy * fy) / (fx * fx + fy * fy) : fx);
   }
   return c;
 }
@@ -448,8 +466,8 @@ bool WriteTrendReport(const std::string& out_dir, const TrendResult& r, const js
      << "pass: by the median. P(pass): the share of the propagated draws that pass. verdict: "
         "pass or fail when P(pass) >= "
      << kSettledProbability << " or <= " << 1.0 - kSettledProbability
-     << ", else undetermined (the data do not settle it; a CCD-only width that rests on the "
-        "priors is undetermined).\n\n";
+     << ", else undetermined (the data do not settle it); n/a when an input is missing, with "
+        "the reason.\n\n";
   std::map<std::string, std::vector<RequirementResult>> by_series;
   for (const TrendResult::FocusRequirement& q : r.focus_requirements) {
     by_series[q.group].push_back(q.result);

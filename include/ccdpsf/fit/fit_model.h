@@ -92,6 +92,12 @@ struct FitModelOptions {
   FluxMode flux = FluxMode::kShared;
 };
 
+// Whether a model identifies only the total widths, not the CCD widths themselves: integrated
+// sampling with a Gaussian defocus at one focus, where the defocus and the CCD kernel
+// convolve to one Gaussian (docs/trust.md, single focus). The CCD-only metrics' posteriors
+// are then the priors' along that ridge.
+bool CcdSplitUnidentified(const FitModelOptions& options);
+
 // Whether a set of stamps can be fitted as a through-focus series: every stamp has a finite
 // focus position and there are at least 3 distinct ones. False with a one-line reason.
 bool IsFocusSeries(const std::vector<Stamp>& stamps, std::string* why);

@@ -72,6 +72,9 @@ struct GroupResult {
   // at the prior's lower bound (within 1e-6 of the range), or, in pixel_centre sampling, the
   // posterior's 0.135th percentile is within 10 % of (median - bound) of the bound.
   std::vector<std::string> unbounded_below;
+  // The fit identifies only the total widths (fit_model.h CcdSplitUnidentified: integrated
+  // sampling, Gaussian defocus, one focus): its CCD-only metrics are not measurements.
+  bool ccd_split_unidentified = false;
   // Taken from the store of an interrupted run (not fitted again) - for messages only.
   bool resumed = false;
 };

@@ -100,10 +100,13 @@ const std::vector<std::string>& TrendMetricNames();
 
 // A summary of draws: median, central 68.27 % interval (15.87th / 84.13th percentiles by
 // linear interpolation between order statistics) and the sample sd. All NaN for no draws.
+// A quantity's median, central 68.27 % and 95 % intervals and sd.
 struct Estimate {
   double median = NAN;
   double lo68 = NAN;
   double hi68 = NAN;
+  double lo95 = NAN;
+  double hi95 = NAN;
   double sd = NAN;
 };
 

@@ -3,23 +3,27 @@
 //
 // Which groups feed which relation:
 //   <metric>_vs_intensity   the groups at the reference wavelength (800 nm by default; else
-//                           the wavelength with the most intensity settings), abscissa the
-//                           group's measured peak pixel (posterior median, e-). Every other
-//                           wavelength with >= 2 intensity settings gets its own relation
-//                           (intensity_by_wavelength).
+//                           the wavelength with the most groups), abscissa the group's
+//                           measured peak pixel (posterior median, e-). Every other
+//                           wavelength with >= 2 groups measuring the metric gets its own
+//                           relation (intensity_by_wavelength).
 //   <metric>_vs_wavelength  per wavelength, the group whose peak is nearest the reference
 //                           intensity I0 (and within intensity_tolerance of it), corrected
 //                           to I0 with the reference wavelength's intensity relation:
 //                           X(I0, lambda) = X(I, lambda) X_I(I0) / X_I(I), the paper's
 //                           combined-model assumption (section 4.4), draw by draw, so the
 //                           correction's own uncertainty is carried. Without an intensity
-//                           relation the points are used as measured (noted).
-//   through-focus groups    not in the relations (a different experiment); reported on
-//                           their own: there the CCD widths are identified. The metric
+//                           relation the points are used as measured (noted). For a CCD-only
+//                           metric a through-focus series within the tolerance is chosen
+//                           before a single-focus setting.
+//   through-focus groups    in the relations of the CCD-only metrics (fwhm_um, fwhm_x_um,
+//                           fwhm_y_um, r2_px2, ellipticity), where their CCD widths are
+//                           identified (a single focus with a Gaussian defocus identifies
+//                           only their sum with the defocus, docs/trust.md); not in the
+//                           total_* relations, since a series' total PSF is the one at best
+//                           focus, not the single-focus settings' defocused spot. The metric
 //                           requirements at a series' wavelength are also judged on its own
-//                           draws, at its own intensity (focus_requirements): where a
-//                           single-focus campaign leaves the CCD-only widths to the priors
-//                           (integrated sampling), this is the settled check.
+//                           draws, at its own intensity (focus_requirements).
 // Failed groups appear as gaps in every relation they would have fed.
 //
 // "Bound only": a group whose MAP puts a CCD width at its prior's lower bound, or, in
@@ -71,7 +75,7 @@ struct TrendResult {
   double intensity_wavelength_nm = NAN;
   // Intensity relations at the other wavelengths with >= 2 settings: wavelength -> name -> fit.
   std::map<double, std::map<std::string, RelationFit>> intensity_by_wavelength;
-  // The groups used for the wavelength relations, in wavelength order.
+  // The groups used for a wavelength relation of at least one metric, in wavelength order.
   std::vector<std::string> wavelength_groups;
   std::vector<RequirementResult> requirements;
   // Metric requirements at each fitted through-focus series' wavelength (within 0.5 nm),
