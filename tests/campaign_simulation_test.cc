@@ -176,14 +176,14 @@ TEST(CampaignSimulation, ManifestListsEveryFileWithMatchingKeywords) {
   CampaignResult result;
   std::string error;
   ASSERT_TRUE(RunCampaign(c, dir, /*noiseless=*/false, &result, &error)) << error;
-  EXPECT_EQ(result.groups, 8);
-  EXPECT_EQ(result.exposures, 7 * 3 + 5);
+  EXPECT_EQ(result.groups, 14);
+  EXPECT_EQ(result.exposures, 7 * 3 + 7 * 5);
   EXPECT_EQ(result.manifest_path, dir + "/manifest.json");
   const json manifest = ReadJson(result.manifest_path);
   const json truth = ReadJson(result.truth_path);
   ASSERT_EQ(manifest.size(), 1u);
-  ASSERT_EQ(manifest["groups"].size(), 8u);
-  ASSERT_EQ(truth["groups"].size(), 8u);
+  ASSERT_EQ(manifest["groups"].size(), 14u);
+  ASSERT_EQ(truth["groups"].size(), 14u);
   const std::vector<CampaignGroup> planned = PlanCampaign(c);
   std::set<std::string> listed;
   int files = 0;
@@ -454,7 +454,7 @@ TEST(CampaignSimulation, CommandLineWritesTheSmallCampaign) {
                                 "/campaign_small.json --out=" + dir);
   ASSERT_EQ(r.exit_code, 0) << r.output;
   EXPECT_EQ(std::count(r.output.begin(), r.output.end(), '\n'), 1) << r.output;
-  EXPECT_NE(r.output.find("8 groups, 26 noiseless models"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("14 groups, 56 noiseless models"), std::string::npos) << r.output;
   EXPECT_NE(r.output.find(dir + "/manifest.json"), std::string::npos) << r.output;
   const json manifest = ReadJson(dir + "/manifest.json");
   for (const json& g : manifest["groups"]) {

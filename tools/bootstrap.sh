@@ -50,8 +50,8 @@ cmake --build build -j"$jobs"
 if [ "$mode" = demo ]; then
   rm -rf out/campaign
   echo "== the main job: characterise the CCD PSF from the bundled lab campaign"
-  echo "   (testdata/campaign_small: 7 settings at 600-890 nm and 23-158 ke- plus a"
-  echo "   through-focus series, 26 exposures; joint fit with MCMC of every setting, then the"
+  echo "   (testdata/campaign_small: 7 settings at 600-890 nm and 23-158 ke-, each at one focus"
+  echo "   and through focus, 56 exposures; joint fit with MCMC of every setting, then the"
   echo "   relations with wavelength and intensity and the Euclid VIS requirement checks)"
   ./build/ccdpsf trend --out=out/campaign testdata/campaign_small
   echo "== done: the report is $(pwd)/out/campaign/report.md (trend.json, CSV tables and"

@@ -22,5 +22,5 @@ def test_load_fit_example_runs(real_fit_folder, real_trend_folder, tmp_path):
     image = matplotlib.image.imread(png)
     assert len(np.unique(image.reshape(-1, image.shape[-1]), axis=0)) > 20
     # The trend cell printed the relation table: its group labels are in the output.
-    assert "g00_600nm_160200e" in result.stdout
+    assert "f00_600nm_160200e_focus" in result.stdout
     assert "corner plot:" in result.stdout
