@@ -405,6 +405,41 @@ TEST(Trend, ThroughFocusSeriesEnterTheCcdOnlyRelations) {
   EXPECT_EQ(r.wavelength_groups.size(), 8u);
 }
 
+// Single-focus settings whose fit identifies only the total widths (integrated sampling,
+// Gaussian defocus) are gaps with the reason in every CCD-only relation, which is then not
+// fitted (no points), while the total_* relations use them; a note says what to do, and
+// the CCD-only requirements are n/a.
+TEST(Trend, UnidentifiedSingleFocusSettingsAreGapsInTheCcdOnlyRelations) {
+  std::mt19937_64 engine(31);
+  std::vector<GroupResult> groups;
+  for (double wl : {600.0, 700.0, 800.0, 890.0}) {
+    GroupResult g = SyntheticGroup("g" + std::to_string(static_cast<int>(wl)), wl, 157800,
+                                   14.0 * std::pow(wl / 800.0, -0.1), 0.002, engine);
+    g.ccd_split_unidentified = true;
+    groups.push_back(g);
+  }
+  TrendResult r;
+  std::string error;
+  ASSERT_TRUE(ComputeTrend(groups, TrendOptions(), &r, &error)) << error;
+  const RelationFit& w = r.relations.at("fwhm_um_vs_wavelength");
+  EXPECT_FALSE(w.fitted);
+  ASSERT_EQ(w.gaps.size(), 4u);
+  for (const RelationGap& gap : w.gaps) {
+    EXPECT_NE(gap.reason.find("CCD widths not identified"), std::string::npos) << gap.reason;
+  }
+  const RelationFit& t = r.relations.at("total_fwhm_um_vs_wavelength");
+  ASSERT_TRUE(t.fitted);
+  EXPECT_EQ(t.points.size(), 4u);
+  bool noted = false;
+  for (const std::string& n : r.notes)
+    noted = noted || n.find("Take a through-focus") != std::string::npos;
+  EXPECT_TRUE(noted) << ::testing::PrintToString(r.notes);
+  for (const RequirementResult& q : r.requirements) {
+    EXPECT_FALSE(q.pass.has_value()) << q.requirement.name;
+    EXPECT_FALSE(q.reason.empty()) << q.requirement.name;
+  }
+}
+
 // A through-focus series identifies the CCD widths, so the metric requirements at its
 // wavelength are also judged on its own draws, at its own intensity; not for a series at
 // another wavelength, and not on a chain that did not converge.

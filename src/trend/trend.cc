@@ -291,8 +291,21 @@ bool ComputeTrend(std::vector<GroupResult> groups, const TrendOptions& options,
     }
   }
   std::string series;
+  int unidentified = 0;
   for (const GroupResult& g : all) {
     if (g.group.focus_series) series += (series.empty() ? "" : ", ") + g.group.name;
+    if (g.ok && g.ccd_split_unidentified) ++unidentified;
+  }
+  if (unidentified > 0) {
+    result->notes.push_back(
+        std::to_string(unidentified) +
+        " single-focus setting(s) measure only the total widths (integrated sampling, Gaussian "
+        "defocus: the defocus takes any share of them) and are gaps in the CCD-only relations; " +
+        (series.empty() ? std::string("with no through-focus series in the campaign those "
+                                      "relations have no points. Take a through-focus series at "
+                                      "the settings to measure the CCD kernel")
+                        : std::string("the through-focus series give those relations their "
+                                      "points")));
   }
   if (!series.empty()) {
     result->notes.push_back(
