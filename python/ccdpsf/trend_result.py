@@ -16,10 +16,10 @@ from .units import unit_from_name
 # Today's relation CSVs name their columns generically; the quantity is in the file's name
 # (fwhm_um_vs_wavelength.csv) and the abscissa's quantity in trend.json
 # (relations[name]["abscissa"], e.g. "wavelength_nm" or "intensity_e").
-_GENERIC_VALUE_COLUMNS = ("median", "lo68", "hi68", "sd", "upper_limit_95")
+_GENERIC_VALUE_COLUMNS = ("median", "lo68", "hi68", "lo95", "hi95", "sd", "upper_limit_95")
 
 # Requirement rows: numbers in the unit of what they constrain.
-_REQUIREMENT_VALUE_KEYS = ("value", "lo68", "hi68", "sd", "limit", "margin")
+_REQUIREMENT_VALUE_KEYS = ("value", "lo68", "hi68", "lo95", "hi95", "sd", "limit", "margin")
 
 
 def read_trend(folder):
