@@ -1414,8 +1414,20 @@ bool WriteXyPlot(const std::string& dir, const std::string& stem, const XyPlotIn
     files.push_back({stem + "_limits.dat", d});
   }
 
+  // The key sits outside on the right: the canvas widens with its longest entry so that the
+  // plotting area keeps its width (~7 px per character at 11 pt beyond 30 characters).
+  size_t longest = 0;
+  for (const Series& series : input.series) {
+    longest = std::max({longest, series.label.size(), series.limit_label.size()});
+  }
+  for (const Curve& curve : input.curves) longest = std::max(longest, curve.label.size());
+  for (const std::vector<Curve>* truth : {&input.truth.curves, &input.truth.points}) {
+    for (const Curve& curve : *truth) longest = std::max(longest, curve.label.size() + 7);
+  }
+  const int width =
+      1000 + 7 * static_cast<int>(std::min<size_t>(std::max<size_t>(longest, 30) - 30, 100));
   std::string s =
-      ScriptPreamble(stem, input.title.empty() ? "x-y plot" : input.title, 1000, 620, 11, files);
+      ScriptPreamble(stem, input.title.empty() ? "x-y plot" : input.title, width, 620, 11, files);
   s += "\n# Styles: series/curve k uses line style k; requirements use style 100.\n";
   const size_t num_styles = std::max(input.series.size(), input.curves.size());
   for (size_t k = 0; k < num_styles; ++k) {

@@ -239,7 +239,15 @@ void PlotFits(const PlotContext& ctx, const std::string& stem, const std::string
     if (!s.limit_x.empty()) s.limit_label = line.label + ": 95 % upper limit (bound only)";
     Curve c;
     if (fit->fitted) {
-      c.label = line.label + " fit, 68 % band";
+      // The relation's shape coefficient in the key, so the plot carries its headline.
+      const Coefficient* shape =
+          fit->Find(fit->kind == RelationKind::kPowerLaw ? "alpha" : "slope");
+      c.label = line.label + " fit";
+      if (shape != nullptr && std::isfinite(shape->estimate.median)) {
+        c.label += std::string(fit->kind == RelationKind::kPowerLaw ? " (alpha " : " (slope ") +
+                   Interval(shape->estimate, 3) + ")";
+      }
+      c.label += ", 68 % band";
       const double lo = fit->MinAbscissa(), hi = fit->MaxAbscissa();
       for (int i = 0; i <= 40; ++i) {
         const double x = lo + (hi - lo) * i / 40.0;
