@@ -445,7 +445,9 @@ namespace {
 // spots whose identified FWHM follows a lambda^alpha with a known alpha each (-0.3 and
 // +0.2), posterior draws Gaussian with a 1 % sd; a third spot refused at 700 nm. Each
 // spot's alpha is recovered within its interval (68 %: a 3-sigma window of its sd for the
-// two spots), and the refused setting is a gap with the refusal as reason.
+// two spots), and the refused setting is a gap with the refusal as reason. The 850 nm fits
+// are marked as identifying only total widths: the CCD-only fwhm_um relations have a gap
+// there with that reason.
 TEST(GridRelations, EachSpotsAlphaIsRecoveredAndRefusalsAreGaps) {
   grid::GridResult r;
   const std::vector<double> wavelengths = {600.0, 700.0, 850.0};
@@ -478,6 +480,8 @@ TEST(GridRelations, EachSpotsAlphaIsRecoveredAndRefusalsAreGaps) {
         std::vector<double>& d = e.fit.draws["total_fwhm_um"];
         for (int i = 0; i < 400; ++i) d.push_back(truth * (1.0 + 0.01 * unit(rng)));
         e.fit.draws["fwhm_um"] = d;
+        // At 850 nm the fits identify only total widths: fwhm_um is a gap there.
+        e.fit.ccd_split_unidentified = s == 2;
       }
       r.spots.push_back(e);
     }
@@ -485,6 +489,15 @@ TEST(GridRelations, EachSpotsAlphaIsRecoveredAndRefusalsAreGaps) {
   trend::RelationOptions options;
   const std::vector<grid::SpotRelation> relations = grid::FitSpotRelations(r, 3.0, options);
   int checked = 0;
+  for (const grid::SpotRelation& rel : relations) {
+    if (rel.metric != "fwhm_um") continue;
+    bool gap_850 = false;
+    for (const trend::RelationGap& g : rel.fit.gaps) {
+      gap_850 = gap_850 || (g.abscissa == 850.0 &&
+                            g.reason.find("CCD widths not identified") != std::string::npos);
+    }
+    EXPECT_TRUE(gap_850) << "track at x " << rel.x_px;
+  }
   for (const grid::SpotRelation& rel : relations) {
     if (rel.metric != "total_fwhm_um") continue;
     ASSERT_EQ(rel.kind, trend::RelationKind::kPowerLaw);  // one setting per wavelength

@@ -60,6 +60,13 @@ trend::RelationPoint Point(const GridResult& result, const SpotEntry& e, const s
     return trend::RelationPoint::Missing(label, abscissa, "not fitted: " + e.where.refused);
   }
   if (!e.fit.ok) return trend::RelationPoint::Missing(label, abscissa, e.fit.failure);
+  // As in trend: a fit that identifies only the total widths measures no CCD-only metric.
+  if (e.fit.ccd_split_unidentified && metric.rfind("total_", 0) != 0) {
+    return trend::RelationPoint::Missing(
+        label, abscissa,
+        "CCD widths not identified at one focus (integrated sampling, Gaussian defocus): only "
+        "the total widths are measured");
+  }
   const auto draws = e.fit.draws.find(metric);
   if (draws != e.fit.draws.end() && draws->second.size() >= 2) {
     return trend::RelationPoint::FromDraws(label, abscissa, draws->second);
