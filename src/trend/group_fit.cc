@@ -37,6 +37,12 @@ GroupResult FitOne(const CampaignGroup& group, int position, int index,
   if (group.focus_series) {
     // A through-focus series is fitted with its own model (fit_model.h), which exists in
     // integrated sampling with a Gaussian defocus only: there it identifies the CCD widths.
+    if (config.model.model.sampling == model::Sampling::kPixelCentre) {
+      out.warnings.push_back(
+          "through-focus series in a pixel_centre campaign: fitted in integrated sampling, so "
+          "the CCD-only relations mix its CCD widths with the 2015 model's of the single-focus "
+          "settings (which do not resolve widths below ~0.25 px)");
+    }
     config.model.model.sampling = model::Sampling::kIntegrated;
     config.model.model.defocus = model::DefocusKind::kGaussian;
     config.model.through_focus = true;
