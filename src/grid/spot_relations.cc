@@ -61,7 +61,7 @@ trend::RelationPoint Point(const GridResult& result, const SpotEntry& e, const s
   }
   if (!e.fit.ok) return trend::RelationPoint::Missing(label, abscissa, e.fit.failure);
   // As in trend: a fit that identifies only the total widths measures no CCD-only metric.
-  if (e.fit.ccd_split_unidentified && metric.rfind("total_", 0) != 0) {
+  if (e.fit.ccd_split_unidentified && trend::IsCcdOnlyMetric(metric)) {
     return trend::RelationPoint::Missing(
         label, abscissa,
         "CCD widths not identified at one focus (integrated sampling, Gaussian defocus): only "

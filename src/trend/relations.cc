@@ -179,6 +179,8 @@ const std::vector<std::string>& TrendMetricNames() {
   return names;
 }
 
+bool IsCcdOnlyMetric(const std::string& metric) { return metric.rfind("total_", 0) != 0; }
+
 Estimate SummarizeDraws(std::vector<double> draws) {
   draws.erase(std::remove_if(draws.begin(), draws.end(),
                              [](double v) { return !std::isfinite(v); }),

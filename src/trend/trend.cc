@@ -15,10 +15,6 @@ std::string Format(double v, int precision = 4) {
   return out.str();
 }
 
-// Whether a trend metric describes the CCD kernel alone (not the total_* widths, which hold
-// the defocus too).
-bool IsCcdOnlyMetric(const std::string& metric) { return metric.rfind("total_", 0) != 0; }
-
 // The CCD width behind a CCD-only metric that the data do not bound from below (group_fit.h
 // unbounded_below), or "".
 std::string WidthAtLowerBound(const GroupResult& g, const std::string& metric) {

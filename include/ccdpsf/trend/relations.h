@@ -98,6 +98,10 @@ inline constexpr char kFlagGaussianApproximation[] = "gaussian_approximation";
 // The metrics `ccdpsf trend` relates (docs/metrics.md; the fit's derived names).
 const std::vector<std::string>& TrendMetricNames();
 
+// Whether a metric describes the CCD kernel alone (every trend metric but the total_* ones,
+// which hold the defocus too).
+bool IsCcdOnlyMetric(const std::string& metric);
+
 // A summary of draws: median, central 68.27 % interval (15.87th / 84.13th percentiles by
 // linear interpolation between order statistics) and the sample sd. All NaN for no draws.
 // A quantity's median, central 68.27 % and 95 % intervals and sd.
