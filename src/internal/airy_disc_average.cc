@@ -6,6 +6,7 @@
 
 #include "ccdpsf/model/airy.h"
 #include "internal/airy_table_simd.h"
+#include "internal/vec4.h"
 
 namespace ccdpsf::internal {
 namespace {
@@ -151,83 +152,138 @@ void AiryDiscAverage::Evaluate4(const double* d, double* value, double* d_dk, do
 
 namespace {
 
-// The Chebyshev points t_j = cos(pi (j + 1/2) / N) and the cosine matrix of the discrete
-// cosine transform that turns values there into coefficients, cos(pi m (j + 1/2) / N) at
-// [j * N + m].
-struct ChebyshevBasis {
-  std::array<double, AiryDiscProfile::kTerms> points;
-  std::vector<double> cosines;
+// The maps that turn S at the Chebyshev points of a piece into the power series of its
+// sub-pieces. Sub-piece s covers t in [-1 + 2 s / kSub, -1 + 2 (s + 1) / kSub] of the piece,
+// with local variable u in [-1, 1] (t = t_s + u / kSub). Two steps, each well conditioned:
+//   interpolation  values f_j at the piece's N Chebyshev points -> the Chebyshev coefficients
+//                  b_l (l < kMonomials) of the sub-piece's interpolant in u: the piece's
+//                  interpolant evaluated at the sub-piece's Chebyshev points, then a discrete
+//                  cosine transform. Its entries are bounded by ~ the Lebesgue constant.
+//   power basis    b_l -> a_i with sum_l b_l T_l(u) = sum_i a_i u^i. Entries reach ~1e8
+//                  (T_23's), but b_l falls like J_l(2 k H / kSub) = J_l(4), so the products
+//                  stay small: the rounding error is ~1e-14 of the peak (measured on test
+//                  functions of the same band while this was written;
+//                  tests/airy_disc_average_test.cc holds the profile to the direct
+//                  quadrature over the disc).
+// (The product of the two maps is the direct map from values to power series; it has entries
+// ~1e6 on the outer sub-pieces and loses four digits to cancellation, so it is not used.)
+// Built once in long double.
+struct SubPieceMaps {
+  std::array<double, AiryDiscProfile::kTerms> points;  // the piece's t_j = cos(pi (j + 1/2) / N)
+  // interpolation[s][j * kMonomials + l]
+  std::array<std::vector<double>, AiryDiscProfile::kSub> interpolation;
+  std::vector<double> power;  // [l * kMonomials + i]
 };
-const ChebyshevBasis& Basis() {
-  static const ChebyshevBasis basis = [] {
-    constexpr int n = AiryDiscProfile::kTerms;
-    ChebyshevBasis b;
-    b.cosines.resize(n * n);
-    for (int j = 0; j < n; ++j) b.points[j] = std::cos(M_PI * (j + 0.5) / n);
-    for (int m = 0; m < n; ++m) {
-      for (int j = 0; j < n; ++j) b.cosines[j * n + m] = std::cos(M_PI * m * (j + 0.5) / n);
+const SubPieceMaps& Maps() {
+  static const SubPieceMaps maps = [] {
+    constexpr int n = AiryDiscProfile::kTerms, d = AiryDiscProfile::kMonomials;
+    constexpr int sub = AiryDiscProfile::kSub;
+    const long double pi = 3.141592653589793238462643383279502884L;
+    SubPieceMaps m;
+    for (int j = 0; j < n; ++j) m.points[j] = static_cast<double>(std::cos(pi * (j + 0.5L) / n));
+    // Lagrange form of the piece's interpolant through its Chebyshev points t_j: the value at
+    // t is sum_j f_j sum_m w_m T_m(t_j) T_m(t) with w_0 = 1 / N, w_m = 2 / N (the DCT and the
+    // series in one).
+    std::vector<long double> dct(static_cast<size_t>(n) * n);  // w_k T_k(t_j), [j * n + k]
+    for (int j = 0; j < n; ++j) {
+      for (int k = 0; k < n; ++k) {
+        dct[static_cast<size_t>(j) * n + k] =
+            (k == 0 ? 1.0L / n : 2.0L / n) * std::cos(pi * k * (j + 0.5L) / n);
+      }
     }
-    return b;
+    std::vector<long double> sub_dct(static_cast<size_t>(d) * d);  // cos(pi l (q + 1/2) / d)
+    for (int l = 0; l < d; ++l) {
+      for (int q = 0; q < d; ++q)
+        sub_dct[static_cast<size_t>(l) * d + q] = std::cos(pi * l * (q + 0.5L) / d);
+    }
+    std::vector<long double> cheb_t(n);  // T_k(t) = cos(k acos t)
+    for (int s = 0; s < sub; ++s) {
+      const long double ts = -1.0L + (2.0L * s + 1.0L) / sub;
+      std::vector<long double> at_sub(static_cast<size_t>(n) * d);  // [j * d + q]
+      for (int q = 0; q < d; ++q) {
+        const long double theta = std::acos(ts + std::cos(pi * (q + 0.5L) / d) / sub);
+        for (int k = 0; k < n; ++k) cheb_t[k] = std::cos(k * theta);
+        for (int j = 0; j < n; ++j) {
+          long double sum = 0.0L;
+          for (int k = 0; k < n; ++k) sum += dct[static_cast<size_t>(j) * n + k] * cheb_t[k];
+          at_sub[static_cast<size_t>(j) * d + q] = sum;
+        }
+      }
+      // DCT over the sub-piece's points q: b_l = w_l sum_q value_q cos(pi l (q + 1/2) / d).
+      m.interpolation[s].resize(static_cast<size_t>(n) * d);
+      for (int j = 0; j < n; ++j) {
+        for (int l = 0; l < d; ++l) {
+          long double sum = 0.0L;
+          for (int q = 0; q < d; ++q) {
+            sum += at_sub[static_cast<size_t>(j) * d + q] * sub_dct[static_cast<size_t>(l) * d + q];
+          }
+          m.interpolation[s][static_cast<size_t>(j) * d + l] =
+              static_cast<double>(sum * (l == 0 ? 1.0L / d : 2.0L / d));
+        }
+      }
+    }
+    // Power-basis coefficients of T_l: T_0 = 1, T_1 = u, T_{l+1} = 2 u T_l - T_{l-1} (exact
+    // integers below 2^64).
+    std::vector<long double> t(static_cast<size_t>(d) * d, 0.0L);
+    t[0] = 1.0L;
+    if (d > 1) t[static_cast<size_t>(d) + 1] = 1.0L;
+    for (int l = 1; l + 1 < d; ++l) {
+      for (int i = 0; i < d; ++i) {
+        long double v = -t[static_cast<size_t>(l - 1) * d + i];
+        if (i > 0) v += 2.0L * t[static_cast<size_t>(l) * d + i - 1];
+        t[static_cast<size_t>(l + 1) * d + i] = v;
+      }
+    }
+    m.power.assign(t.begin(), t.end());
+    return m;
   }();
-  return basis;
+  return maps;
 }
 
-// Clenshaw's sum of Q series sharing t: out[q] = sum_m c[q][m] T_m(t), c_0 pre-halved.
+// Horner's sum of Q power series sharing u: out[q] = sum_i a[q][i] u^i.
 template <int Q>
-inline void Clenshaw(const double* c, double t, double* out) {
-  constexpr int n = AiryDiscProfile::kTerms;
-  double b1[Q] = {}, b2[Q] = {};
-  const double two_t = 2.0 * t;
-  for (int m = n - 1; m >= 1; --m) {
-    for (int q = 0; q < Q; ++q) {
-      const double b0 = std::fma(two_t, b1[q], c[q * n + m] - b2[q]);
-      b2[q] = b1[q];
-      b1[q] = b0;
-    }
+inline void Horner(const double* a, double u, double* out) {
+  constexpr int d = AiryDiscProfile::kMonomials;
+  for (int q = 0; q < Q; ++q) {
+    double sum = a[q * d + d - 1];
+    for (int i = d - 2; i >= 0; --i) sum = std::fma(sum, u, a[q * d + i]);
+    out[q] = sum;
   }
-  for (int q = 0; q < Q; ++q) out[q] = std::fma(t, b1[q], c[q * n] - b2[q]);
 }
 
 #if defined(__AVX2__) && defined(__FMA__)
-using ClenshawItem = AiryDiscProfile::SumItem;
+using SumItem = AiryDiscProfile::SumItem;
 
 // G items at once: their sums are independent chains, so that the multiply-add latency of
 // one chain is hidden behind the others (one chain alone runs at a quarter of the machine's
-// rate). Results are blended into out[q][at ..] for the lanes each item uses.
+// rate). Results are stored to out[q][at ..] for the lanes each item uses. Each lane's
+// operations are those of Horner<Q>, rounded the same.
 template <int Q, int G>
-inline void ClenshawItems(const ClenshawItem* item, double* const* out) {
-  constexpr int n = AiryDiscProfile::kTerms;
-  __m256d b1[G][Q], b2[G][Q], two_t[G];
+inline void HornerItems(const SumItem* item, double* const* out) {
+  constexpr int d = AiryDiscProfile::kMonomials;
+  __m256d sum[G][Q], u[G];
   for (int g = 0; g < G; ++g) {
-    const __m256d t = _mm256_load_pd(item[g].t);
-    two_t[g] = _mm256_add_pd(t, t);
-    for (int q = 0; q < Q; ++q) b1[g][q] = b2[g][q] = _mm256_setzero_pd();
+    u[g] = _mm256_load_pd(item[g].t);
+    for (int q = 0; q < Q; ++q) sum[g][q] = _mm256_set1_pd(item[g].c[q * d + d - 1]);
   }
-  for (int m = n - 1; m >= 1; --m) {
+  for (int i = d - 2; i >= 0; --i) {
     for (int g = 0; g < G; ++g) {
       for (int q = 0; q < Q; ++q) {
-        const __m256d b0 = _mm256_fmadd_pd(
-            two_t[g], b1[g][q], _mm256_sub_pd(_mm256_set1_pd(item[g].c[q * n + m]), b2[g][q]));
-        b2[g][q] = b1[g][q];
-        b1[g][q] = b0;
+        sum[g][q] = _mm256_fmadd_pd(sum[g][q], u[g], _mm256_set1_pd(item[g].c[q * d + i]));
       }
     }
   }
   for (int g = 0; g < G; ++g) {
-    for (int q = 0; q < Q; ++q) {
-      const __m256d f = _mm256_fmadd_pd(_mm256_load_pd(item[g].t), b1[g][q],
-                                        _mm256_sub_pd(_mm256_set1_pd(item[g].c[q * n]), b2[g][q]));
-      double* o = out[q] + item[g].at;
-      _mm256_storeu_pd(o, _mm256_blendv_pd(_mm256_loadu_pd(o), f, _mm256_load_pd(item[g].use)));
-    }
+    const __m256i mask = _mm256_castpd_si256(_mm256_load_pd(item[g].use));
+    for (int q = 0; q < Q; ++q) _mm256_maskstore_pd(out[q] + item[g].at, mask, sum[g][q]);
   }
 }
 
 template <int Q, int G>
-void ClenshawAll(const std::vector<ClenshawItem>& items, double* const* out) {
+void HornerAll(const SumItem* items, size_t count, double* const* out) {
   size_t i = 0;
-  for (; i + G <= items.size(); i += G) ClenshawItems<Q, G>(&items[i], out);
-  for (; i < items.size(); ++i) ClenshawItems<Q, 1>(&items[i], out);
+  for (; i + G <= count; i += G) HornerItems<Q, G>(&items[i], out);
+  for (; i < count; ++i) HornerItems<Q, 1>(&items[i], out);
 }
 #endif
 
@@ -239,7 +295,7 @@ double AiryDiscProfile::Reach(double k, double d_max) {
 }
 
 void AiryDiscProfile::Build(double k, double radius, double d_max, bool derivs) {
-  constexpr int n = kTerms;
+  constexpr int n = kTerms, d = kMonomials;
   derivs_ = derivs;
   // Pieces of half-length 8 / k (2 k H = 16) from d = 0 on, as many as reach d_max. A piece
   // does not depend on d_max, so neither does any value (a larger quadrant made for another
@@ -247,99 +303,105 @@ void AiryDiscProfile::Build(double k, double radius, double d_max, bool derivs) 
   half_length_ = 8.0 / k;
   pieces_ = std::max(1, static_cast<int>(std::ceil(d_max / (2.0 * half_length_))));
   const AiryDiscAverage average(k, radius);
-  const ChebyshevBasis& basis = Basis();
+  const SubPieceMaps& maps = Maps();
   const int quantities = derivs ? 3 : 1;
-  coefficients_.assign(static_cast<size_t>(pieces_) * 3 * n, 0.0);
+  coefficients_.assign(static_cast<size_t>(pieces_) * kSub * 3 * d, 0.0);
   scratch_.resize(3 * n);
   double* values = scratch_.data();  // [q * n + j]
   for (int p = 0; p < pieces_; ++p) {
     const double centre = (2 * p + 1) * half_length_;
     for (int j = 0; j < n; j += 4) {  // n is a multiple of 4
-      double d[4];
-      for (int l = 0; l < 4; ++l) d[l] = std::max(0.0, centre + half_length_ * basis.points[j + l]);
-      average.Evaluate4(d, &values[j], derivs ? &values[n + j] : nullptr,
+      double dist[4];
+      for (int l = 0; l < 4; ++l) {
+        dist[l] = std::max(0.0, centre + half_length_ * maps.points[j + l]);
+      }
+      average.Evaluate4(dist, &values[j], derivs ? &values[n + j] : nullptr,
                         derivs ? &values[2 * n + j] : nullptr);
     }
-    // c_m = (2 / N) sum_j f_j cos(pi m (j + 1/2) / N), c_0 halved: summed over j outermost so
-    // that the N sums over m run side by side (each alone is a chain of N multiply-adds).
-    for (int q = 0; q < quantities; ++q) {
-      double* c = coefficients_.data() + (static_cast<size_t>(p) * 3 + q) * n;
-      for (int j = 0; j < n; ++j) {
-        const double f = values[q * n + j];
-        const double* row = basis.cosines.data() + j * n;  // cos(pi m (j + 1/2) / N) over m
-        for (int m = 0; m < n; ++m) c[m] = std::fma(f, row[m], c[m]);
+    // The sums over l (and i) run side by side in registers, summed over j (and l) outermost.
+    for (int s = 0; s < kSub; ++s) {
+      const double* to_chebyshev = maps.interpolation[s].data();
+      for (int q = 0; q < quantities; ++q) {
+        Vec4 b[d / 4];
+        for (Vec4& v : b) v = Vec4{0.0, 0.0, 0.0, 0.0};
+        for (int j = 0; j < n; ++j) {
+          const double f = values[q * n + j];
+          const double* row = to_chebyshev + static_cast<size_t>(j) * d;
+          for (int v = 0; v < d / 4; ++v) b[v] += f * LoadVec4(row + 4 * v);
+        }
+        Vec4 a[d / 4];
+        for (Vec4& v : a) v = Vec4{0.0, 0.0, 0.0, 0.0};
+        for (int l = 0; l < d; ++l) {
+          const double bl = b[l / 4][l % 4];
+          const double* row = maps.power.data() + static_cast<size_t>(l) * d;
+          for (int v = 0; v <= l / 4; ++v) a[v] += bl * LoadVec4(row + 4 * v);  // T_l: i <= l
+        }
+        double* out = coefficients_.data() + ((static_cast<size_t>(p) * kSub + s) * 3 + q) * d;
+        for (int v = 0; v < d / 4; ++v) StoreVec4(out + 4 * v, a[v]);
       }
-      c[0] *= 1.0 / n;
-      for (int m = 1; m < n; ++m) c[m] *= 2.0 / n;
     }
   }
 }
 
-void AiryDiscProfile::Evaluate(const double* d, int count, double* value, double* d_dk,
+void AiryDiscProfile::Evaluate(const double* dist, int count, double* value, double* d_dk,
                                double* d_dR) const {
-  const double inv_width = 0.5 / half_length_;  // pieces per px
-  const int last = pieces_ - 1;
-  int i = 0;
-#if defined(__AVX2__) && defined(__FMA__)
-  // Four points at a time. The points of a group usually share a piece (they are
-  // consecutive nodes); otherwise the group is summed once per piece it touches, each sum
-  // filling its own lanes. All sums are listed first, then run several at a time.
+  // Sub-pieces of half-length H / kSub: sub-piece p covers [2 p, 2 p + 2] H / kSub, local
+  // variable u = (d - (2 p + 1) H / kSub) / (H / kSub).
+  const double sub_half = half_length_ / kSub;
+  const double inv_width = 0.5 / sub_half;  // sub-pieces per px
+  const double inv_sub_half = 1.0 / sub_half;
+  const int last = pieces_ * kSub - 1;
+  const auto sub_piece = [&](double d) {
+    return std::min(static_cast<int>(std::floor(d * inv_width)), last);
+  };
+  const auto local = [&](double d, int p) {
+    return (d - std::fma(2.0, p, 1.0) * sub_half) * inv_sub_half;
+  };
   const bool all = derivs_ && d_dk != nullptr;
-  const int groups = count / 4;
-  std::fill_n(value, 4 * groups, 0.0);
-  if (all) {
-    std::fill_n(d_dk, 4 * groups, 0.0);
-    std::fill_n(d_dR, 4 * groups, 0.0);
-  }
-  const __m256d inv_width4 = _mm256_set1_pd(inv_width), h = _mm256_set1_pd(half_length_);
-  const __m256d inv_h4 = _mm256_set1_pd(1.0 / half_length_);
-  items_.clear();
-  for (; i + 4 <= count; i += 4) {
-    const __m256d dv = _mm256_loadu_pd(d + i);
-    const __m256d piece = _mm256_min_pd(_mm256_floor_pd(_mm256_mul_pd(dv, inv_width4)),
-                                        _mm256_set1_pd(static_cast<double>(last)));
-    alignas(32) double lane_piece[4];
-    _mm256_store_pd(lane_piece, piece);
-    const int lo = static_cast<int>(
-        std::min(std::min(lane_piece[0], lane_piece[1]), std::min(lane_piece[2], lane_piece[3])));
-    const int hi = static_cast<int>(
-        std::max(std::max(lane_piece[0], lane_piece[1]), std::max(lane_piece[2], lane_piece[3])));
-    for (int p = lo; p <= hi; ++p) {
-      const __m256d pv = _mm256_set1_pd(static_cast<double>(p));
-      ClenshawItem item;
-      _mm256_store_pd(item.use, _mm256_cmp_pd(piece, pv, _CMP_EQ_OQ));
-      // t = (d - (2 p + 1) H) / H
-      const __m256d centre =
-          _mm256_mul_pd(_mm256_fmadd_pd(_mm256_set1_pd(2.0), pv, _mm256_set1_pd(1.0)), h);
-      _mm256_store_pd(item.t, _mm256_mul_pd(_mm256_sub_pd(dv, centre), inv_h4));
-      item.c = coefficients_.data() + static_cast<size_t>(p) * 3 * kTerms;
-      item.at = i;
-      items_.push_back(item);
+#if defined(__AVX2__) && defined(__FMA__)
+  // Runs of up to four consecutive points in one sub-piece make one vector sum each (the
+  // points are a quadrant column's nodes, whose distances grow smoothly, so runs are long);
+  // a sum's unused lanes are masked out of the stores. All sums are listed first, then run
+  // several at a time. Every lane does the operations of the scalar Horner<Q>.
+  size_t num_items = 0;
+  for (int i = 0; i < count;) {
+    const int p = sub_piece(dist[i]);
+    int n = 1;
+    while (n < 4 && i + n < count && sub_piece(dist[i + n]) == p) ++n;
+    // Written in place: an item built on the stack and copied is read back in halves,
+    // which stalls on store forwarding (measured ~20 % of Evaluate).
+    if (num_items == items_.size()) items_.resize(2 * items_.size() + 64);
+    SumItem& item = items_[num_items++];
+    for (int l = 0; l < 4; ++l) {
+      item.t[l] = l < n ? local(dist[i + l], p) : 0.0;
+      item.use[l] = l < n ? -1 : 0;  // the mask's sign bits
     }
+    item.c = coefficients_.data() + static_cast<size_t>(p) * 3 * kMonomials;
+    item.at = i;
+    i += n;
   }
   double* const out[3] = {value, d_dk, d_dR};
   if (all) {
-    ClenshawAll<3, 2>(items_, out);
+    HornerAll<3, 3>(items_.data(), num_items, out);
   } else {
-    ClenshawAll<1, 4>(items_, out);
+    HornerAll<1, 8>(items_.data(), num_items, out);
   }
-#endif
-  // The rest, rounded as the vector lanes are.
-  const double inv_h = 1.0 / half_length_;
-  for (; i < count; ++i) {
-    const int p = std::min(static_cast<int>(std::floor(d[i] * inv_width)), last);
-    const double t = (d[i] - std::fma(2.0, p, 1.0) * half_length_) * inv_h;
-    const double* c = coefficients_.data() + static_cast<size_t>(p) * 3 * kTerms;
-    if (derivs_ && d_dk != nullptr) {
-      double out[3];
-      Clenshaw<3>(c, t, out);
-      value[i] = out[0];
-      d_dk[i] = out[1];
-      d_dR[i] = out[2];
+#else
+  for (int i = 0; i < count; ++i) {
+    const int p = sub_piece(dist[i]);
+    const double u = local(dist[i], p);
+    const double* a = coefficients_.data() + static_cast<size_t>(p) * 3 * kMonomials;
+    if (all) {
+      double sums[3];
+      Horner<3>(a, u, sums);
+      value[i] = sums[0];
+      d_dk[i] = sums[1];
+      d_dR[i] = sums[2];
     } else {
-      Clenshaw<1>(c, t, &value[i]);
+      Horner<1>(a, u, &value[i]);
     }
   }
+#endif
 }
 
 }  // namespace ccdpsf::internal

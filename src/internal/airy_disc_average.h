@@ -43,14 +43,21 @@ class AiryDiscAverage {
   std::vector<double> cos_theta_;
 };
 
-// S(d) and its derivatives on [0, d_max] as piecewise Chebyshev series, for filling many
-// nodes: S is band-limited to angular frequency 2 k (its transform is the pupil OTF times the
+// S(d) and its derivatives on [0, d_max] as piecewise polynomials, for filling many nodes:
+// S is band-limited to angular frequency 2 k (its transform is the pupil OTF times the
 // disc's), so on a piece of half-length H the Chebyshev coefficients fall like J_m(2 k H),
 // below 1e-16 of the peak by m = kTerms at 2 k H = 16. Building takes kTerms AiryDiscAverage
-// evaluations per piece; each node then costs a Clenshaw sum instead of a circle integral.
+// evaluations per piece (at its Chebyshev points). Each piece is then split into kSub
+// sub-pieces, where the coefficients fall like J_l(16 / kSub) = J_l(4), below 1e-16 by
+// l = kMonomials, and each sub-piece's interpolant is stored as a power series in its local
+// variable (airy_disc_average.cc says how, keeping the rounding at ~1e-14 of the peak). A node
+// then costs kMonomials multiply-adds of Horner's rule (a Clenshaw sum over the whole piece
+// cost twice the operations per term and twice the terms).
 class AiryDiscProfile {
  public:
-  static constexpr int kTerms = 48;  // a multiple of 4 (Build evaluates four points at once)
+  static constexpr int kTerms = 44;      // a multiple of 4 (Build evaluates four points at once)
+  static constexpr int kSub = 4;         // sub-pieces per piece
+  static constexpr int kMonomials = 24;  // power-series terms per sub-piece
 
   // Same k and radius as AiryDiscAverage; derivs: also dS/dk and dS/dR. Reuses its storage.
   // model::EnsureAiryTable(k (Reach(k, d_max) + radius)) must have been called.
@@ -67,14 +74,15 @@ class AiryDiscProfile {
   int pieces_ = 0;
   double half_length_ = 0.0;  // H [px]
   bool derivs_ = false;
-  // Coefficients c_m of piece p and quantity q (value, d/dk, d/dR) at
-  // [(p * 3 + q) * kTerms + m], with c_0 already halved.
+  // Power-series coefficients a_i of sub-piece p (over all pieces, p = piece * kSub + s) and
+  // quantity q (value, d/dk, d/dR) at [(p * 3 + q) * kMonomials + i].
   std::vector<double> coefficients_;
   std::vector<double> scratch_;
 
  public:
-  // One vector sum of Evaluate: four points' t on one piece, which of the four lanes belong
-  // to the piece (all bits set, as doubles), the piece's coefficients, the first point's index.
+  // One vector sum of Evaluate: up to four consecutive points' local variable on one
+  // sub-piece, which of the four lanes are used (-1: used, 0: not; the store mask's sign
+  // bits), the sub-piece's coefficients, the first point's index.
   struct alignas(32) SumItem {
     double t[4];
     double use[4];

@@ -35,13 +35,13 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstring>
 
 #include "ccdpsf/model/airy.h"
 #include "glog/logging.h"
 #include "internal/airy_disc_average.h"
 #include "internal/airy_table_simd.h"
 #include "internal/normal_tail.h"
+#include "internal/vec4.h"
 
 namespace ccdpsf::internal {
 
@@ -55,16 +55,6 @@ using model::kFlux;
 using model::kNumSpotParams;
 
 namespace {
-
-// Four doubles in one vector register (a GCC/Clang vector extension: one AVX register with
-// -march=x86-64-v3, two SSE2 registers without). Scalars broadcast in arithmetic with it.
-typedef double Vec4 __attribute__((vector_size(32)));
-inline Vec4 LoadVec4(const double* p) {
-  Vec4 v;
-  std::memcpy(&v, p, sizeof v);
-  return v;
-}
-inline void StoreVec4(double* p, const Vec4& v) { std::memcpy(p, &v, sizeof v); }
 
 // Largest number of quadrature nodes allowed in one image: guards against parameters far
 // outside anything physical turning into gigabytes (ValidSpotParams keeps us well below).
