@@ -161,6 +161,11 @@ bool ParseSetting(const json& j, const std::string& path, CampaignSetting* s, st
   ReadWavelengthPeakExptime(&r, &s->wavelength_nm, &s->peak_e, &s->exptime_s);
   long long n = 0;
   r.Integer("exposures", &n, true);
+  if (r.Has("focus_position_um")) {
+    double z = 0.0;
+    r.Number("focus_position_um", &z, true);
+    s->focus_position_um = z;
+  }
   r.RejectUnknownKeys();
   if (r.ok() && (n < 1 || n > kMaxExposuresPerGroup)) {
     r.Fail("'" + r.Path("exposures") + "' must be within [1, " +
@@ -403,6 +408,13 @@ bool CampaignTruth::IsValid(std::string* error) const {
   return false;
 }
 
+const FocusSeries* CampaignConfig::FocusLawFor(double wavelength_nm) const {
+  for (const FocusSeries& f : focus_series) {
+    if (std::fabs(f.wavelength_nm - wavelength_nm) <= 0.5) return &f;
+  }
+  return nullptr;
+}
+
 double FocusSeries::DefocusSigmaPx(double focus_position_um) const {
   return defocus_sigma_px_per_um * std::fabs(focus_position_um - best_focus_um);
 }
@@ -417,11 +429,21 @@ double CampaignConfig::CentreYPx() const { return static_cast<int>(ny / 2.0 - 0.
 
 std::vector<CampaignSetting> Table1Settings() {
   // Paper Table 1: wavelength [nm], peak intensity [e-], exposure time [s], exposures.
-  return {{600, 7900, 0.1, 12},  {600, 21400, 0.3, 12}, {600, 160200, 2.5, 6},
-          {700, 151700, 2.5, 6}, {800, 7100, 0.1, 10},  {800, 23400, 0.4, 8},
-          {800, 50200, 1.0, 7},  {800, 82800, 1.8, 6},  {800, 109300, 2.6, 5},
-          {800, 145300, 3.6, 3}, {800, 157800, 4.1, 5}, {800, 159400, 4.2, 3},
-          {890, 143000, 2.8, 4}};
+  const double table[][4] = {{600, 7900, 0.1, 12},  {600, 21400, 0.3, 12}, {600, 160200, 2.5, 6},
+                             {700, 151700, 2.5, 6}, {800, 7100, 0.1, 10},  {800, 23400, 0.4, 8},
+                             {800, 50200, 1.0, 7},  {800, 82800, 1.8, 6},  {800, 109300, 2.6, 5},
+                             {800, 145300, 3.6, 3}, {800, 157800, 4.1, 5}, {800, 159400, 4.2, 3},
+                             {890, 143000, 2.8, 4}};
+  std::vector<CampaignSetting> settings;
+  for (const auto& row : table) {
+    CampaignSetting s;
+    s.wavelength_nm = row[0];
+    s.peak_e = row[1];
+    s.exptime_s = row[2];
+    s.exposures = static_cast<int>(row[3]);
+    settings.push_back(s);
+  }
+  return settings;
 }
 
 // ---------------------------------------------------------------------------------------
@@ -499,8 +521,22 @@ std::optional<CampaignConfig> ParseCampaignConfig(const std::string& text, std::
   }
   for (size_t k = 0; k < c.settings.size(); ++k) {
     const CampaignSetting& s = c.settings[k];
-    if (!CheckGroupDomain(c, "campaign.settings[" + std::to_string(k) + "]", s.wavelength_nm,
-                          s.peak_e, c.defocus_kind, {c.defocus_px}, error)) {
+    const std::string path = "campaign.settings[" + std::to_string(k) + "]";
+    const FocusSeries* law = nullptr;
+    if (s.focus_position_um) {
+      law = c.FocusLawFor(s.wavelength_nm);
+      if (law == nullptr) {
+        *error = "'" + path + ".focus_position_um' needs a focus series at " +
+                 CompactNumber(s.wavelength_nm) + " nm, whose law sets the defocus there";
+        return std::nullopt;
+      }
+    }
+    if (!CheckGroupDomain(
+            c, path, s.wavelength_nm, s.peak_e,
+            law ? model::DefocusKind::kGaussian : c.defocus_kind,
+            {law ? RenderedFocusDefocusPx(c, law->DefocusSigmaPx(*s.focus_position_um))
+                 : c.defocus_px},
+            error)) {
       return std::nullopt;
     }
   }
@@ -553,13 +589,26 @@ std::vector<CampaignGroup> PlanCampaign(const CampaignConfig& c) {
     g.simulation = GroupSimulation(c, group_seed, s.wavelength_nm, s.peak_e);
     g.ccd_sigma_x_px = g.simulation.ccd_sigma_x_px;
     g.ccd_sigma_y_px = g.simulation.ccd_sigma_y_px;
+    // At a stage position: the Gaussian defocus of the series' law there, for the
+    // calibration as for the exposures.
+    double nominal = c.defocus_px;
+    if (s.focus_position_um) {
+      nominal = c.FocusLawFor(s.wavelength_nm)->DefocusSigmaPx(*s.focus_position_um);
+      g.simulation.model.defocus = model::DefocusKind::kGaussian;
+      g.simulation.defocus_px = RenderedFocusDefocusPx(c, nominal);
+    }
     g.intensity_parameter_e =
         CalibrateIntensity(g.simulation, c, s.wavelength_nm, s.exptime_s, s.peak_e);
     std::mt19937_64 jitter(DeriveSeed(group_seed, kJitterStream));
     for (int i = 0; i < s.exposures; ++i) {
-      g.simulation.exposures.push_back(
-          JitteredExposure(c, g.intensity_parameter_e, s.wavelength_nm, s.exptime_s, jitter));
-      g.nominal_defocus_px.push_back(c.defocus_px);
+      SimulatedExposure e =
+          JitteredExposure(c, g.intensity_parameter_e, s.wavelength_nm, s.exptime_s, jitter);
+      if (s.focus_position_um) {
+        e.focus_position_um = *s.focus_position_um;
+        e.defocus_px = g.simulation.defocus_px;
+      }
+      g.simulation.exposures.push_back(e);
+      g.nominal_defocus_px.push_back(nominal);
     }
     groups.push_back(std::move(g));
   }
@@ -666,7 +715,15 @@ bool RunCampaign(const CampaignConfig& c, const std::string& out_dir, bool noise
         {"fwhm_y_um", ccd.fwhm_y_um},
         {"r2_px2", ccd.r2_px2},
         {"ellipticity", ccd.ellipticity}};
-    if (!g.focus_series) {
+    if (!g.focus_series && c.settings[g.source_index].focus_position_um) {
+      // At a stage position: the series' Gaussian law gave the defocus.
+      gj["defocus_kind"] = "gaussian";
+      gj["focus_position_um"] = *c.settings[g.source_index].focus_position_um;
+      gj["defocus_sigma_nominal_px"] = g.nominal_defocus_px[0];
+      gj["defocus_sigma_px"] = g.simulation.defocus_px;
+      gj.update(TotalWidths(model::DefocusKind::kGaussian, g.simulation.defocus_px,
+                            g.ccd_sigma_x_px, g.ccd_sigma_y_px, c.pixel_um));
+    } else if (!g.focus_series) {
       gj["defocus_kind"] = model::ToString(c.defocus_kind);
       gj[gaussian ? "defocus_sigma_px" : "defocus_radius_px"] = c.defocus_px;
       gj.update(TotalWidths(c.defocus_kind, c.defocus_px, g.ccd_sigma_x_px, g.ccd_sigma_y_px,

@@ -402,6 +402,9 @@ TEST(CampaignSimulation, BadConfigsGiveOneLineErrorsAndWriteNothing) {
            s + "}}",
        "'campaign.focus_series[0].focus_positions_um'"},
       {R"({"campaign": {)" + s + "}}", "'campaign.seed' is required"},
+      {R"({"campaign": {"seed": 1, "settings": [{"wavelength_nm": 600, "peak_e": 7900,
+          "exptime_s": 0.1, "exposures": 2, "focus_position_um": 100}]}})",
+       "'campaign.settings[0].focus_position_um' needs a focus series at 600 nm"},
   };
   for (const Case& c : cases) {
     std::string error;

@@ -10,6 +10,7 @@
 #include "ccdpsf/plot.h"
 #include "ccdpsf/provenance.h"
 #include "ccdpsf/trend/campaign.h"
+#include "ccdpsf/trend/defocus_anchor.h"
 #include "ccdpsf/trend/group_fit.h"
 #include "ccdpsf/trend/trend.h"
 #include "ccdpsf/trend/trend_report.h"
@@ -30,6 +31,7 @@ DECLARE_bool(resume);
 DEFINE_string(requirements, "", "");
 DEFINE_double(reference_intensity_e, 157800, "");
 DEFINE_bool(group_reports, true, "");
+DEFINE_string(anchor_defocus, "same_wavelength", "");
 
 namespace ccdpsf::tools {
 namespace {
@@ -108,6 +110,12 @@ int RunTrend(const std::vector<std::string>& inputs) {
     trend_options.requirements = *requirements;
   }
 
+  trend::AnchorScope anchor = trend::AnchorScope::kSameWavelength;
+  if (!trend::ParseAnchorScope(FLAGS_anchor_defocus, &anchor)) {
+    return Fail("--anchor_defocus must be off, same_wavelength or any_wavelength (got \"" +
+                FLAGS_anchor_defocus + "\")");
+  }
+
   trend::CampaignOptions campaign;
   campaign.config = fit_options.config.calibration;
   if (!InputFlags(&campaign.flags, &campaign.config.keywords, &error)) return Fail(error);
@@ -137,8 +145,12 @@ int RunTrend(const std::vector<std::string>& inputs) {
   for (const auto& g : groups) exposures += static_cast<int>(g.files.size());
   std::fprintf(stderr, "ccdpsf trend: %zu groups, %d exposures, %d in parallel\n", groups.size(),
                exposures, fit_options.parallel_groups);
-  std::vector<trend::GroupResult> results = trend::FitGroups(
-      groups, fit_options, [](const trend::GroupResult& r, int done, int total) {
+  // Through-focus series first; they anchor the defocus of single-focus settings at the
+  // same stage position (defocus_anchor.h).
+  std::vector<std::string> anchor_notes;
+  std::vector<trend::GroupResult> results = trend::FitCampaignGroups(
+      groups, fit_options, anchor,
+      [](const trend::GroupResult& r, int done, int total) {
         if (r.ok) {
           std::fprintf(stderr, "[%d/%d] %s: %d exposures, chi2/dof %.3f, %s, verdict %s, %.1f s%s\n",
                        done, total, r.group.name.c_str(), r.exposures, r.chi2_per_dof,
@@ -154,7 +166,9 @@ int RunTrend(const std::vector<std::string>& inputs) {
                        r.failure.c_str());
         }
         std::fflush(stderr);
-      });
+      },
+      &anchor_notes);
+  for (const std::string& n : anchor_notes) std::fprintf(stderr, "ccdpsf trend: %s\n", n.c_str());
   int failed = 0;
   for (const auto& r : results) failed += r.ok ? 0 : 1;
   if (failed == static_cast<int>(results.size())) {
@@ -165,6 +179,7 @@ int RunTrend(const std::vector<std::string>& inputs) {
   if (!trend::ComputeTrend(std::move(results), trend_options, &trend_result, &error)) {
     return Fail(error);
   }
+  trend_result.notes.insert(trend_result.notes.begin(), anchor_notes.begin(), anchor_notes.end());
   nlohmann::json run = {{"command", "trend"},
                         {"inputs", inputs},
                         {"options", fit::FitConfigJson(fit_options.config)},
@@ -238,6 +253,11 @@ Command TrendCommand() {
       {"reference_intensity_e", NumberText(trend::TrendOptions().reference_intensity_e),
        "Intensity zero point I0 [e- in the peak pixel] of the combined model"},
       {"group_reports", "true", "Write each group's full fit report under DIR/groups/"},
+      {"anchor_defocus", "same_wavelength",
+       "Through-focus series fix the defocus of single-focus settings at a stage position "
+       "(FOCUSPOS) inside their scanned range, so that those settings' CCD widths are "
+       "identified: same_wavelength (series and setting within 0.5 nm), any_wavelength "
+       "(assumes no chromatic shift of best focus) or off"},
       {"strict", "false",
        "Exit with code 3 when a group failed to fit or its verdict is suspect or invalid (for "
        "pipelines); without it a completed run exits 0 whatever the verdicts"},

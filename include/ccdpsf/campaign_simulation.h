@@ -26,8 +26,8 @@
 //                                                             each axis around the centre pixel;
 //                                                             0 <= j < 0.5 [0.1]
 //      "truth": {...},                                        CampaignTruth below
-//      "settings": [{"wavelength_nm":, "peak_e":, "exptime_s":, "exposures":}, ...],
-//                                                             [Table 1 of the paper]
+//      "settings": [{"wavelength_nm":, "peak_e":, "exptime_s":, "exposures":,
+//                    "focus_position_um": optional}, ...],   [Table 1 of the paper]
 //      "focus_series": [{"wavelength_nm":, "peak_e":, "exptime_s":,
 //                        "focus_positions_um": [...], "exposures_per_position": 1,
 //                        "best_focus_um": 0.0, "defocus_sigma_px_per_um":}]   optional
@@ -49,7 +49,10 @@
 // FOCUSPOS keyword); its CCD widths are those of its (peak_e, wavelength). pixel_centre
 // sampling cannot render sigma_f = 0 (the 2015 code's unit-peak Gaussian degenerates), so
 // there sigma_f is floored at kPixelCentreMinDefocusPx; both the nominal and the rendered
-// value are recorded in truth.json. Integrated sampling renders sigma_f = 0 exactly.
+// value are recorded in truth.json. Integrated sampling renders sigma_f = 0 exactly. A
+// setting with "focus_position_um" is one exposure group at that stage position, with the
+// defocus the first series at its wavelength gives there (CampaignSetting); truth.json
+// records its position and defocus.
 //
 // Seeds: group k of the settings uses DeriveSeed(DeriveSeed(seed, 0), k), focus series k
 // DeriveSeed(DeriveSeed(seed, 1), k); within a group, the noise uses
@@ -140,12 +143,18 @@ struct CampaignTruth {
   bool IsValid(std::string* error) const;
 };
 
-// One (wavelength, intensity) setting: `exposures` exposures at the best focus.
+// One (wavelength, intensity) setting: `exposures` exposures at one focus, with the
+// campaign's defocus; or, with focus_position_um, at that stage position (FOCUSPOS written)
+// with the Gaussian defocus that the first focus series at the same wavelength (within
+// 0.5 nm) gives there, rate |z - z0| (required: such a series; the defocus of a
+// pixel_centre campaign is floored as a series' is). A single-focus setting anchored by a
+// series (trend/defocus_anchor.h) is made this way.
 struct CampaignSetting {
   double wavelength_nm = 0.0;
   double peak_e = 0.0;       // nominal peak-pixel electrons: the I of the truth relations
   double exptime_s = 0.0;
   int exposures = 0;
+  std::optional<double> focus_position_um;  // stage position z [um]
 };
 
 // A through-focus series at one (wavelength, intensity).
@@ -183,6 +192,8 @@ struct CampaignConfig {
 
   // Airy first-dark-ring radius at a wavelength [px]: airy_radius_px_at_800nm lambda / 800.
   double AiryRadiusPx(double wavelength_nm) const;
+  // The first focus series within 0.5 nm of `wavelength_nm` (its defocus law), or null.
+  const FocusSeries* FocusLawFor(double wavelength_nm) const;
   // The centre pixel, frame coordinates (see the file comment).
   double CentreXPx() const;
   double CentreYPx() const;

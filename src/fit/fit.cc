@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 
 #include "ccdpsf/fit/autocorrelation.h"
 #include "ccdpsf/fit/posterior_target.h"
@@ -118,13 +119,24 @@ bool RunFit(const FitModel& model, const FitOptions& options, FitResult* result,
   const bool split_unidentified = CcdSplitUnidentified(model.options());
   if (split_unidentified) {
     LaplaceResult& lr = result->laplace;
+    // Where the ridge ends: at zero defocus (the default prior), or inside a defocus prior
+    // narrower than the physical range (a through-focus series' anchor, or a user's prior),
+    // which then bounds the CCD widths.
+    const double* box = model.options().priors.defocus_px;
+    char bounded[200];
+    std::snprintf(bounded, sizeof bounded,
+                  "here the defocus prior [%.4g, %.4g] px bounds the ridge, so the CCD "
+                  "widths' MCMC intervals are the ridge's stretch inside it",
+                  box[0], box[1]);
     const std::string explanation =
         "defocus_sigma_px, ccd_sigma_x_px, ccd_sigma_y_px: the data do not constrain this "
         "combination at all (a Gaussian defocus and the Gaussian CCD kernel convolve to one "
         "Gaussian: only defocus^2 + ccd_sigma_x^2 and defocus^2 + ccd_sigma_y^2 are "
-        "identified; see total_sigma_x_px / total_sigma_y_px; here the MAP sits at zero "
-        "defocus, where the ridge meets the bound at right angles, so the local curvature "
-        "sees the defocus alone)";
+        "identified; see total_sigma_x_px / total_sigma_y_px; " +
+        (box[0] <= 0.0
+             ? std::string("here the MAP sits at zero defocus, where the ridge meets the bound "
+                           "at right angles, so the local curvature sees the defocus alone)")
+             : std::string(bounded) + ")");
     bool named = false;
     UnconstrainedDirection* defocus_only = nullptr;
     for (UnconstrainedDirection& d : lr.unconstrained) {

@@ -3,6 +3,7 @@
 #define CCDPSF_INTERNAL_TEXT_H_
 
 #include <cctype>
+#include <cstdio>
 #include <string>
 
 namespace ccdpsf::internal {
@@ -13,6 +14,13 @@ inline std::string Printable(std::string text) {
   for (char& c : text) {
     if (c < 0x20 || c > 0x7e) c = '?';
   }
+  return text;
+}
+
+// A number for a message, printf's %g with `significant` digits (6: as a stream prints it).
+inline std::string FormatNumber(double value, int significant = 6) {
+  char text[32];
+  std::snprintf(text, sizeof text, "%.*g", significant, value);
   return text;
 }
 

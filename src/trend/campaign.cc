@@ -5,20 +5,14 @@
 #include <filesystem>
 #include <map>
 #include <set>
-#include <sstream>
 
 #include "ccdpsf/fits_io.h"
+#include "internal/text.h"
 
 namespace ccdpsf::trend {
 namespace {
 
 namespace fs = std::filesystem;
-
-std::string FormatValue(double v) {
-  std::ostringstream out;
-  out << v;
-  return out.str();
-}
 
 bool IsFitsName(const fs::path& p) {
   const std::string ext = p.extension().string();
@@ -115,9 +109,12 @@ CampaignGroup MakeGroup(const std::string& name, const std::vector<Placed>& file
   g.wavelength_nm = lo;
   if (exptimes.size() == 1) g.exptime_s = *exptimes.begin();
   g.focus_series = focus.size() >= 3;
+  bool every_focus = !files.empty();
+  for (const Placed& p : files) every_focus = every_focus && std::isfinite(p.focus);
+  if (every_focus) g.focus_positions_um.assign(focus.begin(), focus.end());
   if (hi - lo > 1.0) {
-    g.problem = "its files are at wavelengths from " + FormatValue(lo) + " to " + FormatValue(hi) +
-                " nm, which do not share one PSF";
+    g.problem = "its files are at wavelengths from " + internal::FormatNumber(lo) + " to " +
+                internal::FormatNumber(hi) + " nm, which do not share one PSF";
   }
   return g;
 }
@@ -141,8 +138,9 @@ void GroupByMetadata(const std::vector<Placed>& placed, std::vector<CampaignGrou
     by_setting[{p.wavelength, std::isfinite(p.exptime) ? p.exptime : -1.0}].push_back(p);
   }
   for (const auto& [key, files] : by_setting) {
-    std::string name = FormatValue(key.wavelength) + "nm" +
-                       (key.exptime >= 0 ? "_" + FormatValue(key.exptime) + "s" : std::string());
+    std::string name =
+        internal::FormatNumber(key.wavelength) + "nm" +
+        (key.exptime >= 0 ? "_" + internal::FormatNumber(key.exptime) + "s" : std::string());
     CampaignGroup g = MakeGroup(name, files);
     if (g.focus_series) g.name += "_focus";
     groups->push_back(std::move(g));

@@ -15,6 +15,7 @@
 #include "ccdpsf/random.h"
 #include "ccdpsf/trend/group_store.h"
 #include "internal/parallel_for.h"
+#include "internal/text.h"
 
 namespace ccdpsf::trend {
 namespace {
@@ -50,6 +51,18 @@ GroupResult FitOne(const CampaignGroup& group, int position, int index,
         "through-focus series: fitted with defocus = rate x |z - z0| (integrated sampling, "
         "Gaussian defocus), which identifies the CCD widths");
   }
+  if (group.defocus_anchor && !group.focus_series) {
+    // defocus_anchor.h: the series' 99.73 % interval of the defocus at this stage position.
+    const DefocusAnchor& a = *group.defocus_anchor;
+    config.model.priors.defocus_px[0] = a.lower_px;
+    config.model.priors.defocus_px[1] = a.upper_px;
+    out.notes.push_back("defocus anchored by the through-focus series " + a.series + " (" +
+                        internal::FormatNumber(a.series_wavelength_nm) +
+                        " nm) at z = " + internal::FormatNumber(a.focus_position_um) +
+                        " um: sigma_f in [" + internal::FormatNumber(a.lower_px) + ", " +
+                        internal::FormatNumber(a.upper_px) + "] px (median " +
+                        internal::FormatNumber(a.median_px) + ")");
+  }
   std::string error;
   ExposureSet set;
   if (options.load_exposures) {
@@ -79,7 +92,7 @@ GroupResult FitOne(const CampaignGroup& group, int position, int index,
   const fit::FitResult& result = fitted.result;
   const fit::FitOptions& fo = fit_options.config.fit;
   out.quality = fitted.quality;
-  out.notes = fitted.notes;
+  out.notes.insert(out.notes.end(), fitted.notes.begin(), fitted.notes.end());
   out.chi2_per_dof = result.map.chi2 / result.map.dof;
   out.converged = result.have_mcmc && result.chain.converged;
   for (const Finding& f : fitted.quality.findings) {
@@ -92,7 +105,8 @@ GroupResult FitOne(const CampaignGroup& group, int position, int index,
     out.summaries[result.names[model->FocusIndex()]] = result.parameters[model->FocusIndex()];
   }
   out.peak_e = out.summaries["peak_e"];
-  out.ccd_split_unidentified = fit::CcdSplitUnidentified(model->options());
+  // An anchored defocus box splits the total widths (defocus_anchor.h).
+  out.ccd_split_unidentified = fit::CcdSplitUnidentified(model->options()) && !group.defocus_anchor;
   // In pixel_centre sampling a posterior can also have a plateau down to the bound next to
   // an identified peak (a few % of the mass at 83 ke-): its 0.135th percentile is then within
   // 10 % of (median - bound) of the bound, and its median and sd mix in the prior.
@@ -120,6 +134,9 @@ GroupResult FitOne(const CampaignGroup& group, int position, int index,
         if (std::isfinite(d[j])) out.draws[names[j]].push_back(d[j]);
       }
       for (int i = 0; i < fit::kNumShared; ++i) out.draws[result.names[i]].push_back(theta[i]);
+      // A series' best focus too: with the rate it gives the defocus at any stage position.
+      const int focus = model->FocusIndex();
+      if (focus >= 0) out.draws[result.names[focus]].push_back(theta[focus]);
     }
   }
 

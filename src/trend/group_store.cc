@@ -15,7 +15,7 @@ namespace {
 
 using nlohmann::json;
 
-constexpr int kFormat = 2;
+constexpr int kFormat = 3;
 
 uint64_t Fnv1a(const std::string& text) {
   uint64_t h = 1469598103934665603ULL;
@@ -64,6 +64,11 @@ bool SummaryFromJson(const json& j, fit::Summary* s) {
 std::string GroupStoreName(const std::string& run_signature, const CampaignGroup& group,
                            int index) {
   json key = {{"run", run_signature}, {"group", group.name}, {"index", index}};
+  // An anchored fit depends on its defocus box, which depends on the series' fit.
+  if (group.defocus_anchor) {
+    const DefocusAnchor& a = *group.defocus_anchor;
+    key["anchor"] = {a.series, a.focus_position_um, a.lower_px, a.upper_px};
+  }
   for (const std::string& file : group.files) {
     struct stat st {};
     const bool ok = ::stat(file.c_str(), &st) == 0;

@@ -45,7 +45,9 @@ RelationPoint PointOf(const GroupResult& g, const std::string& metric, double ab
         label, abscissa,
         "CCD widths not identified: at one focus a Gaussian defocus and the CCD kernel "
         "convolve to one Gaussian, so only their total widths are measured (docs/trust.md); a "
-        "through-focus series at this setting identifies them");
+        "through-focus series at this setting identifies them, and so does one at this "
+        "wavelength whose scanned range holds this setting's stage position (FOCUSPOS), which "
+        "anchors its defocus");
   }
   // "Bound only" (see trend.h): not a measurement to fit a line through.
   const std::string width = WidthAtLowerBound(g, metric);
@@ -286,11 +288,20 @@ bool ComputeTrend(std::vector<GroupResult> groups, const TrendOptions& options,
                               "well-constrained intensity relation): " + list);
     }
   }
-  std::string series;
+  std::string series, anchored;
   int unidentified = 0;
   for (const GroupResult& g : all) {
     if (g.group.focus_series) series += (series.empty() ? "" : ", ") + g.group.name;
     if (g.ok && g.ccd_split_unidentified) ++unidentified;
+    if (g.ok && g.group.defocus_anchor) {
+      anchored += (anchored.empty() ? "" : ", ") + g.group.name;
+    }
+  }
+  if (!anchored.empty()) {
+    result->notes.push_back(
+        "single-focus settings with an anchored defocus (" + anchored +
+        ") are in the CCD-only relations with the CCD widths their anchored defocus leaves "
+        "(docs/trust.md, anchoring the defocus)");
   }
   if (unidentified > 0) {
     result->notes.push_back(

@@ -48,6 +48,15 @@ json GroupJson(const GroupResult& g, const std::string& out_dir) {
                            : json(std::filesystem::path(g.report_dir)
                                       .lexically_relative(out_dir)
                                       .string())}};
+  j["ccd_widths_identified"] = g.ok ? json(!g.ccd_split_unidentified) : json();
+  if (g.group.defocus_anchor) {
+    const DefocusAnchor& a = *g.group.defocus_anchor;
+    j["defocus_anchor"] = {{"series", a.series},
+                           {"series_wavelength_nm", Number(a.series_wavelength_nm)},
+                           {"focus_position_um", Number(a.focus_position_um)},
+                           {"defocus_px", {Number(a.lower_px), Number(a.upper_px)}},
+                           {"defocus_median_px", Number(a.median_px)}};
+  }
   if (g.ok) {
     j["peak_e"] = SummaryJson(g.peak_e);
     json m = json::object();
@@ -563,11 +572,14 @@ bool WriteTrendReport(const std::string& out_dir, const TrendResult& r, const js
               .generic_string();
       status += " ([fit](" + link + "))";
     }
-    md << "| " << g.group.name << (g.group.focus_series ? " (through focus)" : "") << " | "
-       << Fmt(g.group.wavelength_nm) << " | " << (g.ok ? Interval(g.peak_e, 6) : "n/a") << " | "
-       << g.exposures << " | " << (g.ok ? metric("fwhm_um") : "n/a") << " | "
-       << (g.ok ? metric("ellipticity") : "n/a") << " | " << (g.ok ? metric("total_fwhm_um") : "n/a")
-       << " | " << Fmt(g.chi2_per_dof, 3) << " | " << status << " |\n";
+    md << "| " << g.group.name
+       << (g.group.focus_series ? " (through focus)"
+                                : (g.group.defocus_anchor ? " (defocus anchored)" : ""))
+       << " | " << Fmt(g.group.wavelength_nm) << " | " << (g.ok ? Interval(g.peak_e, 6) : "n/a")
+       << " | " << g.exposures << " | " << (g.ok ? metric("fwhm_um") : "n/a") << " | "
+       << (g.ok ? metric("ellipticity") : "n/a") << " | "
+       << (g.ok ? metric("total_fwhm_um") : "n/a") << " | " << Fmt(g.chi2_per_dof, 3) << " | "
+       << status << " |\n";
   }
   bool any_focus = false;
   for (const GroupResult& g : r.groups) any_focus = any_focus || (g.ok && g.group.focus_series);

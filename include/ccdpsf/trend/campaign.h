@@ -21,6 +21,7 @@
 #ifndef CCDPSF_TREND_CAMPAIGN_H_
 #define CCDPSF_TREND_CAMPAIGN_H_
 
+#include <cmath>
 #include <optional>
 #include <string>
 #include <vector>
@@ -30,12 +31,28 @@
 
 namespace ccdpsf::trend {
 
+// The defocus of a single-focus setting as a through-focus series measured it
+// (defocus_anchor.h): the box prior its fit takes instead of the flat one.
+struct DefocusAnchor {
+  std::string series;  // the anchoring series' group name
+  double series_wavelength_nm = NAN;
+  double focus_position_um = NAN;  // the setting's stage position z [um]
+  // Percentiles 0.135 / 50 / 99.865 of rate |z - z0| over the series' draws [px]; the box is
+  // [lower_px, upper_px] (already intersected with the configured defocus prior).
+  double lower_px = NAN, median_px = NAN, upper_px = NAN;
+};
+
 struct CampaignGroup {
   std::string name;
   double wavelength_nm = 0.0;          // NaN when unknown (then problem is set)
   std::optional<double> nominal_peak_e;  // from a manifest; informational
   std::optional<double> exptime_s;
   bool focus_series = false;
+  // The distinct stage positions of its files (FOCUSPOS) [um], ascending; empty unless every
+  // file carries one.
+  std::vector<double> focus_positions_um;
+  // Set before the fit when a through-focus series anchors this setting's defocus.
+  std::optional<DefocusAnchor> defocus_anchor;
   std::vector<std::string> files;
   std::vector<InputFile> inputs;  // the same files with each one's options
   // Set when the group cannot be fitted at all (e.g. a file without WAVELEN): why.

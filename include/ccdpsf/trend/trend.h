@@ -24,6 +24,9 @@
 //                           focus, not the single-focus settings' defocused spot. The metric
 //                           requirements at a series' wavelength are also judged on its own
 //                           draws, at its own intensity (focus_requirements).
+//   anchored groups         single-focus settings whose defocus a series anchored
+//                           (defocus_anchor.h; ccd_split_unidentified is false): in every
+//                           relation, as single-focus settings.
 // Failed groups appear as gaps in every relation they would have fed.
 //
 // "Bound only": a group whose MAP puts a CCD width at its prior's lower bound, or, in
