@@ -53,9 +53,11 @@ inline void EncircledOverSquareAndAmplitude(double v, const double* table, doubl
 }  // namespace
 
 AiryDiscAverage::AiryDiscAverage(double k, double radius) : k_(k), radius_(radius) {
-  // Angular frequencies up to ~2 k R, plus the Bessel-like tail past it: 10 % and 20 nodes
-  // over the full circle, half of them on [0, pi].
-  const int n_full = static_cast<int>(std::ceil(2.0 * k * radius * 1.1 + 20.0));
+  // Angular frequencies up to ~2 k R, plus the Bessel-like tail past it: 10 % and 16 nodes
+  // over the full circle, half of them on [0, pi]. Measured against 400 nodes (scipy's
+  // Bessel functions, r 0.3-0.9 px, R 0.05-3 px, d 0-15 px): worst error 1.9e-13 of the Airy
+  // peak with 16 (20: 3.7e-15; 12: 4.8e-11), below the Airy table's own ~1e-12.
+  const int n_full = static_cast<int>(std::ceil(2.0 * k * radius * 1.1 + 16.0));
   const int n = (n_full + 1) / 2;
   cos_theta_.resize(n);
   for (int l = 0; l < n; ++l) cos_theta_[l] = std::cos(M_PI * (l + 0.5) / n);
