@@ -307,6 +307,16 @@ TEST(DefocusAnchor, TrendAnchorsASimulatedSetting) {
   }
   EXPECT_TRUE(anchored_point) << trend["relations"]["fwhm_um_vs_intensity"].dump();
   EXPECT_TRUE(gap_600) << trend["relations"]["fwhm_um_vs_wavelength"].dump();
+  // groups.csv says the same, for TOPCAT and astropy.
+  std::ifstream csv(dir + "/trend/groups.csv");
+  std::string header, line, row800;
+  std::getline(csv, header);
+  while (std::getline(csv, line)) {
+    if (line.rfind("g00_800nm_150000e,", 0) == 0) row800 = line;
+  }
+  EXPECT_NE(header.find(",ccd_widths_identified,defocus_anchor_series,"), std::string::npos)
+      << header;
+  EXPECT_NE(row800.find(",1,f00_800nm_150000e_focus,"), std::string::npos) << row800;
 
   r = testing_support::RunCcdpsf("trend --anchor_defocus=sometimes --out=" + dir + "/bad " + dir +
                                  "/data");

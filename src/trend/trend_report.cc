@@ -371,7 +371,8 @@ bool WriteTrendReport(const std::string& out_dir, const TrendResult& r, const js
   groups_csv << "group,wavelength_nm,nominal_peak_e,exposures,focus_series,ok,peak_e";
   const std::vector<std::string>& metrics = TrendMetricNames();
   for (const std::string& m : metrics) groups_csv << "," << m << "," << m << "_lo68," << m << "_hi68";
-  groups_csv << ",chi2_per_dof,mcmc_converged,failure\n";
+  groups_csv << ",chi2_per_dof,mcmc_converged,ccd_widths_identified,defocus_anchor_series,"
+                "defocus_anchor_lower_px,defocus_anchor_upper_px,failure\n";
   for (const GroupResult& g : r.groups) {
     groups_csv << g.group.name << "," << g.group.wavelength_nm << ","
                << (g.group.nominal_peak_e ? std::to_string(*g.group.nominal_peak_e) : "") << ","
@@ -387,8 +388,15 @@ bool WriteTrendReport(const std::string& out_dir, const TrendResult& r, const js
     }
     std::string failure = g.failure;
     std::replace(failure.begin(), failure.end(), '"', '\'');
-    groups_csv << "," << g.chi2_per_dof << "," << (g.converged ? 1 : 0) << ",\"" << failure
-               << "\"\n";
+    groups_csv << "," << g.chi2_per_dof << "," << (g.converged ? 1 : 0) << ","
+               << (g.ok ? (g.ccd_split_unidentified ? "0" : "1") : "");
+    if (g.group.defocus_anchor) {
+      const DefocusAnchor& a = *g.group.defocus_anchor;
+      groups_csv << "," << a.series << "," << a.lower_px << "," << a.upper_px;
+    } else {
+      groups_csv << ",,,";
+    }
+    groups_csv << ",\"" << failure << "\"\n";
   }
   if (!WriteTextFileAtomically(out.Path("groups.csv"), groups_csv.str(), error)) return false;
   for (const auto& [name, fit] : r.relations) {
