@@ -321,6 +321,58 @@ TEST(Diagnose, EffectModelReproducesTheSimulatorAcrossIntensities) {
   }
 }
 
+// One pixel likelihood for fit and diagnose: the baseline effect model (no effects) scores a
+// set exactly as the fit's model does, pixel by pixel through fit/pixel_likelihood.h, also
+// where the stamps hold what a lab frame does: a saturated (censored) peak, pixels clipped
+// at zero, and an 8-bit-like ADC whose steps exceed the read noise (the interval form).
+// Before the two shared it, diagnose scored censored pixels as measurements: a saturated
+// peak then costs thousands in log L. Tolerance: both sides render the same spot through
+// the same renderer, so they agree to rounding (1e-9 relative of log L, ~1e-5 here); chi^2
+// likewise, and censored pixels add no chi^2 on either side.
+TEST(Diagnose, EffectModelScoresPixelsAsTheFitDoes) {
+  SimulationConfig c = Paper(2, 5);
+  std::vector<Stamp> stamps = testing_support::SimulateStamps(c, 41);
+  Stamp& s = stamps[1];
+  s.censor.assign(s.valid.size(), Censor::kNone);
+  s.adc_step_e = 4.0 * s.read_noise_e;  // coarse steps: the interval form
+  double peak = 0;
+  for (double v : s.electrons.data) peak = std::max(peak, v);
+  int censored = 0;
+  for (size_t q = 0; q < s.valid.size(); ++q) {
+    if (s.electrons.data[q] > 0.2 * peak) {
+      s.censor[q] = Censor::kAtOrAbove;
+      s.electrons.data[q] = 0.2 * peak;
+      ++censored;
+    } else if (s.electrons.data[q] < 2.0) {
+      s.censor[q] = Censor::kAtOrBelow;
+      s.electrons.data[q] = 2.0;
+    }
+  }
+  ASSERT_GE(censored, 3);
+  std::string error;
+  auto base = fit::FitModel::Create(stamps, fit::FitModelOptions(), &error);
+  ASSERT_TRUE(base) << error;
+  auto model = EffectModel::Create(*base, ModelSpec(), &error);
+  ASSERT_TRUE(model) << error;
+  std::vector<double> theta = base->MomentStart(c.airy_radius_px, 0.5);
+  theta[fit::kFluxE] = c.exposures[0].flux_e;
+  const std::vector<double> p = model->FromBaseline(theta);
+  auto fit_eval = base->NewEvaluator();
+  auto effect_eval = model->NewEvaluator();
+  const double fit_ll = fit_eval->LogLikelihood(theta.data());
+  const double effect_ll = effect_eval->LogLikelihood(p.data());
+  EXPECT_NEAR(effect_ll, fit_ll, 1e-9 * std::fabs(fit_ll));
+  EXPECT_NEAR(effect_eval->ChiSquare(p.data()), fit_eval->ChiSquare(theta.data()),
+              1e-9 * fit_eval->ChiSquare(theta.data()));
+  // The saturated peak as a measurement would cost far more: the check can fail.
+  Stamp as_measured = s;
+  as_measured.censor.clear();
+  as_measured.adc_step_e = 0.0;
+  auto plain_base = fit::FitModel::Create({stamps[0], as_measured}, fit::FitModelOptions(), &error);
+  ASSERT_TRUE(plain_base) << error;
+  EXPECT_LT(plain_base->NewEvaluator()->LogLikelihood(theta.data()), fit_ll - 100.0);
+}
+
 TEST(Diagnose, FindsNonlinearityAcrossIntensities) {
   // At one intensity a quadratic response is largely a change of the widths (a flatter
   // peak); across intensities its growth with the signal gives it away.

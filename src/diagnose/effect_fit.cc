@@ -5,7 +5,7 @@
 #include <cmath>
 #include <limits>
 
-#include "ccdpsf/noise.h"
+#include "ccdpsf/fit/pixel_likelihood.h"
 #include "ccdpsf/random.h"
 #include "ceres/ceres.h"
 #include "glog/logging.h"
@@ -60,6 +60,18 @@ double StampSum(const Stamp& s) {
   return sum;
 }
 
+// Pixel q of stamp s under the fit's pixel likelihood (fit/pixel_likelihood.h: the CCD noise
+// model, censored pixels as bounds, coarse ADC steps as intervals), so that diagnose and fit
+// score a pixel alike. The expectation is charge + pedestal and the shot noise the charge's
+// (the pedestal is a bias residual): that is the likelihood of the datum less the pedestal
+// at expectation `charge_e`, censoring level included (it moves with the datum).
+void EvaluateStampPixel(const Stamp& s, const fit::PixelNoise& noise, size_t q, double data_e,
+                        double model_e, double charge_e, bool want_residuals,
+                        fit::PixelValue* out) {
+  fit::EvaluatePixel(fit::LikelihoodKind::kGaussian, data_e - (model_e - charge_e), s.CensorAt(q),
+                     charge_e, noise, want_residuals, out);
+}
+
 // The residual block of exposure k: r1 and r2 per valid pixel (see the header), with numeric
 // derivatives that stay inside the prior box.
 class ExposureCost : public ceres::CostFunction {
@@ -71,8 +83,7 @@ class ExposureCost : public ceres::CostFunction {
     for (size_t q = 0; q < s.valid.size(); ++q) {
       if (s.valid[q]) pixels_.push_back(static_cast<int>(q));
     }
-    noise_.gain_e_per_adu = s.gain_e_per_adu;
-    noise_.read_noise_e = s.read_noise_e;
+    noise_ = fit::StampNoise(s);
     for (int b : blocks_) mutable_parameter_block_sizes()->push_back(model.blocks()[b].size);
     set_num_residuals(2 * static_cast<int>(pixels_.size()));
     p_.assign(model.dim(), 0.0);
@@ -136,13 +147,14 @@ class ExposureCost : public ceres::CostFunction {
  private:
   bool Residuals(const double* p, double* residuals) const {
     if (!evaluator_.Render(p, k_, &model_e_, &charge_e_)) return false;
-    const double var0 = noise_.VarianceE2(0.0);
+    const Stamp& s = model_.base().stamps()[k_];
     const int n = static_cast<int>(pixels_.size());
+    fit::PixelValue v;
     for (int i = 0; i < n; ++i) {
       const int q = pixels_[i];
-      const double var = noise_.VarianceE2(charge_e_[q]);
-      residuals[i] = (data_[q] - model_e_[q]) / std::sqrt(var);
-      residuals[n + i] = std::sqrt(std::log(var / var0) + 1.0);
+      EvaluateStampPixel(s, noise_, q, data_[q], model_e_[q], charge_e_[q], true, &v);
+      residuals[i] = v.r[0];
+      residuals[n + i] = v.r[1];
     }
     return true;
   }
@@ -153,7 +165,7 @@ class ExposureCost : public ceres::CostFunction {
   const std::vector<int> blocks_;
   const double* data_;
   std::vector<int> pixels_;
-  CcdNoise noise_;
+  fit::PixelNoise noise_;
   mutable std::vector<double> p_, model_e_, charge_e_, plus_, minus_;
 };
 
@@ -467,16 +479,16 @@ bool EffectEvaluator::Render(const double* p, int k, std::vector<double>* model_
 }
 
 double EffectEvaluator::ExposureLogLikelihood(const double* p, int k) {
-  if (!Render(p, k, &model_buf_, nullptr)) return -INFINITY;
-  const std::vector<double> charge = charge_buf_;
+  std::vector<double> charge;
+  if (!Render(p, k, &model_buf_, &charge)) return -INFINITY;
   const Stamp& s = model_.base().stamps()[k];
-  CcdNoise noise{s.gain_e_per_adu, s.read_noise_e};
+  const fit::PixelNoise noise = fit::StampNoise(s);
   double ll = 0.0;
+  fit::PixelValue v;
   for (size_t q = 0; q < s.valid.size(); ++q) {
     if (!s.valid[q]) continue;
-    const double var = noise.VarianceE2(charge[q]);
-    const double r = s.electrons.data[q] - model_buf_[q];
-    ll += -0.5 * (r * r / var + std::log(2.0 * M_PI * var));
+    EvaluateStampPixel(s, noise, q, s.electrons.data[q], model_buf_[q], charge[q], false, &v);
+    ll += v.log_p;
   }
   return ll;
 }
@@ -489,14 +501,16 @@ double EffectEvaluator::LogLikelihood(const double* p) {
 
 double EffectEvaluator::ChiSquare(const double* p) {
   double chi2 = 0.0;
+  std::vector<double> charge;
+  fit::PixelValue v;
   for (int k = 0; k < model_.num_exposures(); ++k) {
-    if (!Render(p, k, &model_buf_, nullptr)) return INFINITY;
+    if (!Render(p, k, &model_buf_, &charge)) return INFINITY;
     const Stamp& s = model_.base().stamps()[k];
-    CcdNoise noise{s.gain_e_per_adu, s.read_noise_e};
+    const fit::PixelNoise noise = fit::StampNoise(s);
     for (size_t q = 0; q < s.valid.size(); ++q) {
       if (!s.valid[q]) continue;
-      const double r = s.electrons.data[q] - model_buf_[q];
-      chi2 += r * r / noise.VarianceE2(charge_buf_[q]);
+      EvaluateStampPixel(s, noise, q, s.electrons.data[q], model_buf_[q], charge[q], false, &v);
+      chi2 += v.chi2;
     }
   }
   return chi2;
@@ -519,13 +533,13 @@ void Score(const EffectModel& model, const std::vector<double>& p,
     }
     const Stamp& s = model.base().stamps()[k];
     const std::vector<double>& d = data_e != nullptr ? (*data_e)[k].data : s.electrons.data;
-    CcdNoise noise{s.gain_e_per_adu, s.read_noise_e};
+    const fit::PixelNoise noise = fit::StampNoise(s);
+    fit::PixelValue v;
     for (size_t q = 0; q < s.valid.size(); ++q) {
       if (!s.valid[q]) continue;
-      const double var = noise.VarianceE2(c[q]);
-      const double r = d[q] - m[q];
-      *chi2 += r * r / var;
-      *log_likelihood += -0.5 * (r * r / var + std::log(2.0 * M_PI * var));
+      EvaluateStampPixel(s, noise, q, d[q], m[q], c[q], false, &v);
+      *chi2 += v.chi2;
+      *log_likelihood += v.log_p;
     }
   }
 }
@@ -642,7 +656,8 @@ bool FitEffectModel(const EffectModel& model, const std::vector<std::vector<doub
   result->iterations = best_iterations;
   result->termination = best_message;
   Score(model, best, data_e, &result->log_likelihood, &result->chi2);
-  result->num_pixels = model.NumValidPixels();
+  // Censored pixels are bounds: they add no chi^2 and no degree of freedom (as in a fit).
+  result->num_pixels = model.base().NumMeasuredPixels();
   result->dof = result->num_pixels - model.dim();
   if (options.laplace && !AddLaplace(model, result, error, data_e)) {
     result->usable = false;

@@ -9,9 +9,12 @@
 //
 // with the noise model of fit/likelihood.h on the charge only (the pedestal is a bias
 // residual without shot noise, as the simulator makes it): var = charge + RN^2 + g^2 / 12.
-// The log-likelihood is the Gaussian one with model-dependent variance (the paper's), and the
-// fit minimises 1/2 sum (r1^2 + r2^2) with r1 = (D - m) / sigma, r2 = sqrt(log(var / var0) + 1)
-// as fit/map_fit.h does, so cost = -log L + constant.
+// Each pixel is scored by the fit's own pixel likelihood (fit/pixel_likelihood.h), applied
+// to the datum less the pedestal at expectation = the charge: the Gaussian with
+// model-dependent variance (the paper's) for a measured pixel, a bound for a censored
+// (saturated) one, the interval form for coarse ADC steps; the fit minimises
+// 1/2 sum (r0^2 + r1^2) of its residuals, as fit/map_fit.h does, so cost = -log L + constant,
+// and chi^2 and the degrees of freedom count the measured (not censored) pixels.
 //
 // Parameter vector p (names as in fit.json; order fixed by the spec):
 //   flux_e                      shared flux (FluxMode::kShared; as fit/fit_model.h: the
