@@ -11,28 +11,6 @@ namespace {
 
 using model::SpotParam;
 
-// theta index of each renderer parameter for exposure k.
-int ThetaIndex(int spot_param, int k) {
-  switch (spot_param) {
-    case model::kFlux:
-      return kFluxE;
-    case model::kCentreX:
-      return FitModel::XIndex(k);
-    case model::kCentreY:
-      return FitModel::YIndex(k);
-    case model::kAiryRadius:
-      return kAiryRadiusPx;
-    case model::kDefocus:
-      return kDefocusPx;
-    case model::kCcdSigmaX:
-      return kCcdSigmaXPx;
-    case model::kCcdSigmaY:
-      return kCcdSigmaYPx;
-  }
-  LOG(FATAL) << "bad spot parameter " << spot_param;
-  return -1;
-}
-
 CcdNoise NoiseOf(const Stamp& s) {
   CcdNoise noise;
   noise.gain_e_per_adu = s.gain_e_per_adu;
@@ -65,6 +43,32 @@ std::string ToString(FluxMode mode) {
       return "exptime_scaled";
   }
   return "shared";
+}
+
+bool IsFittableEffect(model::EffectKind kind, std::string* why) {
+  switch (kind) {
+    case model::EffectKind::kDefocus:
+      *why = "defocus is the model's own component (set 'defocus', not an effect)";
+      return false;
+    case model::EffectKind::kJitter:
+      *why =
+          "jitter shared by every exposure is one more Gaussian convolved with the CCD "
+          "kernel (the widths add in quadrature) and cannot be told apart from it; diagnose "
+          "fits it per exposure";
+      return false;
+    case model::EffectKind::kDefocusOffset:
+      *why = "defocus_offset in integrated sampling is exactly a shift of the spot's position";
+      return false;
+    default:
+      return true;
+  }
+}
+
+bool FitModelOptions::HasEffect(model::EffectKind kind) const {
+  for (const FitEffect& e : effects) {
+    if (e.kind == kind) return true;
+  }
+  return false;
 }
 
 bool CcdSplitUnidentified(const FitModelOptions& options) {
@@ -261,6 +265,55 @@ std::unique_ptr<FitModel> FitModel::Create(std::vector<Stamp> stamps,
       m->upper_.push_back(pr.flux_upper_fraction * ratio);
     }
   }
+  m->effect_index_.fill(-1);
+  if (!options.effects.empty() && options.model.sampling != model::Sampling::kIntegrated) {
+    *error = "effects are fitted only with integrated sampling";
+    return nullptr;
+  }
+  for (const FitEffect& e : options.effects) {
+    std::string why;
+    if (!IsFittableEffect(e.kind, &why)) {
+      *error = "effect '" + model::ToString(e.kind) + "' cannot be fitted: " + why;
+      return nullptr;
+    }
+    if (std::count_if(options.effects.begin(), options.effects.end(),
+                      [&](const FitEffect& o) { return o.kind == e.kind; }) > 1) {
+      *error = "effect '" + model::ToString(e.kind) + "' is given twice";
+      return nullptr;
+    }
+    const int np = static_cast<int>(model::DescribeEffect(e.kind).parameters.size());
+    if (!e.priors.empty() && static_cast<int>(e.priors.size()) != np) {
+      *error = "effect '" + model::ToString(e.kind) + "' has " + std::to_string(np) +
+               " parameters, its priors give " + std::to_string(e.priors.size());
+      return nullptr;
+    }
+  }
+  for (model::EffectKind kind : model::AllEffectKinds()) {
+    const auto it = std::find_if(options.effects.begin(), options.effects.end(),
+                                 [&](const FitEffect& e) { return e.kind == kind; });
+    if (it == options.effects.end()) continue;
+    const model::EffectInfo& info = model::DescribeEffect(kind);
+    m->effect_index_[static_cast<int>(kind)] = m->dim();
+    for (size_t p = 0; p < info.parameters.size(); ++p) {
+      const model::EffectParameterInfo& pi = info.parameters[p];
+      const double lo = it->priors.empty() ? pi.prior_lower : it->priors[p][0];
+      const double hi = it->priors.empty() ? pi.prior_upper : it->priors[p][1];
+      const std::string name = info.name + "." + pi.name;
+      for (const double v : {lo, hi}) {
+        if (!model::CheckEffectParameter(kind, static_cast<int>(p), v, "prior of " + name, error)) {
+          return nullptr;
+        }
+      }
+      m->names_.push_back(name);
+      m->lower_.push_back(lo);
+      m->upper_.push_back(hi);
+      // "No effect" where the prior holds it; else the realistic strength, clamped.
+      const double start = lo <= 0.0 && hi >= 0.0 && pi.domain_lower <= 0.0 && !pi.lower_open
+                               ? 0.0
+                               : std::clamp(pi.default_value, lo, hi);
+      m->effect_start_.push_back(start);
+    }
+  }
   for (int i = 0; i < m->dim(); ++i) {
     if (!(m->lower_[i] < m->upper_[i])) {
       *error = "empty prior range for " + m->names_[i];
@@ -280,6 +333,26 @@ int FitModel::NumMeasuredPixels() const {
   int n = 0;
   for (const Stamp& s : stamps_) n += s.NumValid() - s.NumCensored();
   return n;
+}
+
+bool FitModel::EffectsAt(const double* theta, model::ExposureEffects* effects) const {
+  *effects = model::ExposureEffects();
+  std::string why;
+  for (const FitEffect& e : options_.effects) {
+    const int first = EffectIndex(e.kind);
+    const int np = static_cast<int>(model::DescribeEffect(e.kind).parameters.size());
+    if (!model::SetEffectParameters(e.kind, std::vector<double>(theta + first, theta + first + np),
+                                    effects, &why)) {
+      return false;
+    }
+  }
+  return true;
+}
+
+void FitModel::SetEffectStart(double* theta) const {
+  if (effect_start_.empty()) return;
+  const int first = dim() - static_cast<int>(effect_start_.size());
+  std::copy(effect_start_.begin(), effect_start_.end(), theta + first);
 }
 
 double FitModel::FluxScale(const double* theta, int k) const {
@@ -393,6 +466,7 @@ std::vector<double> FitModel::MomentStart(double airy_radius_px, double defocus_
       theta[RatioIndex(k)] = StartFluxRatio(k);
     }
   }
+  SetEffectStart(theta.data());
   // Flux: the least-squares scale of the model to the data.
   for (int i : SharedIndices()) theta[i] = std::clamp(theta[i], lower_[i], upper_[i]);
   FitEvaluator ev(*this);
@@ -409,51 +483,182 @@ std::unique_ptr<FitEvaluator> FitModel::NewEvaluator() const {
 FitEvaluator::FitEvaluator(const FitModel& model)
     : fit_model_(model), renderer_(model.options().model) {}
 
-void FitEvaluator::ModelImage(const double* theta, int k, std::vector<double>* model,
-                              std::vector<double>* jacobian) {
-  const model::PixelGrid grid = fit_model_.GridFor(k);
+bool FitEvaluator::ModelImageColumns(const double* theta, int k, std::vector<double>* model,
+                                     std::vector<double>* jacobian, std::vector<int>* columns) {
+  const FitModel& fm = fit_model_;
+  const model::PixelGrid grid = fm.GridFor(k);
   const int n = grid.size();
-  model->resize(n);
-  if (jacobian == nullptr) {
-    renderer_.Render(fit_model_.SpotFor(theta, k), grid, model->data(), nullptr);
-    return;
+  const bool want = jacobian != nullptr;
+  model::SpotParams spot = fm.SpotFor(theta, k);
+  if (!want && !fm.HasEffects()) {  // the sampler's hot path: one render
+    model->resize(n);
+    renderer_.Render(spot, grid, model->data(), nullptr);
+    return true;
   }
-  spot_jacobian_.resize(static_cast<size_t>(n) * model::kNumSpotParams);
-  renderer_.Render(fit_model_.SpotFor(theta, k), grid, model->data(), spot_jacobian_.data());
-  const int dim = fit_model_.dim();
-  jacobian->assign(static_cast<size_t>(n) * dim, 0.0);
-  // Focus mode: the defocus column is split by the chain rule into the rate (theta index
-  // kDefocusPx) and best-focus columns.
-  const int focus = fit_model_.FocusIndex();
+  model::ExposureEffects effects;
+  if (fm.HasEffects() && !fm.EffectsAt(theta, &effects)) return false;
+  model->resize(n);
+
+  // The theta indices exposure k depends on, and the chain from them to the renderer's
+  // parameters: chain[p][c] = d spot_p / d theta_{columns[c]}.
+  columns->assign({kFluxE, kAiryRadiusPx, kDefocusPx, kCcdSigmaXPx, kCcdSigmaYPx,
+                   FitModel::XIndex(k), FitModel::YIndex(k)});
+  const int focus = fm.FocusIndex(), ratio = fm.RatioIndex(k);
+  if (focus >= 0) columns->push_back(focus);
+  if (ratio >= 0) columns->push_back(ratio);
+  for (const FitEffect& e : fm.options().effects) {
+    const int np = static_cast<int>(model::DescribeEffect(e.kind).parameters.size());
+    for (int p = 0; p < np; ++p) columns->push_back(fm.EffectIndex(e.kind) + p);
+  }
+  const int nc = static_cast<int>(columns->size());
+  auto column_of = [&](int theta_index) {
+    return static_cast<int>(std::find(columns->begin(), columns->end(), theta_index) -
+                            columns->begin());
+  };
+  std::vector<double>& chain = chain_;
+  chain.assign(static_cast<size_t>(model::kNumSpotParams) * nc, 0.0);
+  auto link = [&](int p, int theta_index) -> double& {
+    return chain[static_cast<size_t>(p) * nc + column_of(theta_index)];
+  };
+  // The renderer's flux is flux_e x scale; in focus mode the defocus is rate |z_k - z0|.
   double d_rate = 1.0, d_z0 = 0.0;
-  if (focus >= 0) fit_model_.DefocusFor(theta, k, &d_rate, &d_z0);
-  // The renderer's flux is flux_e x scale: chain rule into flux_e and the ratio.
-  const double scale = fit_model_.FluxScale(theta, k);
-  const int ratio = fit_model_.RatioIndex(k);
-  const double d_ratio = theta[kFluxE] * fit_model_.FixedFluxScale(k);
-  for (int q = 0; q < n; ++q) {
-    const double* g = &spot_jacobian_[static_cast<size_t>(q) * model::kNumSpotParams];
-    double* row = &(*jacobian)[static_cast<size_t>(q) * dim];
-    for (int p = 0; p < model::kNumSpotParams; ++p) row[ThetaIndex(p, k)] = g[p];
-    row[kFluxE] = g[model::kFlux] * scale;
-    if (ratio >= 0) row[ratio] = g[model::kFlux] * d_ratio;
-    if (focus >= 0) {
-      row[kDefocusPx] = g[model::kDefocus] * d_rate;
-      row[focus] = g[model::kDefocus] * d_z0;
+  if (focus >= 0) fm.DefocusFor(theta, k, &d_rate, &d_z0);
+  link(model::kFlux, kFluxE) = fm.FluxScale(theta, k);
+  if (ratio >= 0) link(model::kFlux, ratio) = theta[kFluxE] * fm.FixedFluxScale(k);
+  link(model::kCentreX, FitModel::XIndex(k)) = 1.0;
+  link(model::kCentreY, FitModel::YIndex(k)) = 1.0;
+  link(model::kAiryRadius, kAiryRadiusPx) = 1.0;
+  link(model::kDefocus, kDefocusPx) = d_rate;
+  if (focus >= 0) link(model::kDefocus, focus) = d_z0;
+  link(model::kCcdSigmaX, kCcdSigmaXPx) = 1.0;
+  link(model::kCcdSigmaY, kCcdSigmaYPx) = 1.0;
+
+  if (want) spot_jacobian_.resize(static_cast<size_t>(n) * model::kNumSpotParams);
+  std::string why;
+  if (effects.brighter_fatter) {
+    // The widths grow with the peak pixel I of the spot drawn without the growth
+    // (model/effects.h); I depends on theta through that render's own derivatives at its
+    // brightest pixel.
+    plain_.resize(n);
+    if (!model::ValidSpotParams(renderer_.options(), spot, &why)) return false;
+    renderer_.Render(spot, grid, plain_.data(), want ? spot_jacobian_.data() : nullptr);
+    const int peak =
+        static_cast<int>(std::max_element(plain_.begin(), plain_.end()) - plain_.begin());
+    const double signal = plain_[peak];
+    const model::BrighterFatterParams& bf = *effects.brighter_fatter;
+    if (want) {
+      std::vector<double> d_signal(nc, 0.0);
+      const double* g = &spot_jacobian_[static_cast<size_t>(peak) * model::kNumSpotParams];
+      for (int p = 0; p < model::kNumSpotParams; ++p) {
+        for (int c = 0; c < nc; ++c) d_signal[c] += g[p] * chain[static_cast<size_t>(p) * nc + c];
+      }
+      for (int c = 0; c < nc; ++c) {
+        chain[static_cast<size_t>(model::kCcdSigmaX) * nc + c] += bf.slope_x_px_per_e * d_signal[c];
+        chain[static_cast<size_t>(model::kCcdSigmaY) * nc + c] += bf.slope_y_px_per_e * d_signal[c];
+      }
+      const int slope = fm.EffectIndex(model::EffectKind::kBrighterFatter);
+      link(model::kCcdSigmaX, slope) += signal;
+      link(model::kCcdSigmaY, slope + 1) += signal;
+    }
+    spot[model::kCcdSigmaX] += bf.slope_x_px_per_e * signal;
+    spot[model::kCcdSigmaY] += bf.slope_y_px_per_e * signal;
+  }
+  if (!model::ValidSpotParams(renderer_.options(), spot, &why)) return false;
+  renderer_.Render(spot, grid, model->data(), want ? spot_jacobian_.data() : nullptr);
+
+  // d image / d theta_column = sum_p d image / d spot_p x chain[p][column]; written into
+  // the derivative channels of the image effects' dual image, or straight into the
+  // Jacobian.
+  const bool image_effects = effects.HasImageEffects();
+  const int stride = image_effects ? (want ? nc + 1 : 1) : nc;
+  double* out = nullptr;
+  if (image_effects) {
+    dual_.nx = grid.nx;
+    dual_.ny = grid.ny;
+    dual_.num_derivatives = want ? nc : 0;
+    dual_.data.assign(static_cast<size_t>(n) * dual_.stride(), 0.0);
+    for (int q = 0; q < n; ++q) dual_.data[static_cast<size_t>(q) * dual_.stride()] = (*model)[q];
+    out = dual_.data.data() + 1;
+  } else if (want) {
+    jacobian->assign(static_cast<size_t>(n) * nc, 0.0);
+    out = jacobian->data();
+  }
+  if (want) {
+    // The chain's nonzero entries (one or two per renderer parameter without the
+    // brighter-fatter growth): the product at a few multiply-adds a pixel.
+    links_.clear();
+    for (int p = 0; p < model::kNumSpotParams; ++p) {
+      for (int c = 0; c < nc; ++c) {
+        const double v = chain[static_cast<size_t>(p) * nc + c];
+        if (v != 0.0) links_.push_back({p, c, v});
+      }
+    }
+    for (int q = 0; q < n; ++q) {
+      const double* g = &spot_jacobian_[static_cast<size_t>(q) * model::kNumSpotParams];
+      double* row = out + static_cast<size_t>(q) * stride;
+      for (const Link& l : links_) row[l.column] += g[l.spot_param] * l.value;
     }
   }
+  if (!image_effects) return true;
+
+  // The halo's reference: the spot's flux and centre, with their derivatives.
+  model::SpotReference reference{spot[model::kFlux], spot[model::kCentreX], spot[model::kCentreY]};
+  model::SpotReferenceDerivatives reference_d;
+  model::EffectChannels channels;
+  if (want) {
+    auto row_of = [&](int p) {
+      return std::vector<double>(chain.begin() + static_cast<size_t>(p) * nc,
+                                 chain.begin() + static_cast<size_t>(p + 1) * nc);
+    };
+    reference_d = {row_of(model::kFlux), row_of(model::kCentreX), row_of(model::kCentreY)};
+    for (const FitEffect& e : fm.options().effects) {
+      const int np = static_cast<int>(model::DescribeEffect(e.kind).parameters.size());
+      for (int p = 0; p < np; ++p) {
+        channels.Set(e.kind, p, 1 + column_of(fm.EffectIndex(e.kind) + p));
+      }
+    }
+  }
+  model::ApplyImageEffects(effects, grid, reference, want ? &reference_d : nullptr, channels,
+                           &dual_);
+  const int ds = dual_.stride();
+  for (int q = 0; q < n; ++q) (*model)[q] = dual_.data[static_cast<size_t>(q) * ds];
+  if (want) {
+    jacobian->resize(static_cast<size_t>(n) * nc);
+    for (int q = 0; q < n; ++q) {
+      std::copy_n(dual_.data.data() + static_cast<size_t>(q) * ds + 1, nc,
+                  jacobian->data() + static_cast<size_t>(q) * nc);
+    }
+  }
+  return true;
+}
+
+bool FitEvaluator::ModelImage(const double* theta, int k, std::vector<double>* model,
+                              std::vector<double>* jacobian) {
+  if (jacobian == nullptr) return ModelImageColumns(theta, k, model, nullptr, &columns_);
+  if (!ModelImageColumns(theta, k, model, &local_jacobian_, &columns_)) return false;
+  const int n = static_cast<int>(model->size()), dim = fit_model_.dim();
+  const int nc = static_cast<int>(columns_.size());
+  jacobian->assign(static_cast<size_t>(n) * dim, 0.0);
+  for (int q = 0; q < n; ++q) {
+    for (int c = 0; c < nc; ++c) {
+      (*jacobian)[static_cast<size_t>(q) * dim + columns_[c]] =
+          local_jacobian_[static_cast<size_t>(q) * nc + c];
+    }
+  }
+  return true;
 }
 
 template <typename Visit>
-void FitEvaluator::ForEachValidPixel(const double* theta, int first, int last, Visit visit) {
+bool FitEvaluator::ForEachValidPixel(const double* theta, int first, int last, Visit visit) {
   for (int k = first; k < last; ++k) {
     const Stamp& s = fit_model_.stamps()[k];
     const PixelNoise noise = StampNoise(s);
-    ModelImage(theta, k, &pixels_, nullptr);
+    if (!ModelImage(theta, k, &pixels_, nullptr)) return false;
     for (size_t q = 0; q < pixels_.size(); ++q) {
       if (s.valid[q]) visit(s.electrons.data[q], s.CensorAt(q), pixels_[q], noise);
     }
   }
+  return true;
 }
 
 double FitEvaluator::ExposureLogLikelihood(const double* theta, int k) {
@@ -463,7 +668,7 @@ double FitEvaluator::ExposureLogLikelihood(const double* theta, int k) {
   if (kind == LikelihoodKind::kGaussian && !stamp_noise.interval) {
     // The common case on the MCMC's hot path: uncensored pixels summed by
     // GaussianLogLikelihoodSum (a log per 16 pixels, not per pixel), censored ones as below.
-    ModelImage(theta, k, &pixels_, nullptr);
+    if (!ModelImage(theta, k, &pixels_, nullptr)) return -INFINITY;
     GaussianLogLikelihoodSum gaussian(stamp_noise.ccd);
     double censored = 0.0;
     PixelValue v;
@@ -481,11 +686,14 @@ double FitEvaluator::ExposureLogLikelihood(const double* theta, int k) {
   }
   double total = 0.0;
   PixelValue v;
-  ForEachValidPixel(theta, k, k + 1,
-                    [&](double data_e, Censor censor, double model_e, const PixelNoise& noise) {
-                      EvaluatePixel(kind, data_e, censor, model_e, noise, false, &v);
-                      total += v.log_p;
-                    });
+  if (!ForEachValidPixel(
+          theta, k, k + 1,
+          [&](double data_e, Censor censor, double model_e, const PixelNoise& noise) {
+            EvaluatePixel(kind, data_e, censor, model_e, noise, false, &v);
+            total += v.log_p;
+          })) {
+    return -INFINITY;
+  }
   return total;
 }
 
@@ -508,7 +716,10 @@ double FitEvaluator::BestFluxLogLikelihood(double* theta, int first, int last) {
   double num = 0.0, den = 0.0;
   for (int k = first; k < last; ++k) {
     const Stamp& s = fit_model_.stamps()[k];
-    ModelImage(theta, k, &unit_models_[k], nullptr);
+    if (!ModelImage(theta, k, &unit_models_[k], nullptr)) {
+      theta[kFluxE] = saved_flux;
+      return -INFINITY;
+    }
     for (size_t q = 0; q < unit_models_[k].size(); ++q) {
       if (!s.valid[q] || s.CensorAt(q) != Censor::kNone) continue;
       num += unit_models_[k][q] * s.electrons.data[q];
@@ -522,6 +733,14 @@ double FitEvaluator::BestFluxLogLikelihood(double* theta, int first, int last) {
   const double flux =
       std::clamp(num / den, fit_model_.lower()[kFluxE], fit_model_.upper()[kFluxE]);
   theta[kFluxE] = flux;
+  if (fit_model_.HasEffects()) {
+    // A background, a nonlinear response or the brighter-fatter growth make the model affine
+    // or nonlinear in the flux: the flux above is a least-squares guess, and the likelihood
+    // is evaluated afresh at it.
+    double total = 0.0;
+    for (int k = first; k < last; ++k) total += ExposureLogLikelihood(theta, k);
+    return std::isfinite(total) ? total : -INFINITY;
+  }
   const LikelihoodKind kind = fit_model_.options().likelihood;
   double total = 0.0;
   PixelValue v;
@@ -542,25 +761,26 @@ double FitEvaluator::LeastSquaresFlux(const double* theta) {
   std::vector<double> unit(theta, theta + fit_model_.dim());
   unit[kFluxE] = 1.0;
   double num = 0.0, den = 0.0;
-  ForEachValidPixel(unit.data(), 0, fit_model_.num_exposures(),
-                    [&](double data_e, Censor censor, double model_e, const PixelNoise&) {
-                      if (censor != Censor::kNone) return;  // their values are bounds
-                      num += model_e * data_e;
-                      den += model_e * model_e;
-                    });
-  return den > 0 ? num / den : NAN;
+  const bool drawn =
+      ForEachValidPixel(unit.data(), 0, fit_model_.num_exposures(),
+                        [&](double data_e, Censor censor, double model_e, const PixelNoise&) {
+                          if (censor != Censor::kNone) return;  // their values are bounds
+                          num += model_e * data_e;
+                          den += model_e * model_e;
+                        });
+  return drawn && den > 0 ? num / den : NAN;
 }
 
 double FitEvaluator::ChiSquare(const double* theta) {
   double chi2 = 0.0;
   PixelValue v;
-  ForEachValidPixel(theta, 0, fit_model_.num_exposures(),
-                    [&](double data_e, Censor censor, double model_e, const PixelNoise& noise) {
-                      EvaluatePixel(LikelihoodKind::kGaussian, data_e, censor, model_e, noise,
-                                    false, &v);
-                      chi2 += v.chi2;
-                    });
-  return chi2;
+  const bool drawn = ForEachValidPixel(
+      theta, 0, fit_model_.num_exposures(),
+      [&](double data_e, Censor censor, double model_e, const PixelNoise& noise) {
+        EvaluatePixel(LikelihoodKind::kGaussian, data_e, censor, model_e, noise, false, &v);
+        chi2 += v.chi2;
+      });
+  return drawn ? chi2 : NAN;
 }
 
 int FitEvaluator::CensoredViolations(const double* theta, double sd, double* worst_sd) {
@@ -586,7 +806,9 @@ std::vector<double> FitEvaluator::FisherInformation(const double* theta) {
   for (int k = 0; k < fit_model_.num_exposures(); ++k) {
     const Stamp& s = fit_model_.stamps()[k];
     const PixelNoise noise = StampNoise(s);
-    ModelImage(theta, k, &pixels_, &jac);
+    if (!ModelImage(theta, k, &pixels_, &jac)) {
+      return std::vector<double>(static_cast<size_t>(dim) * dim, NAN);
+    }
     for (size_t q = 0; q < pixels_.size(); ++q) {
       if (!s.valid[q]) continue;
       double w = 0.0;

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <functional>
 #include <limits>
+#include <map>
 
 #include "ceres/ceres.h"
 #include "glog/logging.h"
@@ -13,63 +14,60 @@
 namespace ccdpsf::fit {
 namespace {
 
-// Shared-block index of each renderer parameter (-1: position block).
-constexpr int kSharedIndexOfSpot[model::kNumSpotParams] = {
-    kFluxE, -1, -1, kAiryRadiusPx, kDefocusPx, kCcdSigmaXPx, kCcdSigmaYPx};
-
+// The residuals of exposure k (pixel_likelihood.h: two per valid pixel) against the parameter
+// blocks it depends on: the 5 shared, its position, then (when present) best focus, its flux
+// ratio and the effects' parameters (one block, in theta order). The model image and its
+// derivatives come from FitEvaluator::ModelImageColumns, the one place a model is drawn.
 class ExposureCost : public ceres::CostFunction {
  public:
   ExposureCost(const FitModel& model, int k)
-      : model_(model), k_(k), renderer_(model.options().model) {
+      : model_(model), k_(k), evaluator_(model.NewEvaluator()) {
     const Stamp& s = model.stamps()[k];
     for (size_t q = 0; q < s.valid.size(); ++q) {
       if (s.valid[q]) pixels_.push_back(static_cast<int>(q));
     }
     noise_ = StampNoise(s);
-    mutable_parameter_block_sizes()->push_back(kNumShared);
-    mutable_parameter_block_sizes()->push_back(2);
-    focus_block_ = ratio_block_ = -1;
-    int next = 2;
-    if (model.through_focus()) {
-      mutable_parameter_block_sizes()->push_back(1);
-      focus_block_ = next++;
-    }
-    if (model.RatioIndex(k) >= 0) {
-      mutable_parameter_block_sizes()->push_back(1);
-      ratio_block_ = next++;
-    }
+    // Block and offset of each theta index this exposure depends on.
+    auto add_block = [&](int first, int size) {
+      const int block = static_cast<int>(parameter_block_sizes().size());
+      mutable_parameter_block_sizes()->push_back(size);
+      for (int i = 0; i < size; ++i) place_[first + i] = {block, i, size};
+    };
+    add_block(0, kNumShared);
+    add_block(FitModel::XIndex(k), 2);
+    if (model.through_focus()) add_block(model.FocusIndex(), 1);
+    if (model.RatioIndex(k) >= 0) add_block(model.RatioIndex(k), 1);
+    const int effects = model.EffectsFirstIndex();
+    if (effects >= 0) add_block(effects, model.dim() - effects);
     set_num_residuals(2 * static_cast<int>(pixels_.size()));
   }
 
   bool Evaluate(double const* const* parameters, double* residuals,
                 double** jacobians) const override {
     std::vector<double> theta(model_.dim(), 0.0);
-    for (int i = 0; i < kNumShared; ++i) theta[i] = parameters[0][i];
-    theta[FitModel::XIndex(k_)] = parameters[1][0];
-    theta[FitModel::YIndex(k_)] = parameters[1][1];
-    const int focus = model_.FocusIndex();
-    if (focus_block_ >= 0) theta[focus] = parameters[focus_block_][0];
-    const int ratio = model_.RatioIndex(k_);
-    if (ratio_block_ >= 0) theta[ratio] = parameters[ratio_block_][0];
+    for (const auto& [index, where] : place_) theta[index] = parameters[where.block][where.offset];
+    const bool want_jacobian = jacobians != nullptr;
+    // Ceres may probe outside the bounds during a line search; a point the renderer cannot
+    // draw is reported as a failed evaluation, never a crash.
     model::SpotParams p = model_.SpotFor(theta.data(), k_);
     std::string why;
-    // Ceres may probe outside the bounds during a line search; an invalid point is reported
-    // as a failed evaluation, never a crash.
-    if (!model::ValidSpotParams(renderer_.options(), p, &why)) return false;
-    const model::PixelGrid grid = model_.GridFor(k_);
-    model_pixels_.resize(grid.size());
-    const bool want_jacobian = jacobians != nullptr;
-    if (want_jacobian) spot_jacobian_.resize(grid.size() * model::kNumSpotParams);
-    renderer_.Render(p, grid, model_pixels_.data(),
-                     want_jacobian ? spot_jacobian_.data() : nullptr);
-    // Focus mode: d sigma_f / d rate and d sigma_f / d z0 (the chain rule below).
-    double d_rate = 1.0, d_z0 = 0.0;
-    if (focus >= 0) model_.DefocusFor(theta.data(), k_, &d_rate, &d_z0);
-    // The renderer's flux is flux_e x scale (fit_model.h, FluxMode).
-    const double scale = model_.FluxScale(theta.data(), k_);
-    const double d_ratio = theta[kFluxE] * model_.FixedFluxScale(k_);
+    if (!model::ValidSpotParams(evaluator_->renderer_options(), p, &why)) return false;
+    if (!evaluator_->ModelImageColumns(theta.data(), k_, &model_pixels_,
+                                       want_jacobian ? &jacobian_ : nullptr, &columns_)) {
+      return false;
+    }
     const Stamp& s = model_.stamps()[k_];
     const int n = static_cast<int>(pixels_.size());
+    const int nc = static_cast<int>(columns_.size());
+    if (want_jacobian) {
+      for (size_t b = 0; b < parameter_block_sizes().size(); ++b) {
+        if (jacobians[b] != nullptr) {
+          std::fill_n(jacobians[b], 2 * n * parameter_block_sizes()[b], 0.0);
+        }
+      }
+    }
+    std::vector<Place> column_place(nc);
+    for (int c = 0; c < nc; ++c) column_place[c] = place_.at(columns_[c]);
     PixelValue v;
     for (int i = 0; i < n; ++i) {
       const int q = pixels_[i];
@@ -78,45 +76,30 @@ class ExposureCost : public ceres::CostFunction {
       residuals[i] = v.r[0];
       residuals[n + i] = v.r[1];
       if (!want_jacobian) continue;
-      const double* g = &spot_jacobian_[static_cast<size_t>(q) * model::kNumSpotParams];
-      const double dr1 = v.dr_dm[0], dr2 = v.dr_dm[1];
-      if (jacobians[0] != nullptr) {
-        for (int sp = 0; sp < model::kNumSpotParams; ++sp) {
-          const int j = kSharedIndexOfSpot[sp];
-          if (j < 0) continue;
-          const double dm = sp == model::kDefocus ? g[sp] * d_rate
-                            : sp == model::kFlux  ? g[sp] * scale
-                                                  : g[sp];
-          jacobians[0][i * kNumShared + j] = dr1 * dm;
-          jacobians[0][(n + i) * kNumShared + j] = dr2 * dm;
-        }
-      }
-      if (focus_block_ >= 0 && jacobians[focus_block_] != nullptr) {
-        jacobians[focus_block_][i] = dr1 * g[model::kDefocus] * d_z0;
-        jacobians[focus_block_][n + i] = dr2 * g[model::kDefocus] * d_z0;
-      }
-      if (ratio_block_ >= 0 && jacobians[ratio_block_] != nullptr) {
-        jacobians[ratio_block_][i] = dr1 * g[model::kFlux] * d_ratio;
-        jacobians[ratio_block_][n + i] = dr2 * g[model::kFlux] * d_ratio;
-      }
-      if (jacobians[1] != nullptr) {
-        jacobians[1][i * 2 + 0] = dr1 * g[model::kCentreX];
-        jacobians[1][i * 2 + 1] = dr1 * g[model::kCentreY];
-        jacobians[1][(n + i) * 2 + 0] = dr2 * g[model::kCentreX];
-        jacobians[1][(n + i) * 2 + 1] = dr2 * g[model::kCentreY];
+      const double* g = &jacobian_[static_cast<size_t>(q) * nc];
+      for (int c = 0; c < nc; ++c) {
+        const Place& where = column_place[c];
+        double* block = jacobians[where.block];
+        if (block == nullptr) continue;
+        block[i * where.size + where.offset] = v.dr_dm[0] * g[c];
+        block[(n + i) * where.size + where.offset] = v.dr_dm[1] * g[c];
       }
     }
     return true;
   }
 
  private:
+  struct Place {
+    int block, offset, size;
+  };
   const FitModel& model_;
   const int k_;
-  model::SpotRenderer renderer_;
+  std::unique_ptr<FitEvaluator> evaluator_;
   PixelNoise noise_;
-  int focus_block_ = -1, ratio_block_ = -1;  // indices of the optional parameter blocks
-  std::vector<int> pixels_;  // valid pixel indices
-  mutable std::vector<double> model_pixels_, spot_jacobian_;
+  std::map<int, Place> place_;  // theta index -> its parameter block
+  std::vector<int> pixels_;     // valid pixel indices
+  mutable std::vector<double> model_pixels_, jacobian_;
+  mutable std::vector<int> columns_;
 };
 
 struct StartOutcome {
@@ -138,16 +121,20 @@ StartOutcome Solve(const FitModel& model, std::vector<double> theta, const MapOp
     std::vector<double*> blocks = {shared, theta.data() + FitModel::XIndex(k)};
     if (focus != nullptr) blocks.push_back(focus);
     if (model.RatioIndex(k) >= 0) blocks.push_back(theta.data() + model.RatioIndex(k));
+    if (model.EffectsFirstIndex() >= 0) blocks.push_back(theta.data() + model.EffectsFirstIndex());
     problem.AddResidualBlock(NewExposureCost(model, k), nullptr, blocks);
   }
   for (int i = 0; i < kNumShared; ++i) {
     problem.SetParameterLowerBound(shared, i, model.lower()[i]);
     problem.SetParameterUpperBound(shared, i, model.upper()[i]);
   }
-  // The single-value blocks: best focus and the flux ratios.
+  // The single-value blocks (best focus and the flux ratios) and the effects' block.
+  const int effects = model.EffectsFirstIndex();
   for (int i = kNumShared + 2 * model.num_exposures(); i < model.dim(); ++i) {
-    problem.SetParameterLowerBound(theta.data() + i, 0, model.lower()[i]);
-    problem.SetParameterUpperBound(theta.data() + i, 0, model.upper()[i]);
+    double* block = effects >= 0 && i >= effects ? theta.data() + effects : theta.data() + i;
+    const int offset = effects >= 0 && i >= effects ? i - effects : 0;
+    problem.SetParameterLowerBound(block, offset, model.lower()[i]);
+    problem.SetParameterUpperBound(block, offset, model.upper()[i]);
   }
   for (int k = 0; k < model.num_exposures(); ++k) {
     double* position = theta.data() + FitModel::XIndex(k);
@@ -497,6 +484,7 @@ std::vector<std::vector<double>> FocusStarts(const FitModel& model, const MapOpt
     for (int k = 1; k < n; ++k) {
       if (model.RatioIndex(k) >= 0) theta[model.RatioIndex(k)] = model.StartFluxRatio(k);
     }
+    model.SetEffectStart(theta.data());
     for (int i = 0; i < model.dim(); ++i) {
       theta[i] = std::clamp(theta[i], model.lower()[i], model.upper()[i]);
     }

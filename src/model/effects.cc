@@ -170,17 +170,6 @@ double LogMotionBound(int n, double l_su, double sx, double sy) {
          std::log(2.0 * M_PI * sx * sy);
 }
 
-// One CTI pass along a line of `n` values spaced `stride` apart (see effects.h):
-//   out[i] = (1 - f) in[i] + f (1 - r) T[i],  T[0] = 0,  T[i + 1] = in[i] + r T[i].
-void CtiLine(double f, double r, int n, int stride, double* v) {
-  double trail = 0.0;
-  for (int i = 0; i < n; ++i) {
-    const double in = v[static_cast<size_t>(i) * stride];
-    v[static_cast<size_t>(i) * stride] = (1.0 - f) * in + f * (1.0 - r) * trail;
-    trail = in + r * trail;
-  }
-}
-
 }  // namespace
 
 std::string ToString(EffectKind kind) {
@@ -494,93 +483,6 @@ void RenderSpotWithEffects(const SpotRenderer& renderer, const ExposureEffects& 
   const double peak =
       effects.brighter_fatter ? BrighterFatterSignal(renderer, effects, params, grid) : 0.0;
   RenderSpotWithKernelEffects(renderer, effects, params, grid, peak, model, details);
-}
-
-// ---------------------------------------------------------------------------------------
-// Image effects.
-
-double GaussianIntervalIntegral(double a, double b, double sigma) {
-  CHECK_GT(sigma, 0.0);
-  const double k = 1.0 / (sigma * M_SQRT2);
-  if (a >= 0.0) return 0.5 * (std::erfc(a * k) - std::erfc(b * k));   // right tail
-  if (b <= 0.0) return 0.5 * (std::erfc(-b * k) - std::erfc(-a * k));  // left tail
-  return 0.5 * (std::erf(b * k) - std::erf(a * k));
-}
-
-void AddHalo(const HaloParams& halo, const PixelGrid& grid, const SpotReference& spot,
-             double* image) {
-  std::vector<double> hx(grid.nx), hy(grid.ny);
-  for (int i = 0; i < grid.nx; ++i) {
-    const double left = grid.x0 + i - 0.5 - spot.x_px;
-    hx[i] = GaussianIntervalIntegral(left, left + 1.0, halo.sigma_px);
-  }
-  for (int j = 0; j < grid.ny; ++j) {
-    const double bottom = grid.y0 + j - 0.5 - spot.y_px;
-    hy[j] = GaussianIntervalIntegral(bottom, bottom + 1.0, halo.sigma_px);
-  }
-  const double keep = 1.0 - halo.fraction;
-  const double moved = halo.fraction * spot.flux_e;
-  for (int j = 0; j < grid.ny; ++j) {
-    double* row = image + static_cast<size_t>(j) * grid.nx;
-    for (int i = 0; i < grid.nx; ++i) row[i] = keep * row[i] + moved * hx[i] * hy[j];
-  }
-}
-
-void ApplyNonlinearity(const NonlinearityParams& nl, int size, double* image) {
-  const double beta = nl.beta_per_e;
-  if (beta == 0.0) return;
-  const double turning = 0.5 / beta;
-  for (int q = 0; q < size; ++q) {
-    const double in = image[q];
-    image[q] = in >= turning ? 0.25 / beta : in * (1.0 - beta * in);
-  }
-}
-
-void ApplyIpc(const IpcParams& ipc, int nx, int ny, double* image) {
-  const double a = ipc.alpha;
-  const std::vector<double> in(image, image + static_cast<size_t>(nx) * ny);
-  for (int j = 0; j < ny; ++j) {
-    for (int i = 0; i < nx; ++i) {
-      const size_t q = static_cast<size_t>(j) * nx + i;
-      double neighbours = 0.0;
-      if (i > 0) neighbours += in[q - 1];
-      if (i + 1 < nx) neighbours += in[q + 1];
-      if (j > 0) neighbours += in[q - nx];
-      if (j + 1 < ny) neighbours += in[q + nx];
-      image[q] = (1.0 - 4.0 * a) * in[q] + a * neighbours;
-    }
-  }
-}
-
-void ApplySerialCti(const CtiParams& cti, int nx, int ny, double* image) {
-  const double r = std::exp(-1.0 / cti.trail_length_px);
-  for (int j = 0; j < ny; ++j) {
-    CtiLine(cti.trail_fraction, r, nx, 1, image + static_cast<size_t>(j) * nx);
-  }
-}
-
-void ApplyParallelCti(const CtiParams& cti, int nx, int ny, double* image) {
-  const double r = std::exp(-1.0 / cti.trail_length_px);
-  for (int i = 0; i < nx; ++i) CtiLine(cti.trail_fraction, r, ny, nx, image + i);
-}
-
-void AddBackground(const BackgroundParams& background, int size, double* image) {
-  for (int q = 0; q < size; ++q) image[q] += background.pedestal_e;
-}
-
-void ApplyChargeEffects(const ExposureEffects& e, const PixelGrid& grid,
-                        const SpotReference& spot, double* image) {
-  if (e.halo) AddHalo(*e.halo, grid, spot, image);
-  if (e.nonlinearity) ApplyNonlinearity(*e.nonlinearity, grid.size(), image);
-  if (e.ipc) ApplyIpc(*e.ipc, grid.nx, grid.ny, image);
-  if (e.serial_cti) ApplySerialCti(*e.serial_cti, grid.nx, grid.ny, image);
-  if (e.parallel_cti) ApplyParallelCti(*e.parallel_cti, grid.nx, grid.ny, image);
-}
-
-void ApplyImageEffects(const ExposureEffects& e, const PixelGrid& grid,
-                       const SpotReference& spot, double* image) {
-  ApplyChargeEffects(e, grid, spot, image);
-  if (e.background) AddBackground(*e.background, grid.size(), image);
 }
 
 // ---------------------------------------------------------------------------------------

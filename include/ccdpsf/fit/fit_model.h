@@ -12,6 +12,13 @@
 // (the paper's joint fit: CCD widths, intensity and defocus shared, one position per
 // exposure). Priors are flat within [lower, upper] for every parameter.
 //
+// Effects (FitModelOptions::effects): each fitted effect of the catalogue (model/effects.h)
+// adds its parameters, shared by every exposure, at the very end of theta (after best focus
+// and the flux ratios), named "<effect>.<parameter>" (e.g. "serial_cti.trail_fraction"),
+// in catalogue order. The expected image of exposure k is then the spot rendered with the
+// brighter-fatter widths (CCD widths + slope x the peak pixel of the spot rendered without
+// them), through the image effects of effects.h in their order. Integrated sampling only.
+//
 // Through-focus mode (FitModelOptions::through_focus): a series of exposures taken at stage
 // positions z_k [um] (FITS keyword FOCUSPOS, Stamp::info.focus_position_um), where the
 // geometric defocus grows linearly with the distance from best focus z0 while the CCD kernel
@@ -38,6 +45,7 @@
 #ifndef CCDPSF_FIT_FIT_MODEL_H_
 #define CCDPSF_FIT_FIT_MODEL_H_
 
+#include <array>
 #include <memory>
 #include <string>
 #include <vector>
@@ -45,6 +53,7 @@
 #include "ccdpsf/fit/likelihood.h"
 #include "ccdpsf/fit/pixel_likelihood.h"
 #include "ccdpsf/image.h"
+#include "ccdpsf/model/effects.h"
 #include "ccdpsf/model/renderer.h"
 
 namespace ccdpsf::fit {
@@ -83,6 +92,20 @@ enum class FluxMode { kShared, kPerExposure, kExptimeScaled };
 bool ParseFluxMode(const std::string& text, FluxMode* mode);
 std::string ToString(FluxMode mode);
 
+// An effect of the catalogue (model/effects.h) fitted as a component of the model: its
+// parameters are shared by every exposure. `priors` holds a flat range [lower, upper] per
+// parameter (EffectParameters order); empty takes the catalogue's prior ranges.
+struct FitEffect {
+  model::EffectKind kind = model::EffectKind::kSerialCti;
+  std::vector<std::array<double, 2>> priors;
+};
+
+// Whether `kind` can be a fit component, with a one-line reason when not: defocus is the
+// model's own component; jitter shared by every exposure is one more Gaussian convolved with
+// the CCD kernel (its widths add in quadrature: not separable); defocus_offset in integrated
+// sampling is exactly a shift of the position.
+bool IsFittableEffect(model::EffectKind kind, std::string* why);
+
 struct FitModelOptions {
   model::ModelOptions model;
   LikelihoodKind likelihood = LikelihoodKind::kGaussian;
@@ -90,6 +113,9 @@ struct FitModelOptions {
   // Fit a through-focus series with the defocus law above (see the top of this file).
   bool through_focus = false;
   FluxMode flux = FluxMode::kShared;
+  // Effects fitted with the spot, in any order given; theta holds them in catalogue order.
+  std::vector<FitEffect> effects;
+  bool HasEffect(model::EffectKind kind) const;
 };
 
 // Whether a model identifies only the total widths, not the CCD widths themselves: integrated
@@ -137,6 +163,9 @@ class FitModel {
   // focus mode).
   bool through_focus() const { return options_.through_focus; }
   int FocusIndex() const { return through_focus() ? kNumShared + 2 * num_exposures() : -1; }
+  // The starting values of the effect parameters: "no effect" (0) where the prior allows it,
+  // else the catalogue default clamped into the prior. Written into theta's effect slots.
+  void SetEffectStart(double* theta) const;
   // Per-exposure fluxes: the index of flux_ratio_k (k >= 1), -1 otherwise.
   bool per_exposure_flux() const { return options_.flux == FluxMode::kPerExposure; }
   int RatioIndex(int k) const {
@@ -144,6 +173,16 @@ class FitModel {
                ? kNumShared + 2 * num_exposures() + (through_focus() ? 1 : 0) + (k - 1)
                : -1;
   }
+  // Effects: the index in theta of the first parameter of `kind`, -1 when it is not fitted;
+  // whether any is; and the effects at theta (parameters read from theta; false when one
+  // lies outside its physical domain).
+  int EffectIndex(model::EffectKind kind) const { return effect_index_[static_cast<int>(kind)]; }
+  bool HasEffects() const { return !options_.effects.empty(); }
+  // The index of the first effect parameter (they run to the end of theta), -1 without.
+  int EffectsFirstIndex() const {
+    return HasEffects() ? dim() - static_cast<int>(effect_start_.size()) : -1;
+  }
+  bool EffectsAt(const double* theta, model::ExposureEffects* effects) const;
   // Exposure k's flux over flux_e: the exposure-time ratio, or its fitted ratio, or 1.
   double FluxScale(const double* theta, int k) const;
   // The fixed part of it (t_k / t_0 when exposure-time scaled, else 1).
@@ -196,12 +235,15 @@ class FitModel {
   std::vector<double> centroid_x_, centroid_y_;  // frame coordinates, per stamp
   std::vector<double> signal_per_stamp_e_;       // summed signal of each stamp
   std::vector<double> fixed_flux_scale_;         // FixedFluxScale
+  std::array<int, model::kNumEffectKinds> effect_index_;  // EffectIndex
+  std::vector<double> effect_start_;             // theta's effect parameters at a start (no effect)
   double signal_e_ = 0.0;                        // mean summed signal per stamp
 };
 
 class FitEvaluator {
  public:
   explicit FitEvaluator(const FitModel& model);
+  const model::ModelOptions& renderer_options() const { return renderer_.options(); }
 
   // Log-likelihood of all stamps (without the prior). theta must be inside the prior.
   double LogLikelihood(const double* theta);
@@ -212,9 +254,15 @@ class FitEvaluator {
 
   // Expected electrons of stamp k (row-major, stamp-sized) and, if jacobian != nullptr, its
   // derivatives with respect to theta (pixels x dim, row-major; zero columns for other
-  // exposures' positions).
-  void ModelImage(const double* theta, int k, std::vector<double>* model,
+  // exposures' positions). False (model left unspecified) where the renderer cannot draw
+  // theta (a width the brighter-fatter growth takes out of the renderer's domain).
+  bool ModelImage(const double* theta, int k, std::vector<double>* model,
                   std::vector<double>* jacobian);
+  // The same with the derivatives only for the theta indices exposure k depends on:
+  // jacobian is pixels x columns->size(), columns the theta index of each column. The one
+  // place a model image is computed (the Ceres residuals use this form).
+  bool ModelImageColumns(const double* theta, int k, std::vector<double>* model,
+                         std::vector<double>* jacobian, std::vector<int>* columns);
 
   // Fisher information of theta for the Gaussian likelihood with model-dependent variance:
   // sum over valid pixels of g g^T / var + (1/2) h h^T / var^2, g = dm/dtheta, h = dvar/dtheta
@@ -242,13 +290,23 @@ class FitEvaluator {
  private:
   // Renders exposures [first, last) at theta and calls visit(data_e, censor, model_e, noise)
   // for each valid pixel: the one loop behind the log-likelihood, chi^2 and least-squares
-  // flux.
+  // flux. False where a model image cannot be drawn.
   template <typename Visit>
-  void ForEachValidPixel(const double* theta, int first, int last, Visit visit);
+  bool ForEachValidPixel(const double* theta, int first, int last, Visit visit);
 
   const FitModel& fit_model_;
   model::SpotRenderer renderer_;
-  std::vector<double> pixels_, spot_jacobian_;
+  std::vector<double> pixels_, spot_jacobian_, local_jacobian_;
+  std::vector<int> columns_;
+  // ModelImageColumns' chain from theta to the renderer's parameters, and its nonzero entries.
+  struct Link {
+    int spot_param, column;
+    double value;
+  };
+  std::vector<double> chain_;
+  std::vector<Link> links_;
+  std::vector<double> plain_;                     // the brighter-fatter signal's render
+  model::DualImage dual_;                         // image effects with derivatives
   std::vector<std::vector<double>> unit_models_;  // BestFluxLogLikelihood's renders
 };
 

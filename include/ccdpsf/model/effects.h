@@ -75,6 +75,7 @@
 #ifndef CCDPSF_MODEL_EFFECTS_H_
 #define CCDPSF_MODEL_EFFECTS_H_
 
+#include <array>
 #include <optional>
 #include <string>
 #include <vector>
@@ -97,6 +98,7 @@ enum class EffectKind {
   kHalo,
   kDefocusOffset,
 };
+constexpr int kNumEffectKinds = static_cast<int>(EffectKind::kDefocusOffset) + 1;
 
 // The catalogue names ("defocus", "brighter_fatter", "serial_cti", "parallel_cti", "ipc",
 // "jitter", "background", "nonlinearity", "halo", "defocus_offset"). ParseEffectKind returns
@@ -328,6 +330,61 @@ struct SpotReference {
 // accurate to a few ulp of the smaller tail (erfc on the tail side).
 double GaussianIntervalIntegral(double a, double b, double sigma);
 
+// An image carrying forward-mode derivatives (src/model/image_effects.cc): per pixel (the
+// row-major order above) its value [e-], then its derivatives d value / d u_c with respect to
+// num_derivatives parameters u of the caller's choosing (a fit: the parameters the exposure
+// depends on). The image effects apply to the derivative channels by the chain rule, and add
+// the derivatives with respect to their own parameters in the channels EffectChannels names.
+struct DualImage {
+  int nx = 0;
+  int ny = 0;
+  int num_derivatives = 0;
+  std::vector<double> data;  // nx * ny * stride()
+  int stride() const { return num_derivatives + 1; }
+};
+
+// Which derivative channel (1 .. num_derivatives) receives the derivative with respect to
+// parameter p (EffectParameters order) of an effect; -1 (the default) when none does.
+constexpr int kMaxEffectParameters = 4;
+class EffectChannels {
+ public:
+  EffectChannels();
+  int Get(EffectKind kind, int parameter) const;
+  void Set(EffectKind kind, int parameter, int channel);
+
+ private:
+  std::array<std::array<int, kMaxEffectParameters>, kNumEffectKinds> channel_;
+};
+
+// The derivatives of SpotReference's members in each derivative channel (index c - 1 holds
+// channel c's); for the halo, which moves light in proportion to the flux, about the centre.
+struct SpotReferenceDerivatives {
+  std::vector<double> flux_e, x_px, y_px;
+};
+
+// Each effect on a DualImage; `spot_d` may be null (the reference does not depend on the
+// parameters).
+void AddHalo(const HaloParams& halo, const PixelGrid& grid, const SpotReference& spot,
+             const SpotReferenceDerivatives* spot_d, const EffectChannels& channels,
+             DualImage* image);
+void ApplyNonlinearity(const NonlinearityParams& nonlinearity, const EffectChannels& channels,
+                       DualImage* image);
+void ApplyIpc(const IpcParams& ipc, const EffectChannels& channels, DualImage* image);
+void ApplySerialCti(const CtiParams& cti, const EffectChannels& channels, DualImage* image);
+void ApplyParallelCti(const CtiParams& cti, const EffectChannels& channels, DualImage* image);
+void AddBackground(const BackgroundParams& background, const EffectChannels& channels,
+                   DualImage* image);
+// halo -> nonlinearity -> ipc -> serial_cti -> parallel_cti: the charge effects, before
+// the Poisson step.
+void ApplyChargeEffects(const ExposureEffects& effects, const PixelGrid& grid,
+                        const SpotReference& spot, const SpotReferenceDerivatives* spot_d,
+                        const EffectChannels& channels, DualImage* image);
+// ApplyChargeEffects, then the background: the expected electrons of the output.
+void ApplyImageEffects(const ExposureEffects& effects, const PixelGrid& grid,
+                       const SpotReference& spot, const SpotReferenceDerivatives* spot_d,
+                       const EffectChannels& channels, DualImage* image);
+
+// The same on a plain image of values.
 void AddHalo(const HaloParams& halo, const PixelGrid& grid, const SpotReference& spot,
              double* image);
 void ApplyNonlinearity(const NonlinearityParams& nonlinearity, int size, double* image);
@@ -335,12 +392,8 @@ void ApplyIpc(const IpcParams& ipc, int nx, int ny, double* image);
 void ApplySerialCti(const CtiParams& cti, int nx, int ny, double* image);
 void ApplyParallelCti(const CtiParams& cti, int nx, int ny, double* image);
 void AddBackground(const BackgroundParams& background, int size, double* image);
-
-// halo -> nonlinearity -> ipc -> serial_cti -> parallel_cti: the charge effects, before
-// the Poisson step.
 void ApplyChargeEffects(const ExposureEffects& effects, const PixelGrid& grid,
                         const SpotReference& spot, double* image);
-// ApplyChargeEffects, then the background: the expected electrons of the output.
 void ApplyImageEffects(const ExposureEffects& effects, const PixelGrid& grid,
                        const SpotReference& spot, double* image);
 

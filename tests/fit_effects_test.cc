@@ -1,0 +1,231 @@
+// Effects of the catalogue as components of the fit's model (fit_model.h, "Effects"): the
+// fit's expected image against the simulator's forward model, its derivatives against
+// numerical differentiation, the joint likelihood against the sum of singles, and recovery of
+// hidden effects from simulations with known truth.
+#include <cmath>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "ccdpsf/fit/fit.h"
+#include "ccdpsf/fit/fit_model.h"
+#include "ccdpsf/fit/map_fit.h"
+#include "ccdpsf/simulate.h"
+#include "ceres/ceres.h"
+#include "gtest/gtest.h"
+#include "support/fit_helpers.h"
+#include "support/simulated_stamps.h"
+
+namespace ccdpsf::fit {
+namespace {
+
+using model::EffectKind;
+using testing_support::MustCreate;
+using testing_support::PaperConfig;
+using testing_support::SimulateStamps;
+
+// Every fittable effect, at strengths well above the realistic ones so that each is visible
+// in the comparisons (values in catalogue order of their parameters).
+struct EffectValue {
+  EffectKind kind;
+  std::vector<double> values;
+};
+const std::vector<EffectValue>& StrongEffects() {
+  static const std::vector<EffectValue> effects = {
+      {EffectKind::kBrighterFatter, {6e-7, 3e-7}},
+      {EffectKind::kSerialCti, {4e-3, 1.7}},
+      {EffectKind::kParallelCti, {2e-3, 0.9}},
+      {EffectKind::kIpc, {0.015}},
+      {EffectKind::kBackground, {12.0}},
+      {EffectKind::kNonlinearity, {2e-7}},
+      {EffectKind::kHalo, {0.04, 2.2}},
+  };
+  return effects;
+}
+
+FitModelOptions WithEffects(const std::vector<EffectValue>& effects) {
+  FitModelOptions options;
+  for (const EffectValue& e : effects) options.effects.push_back({e.kind, {}});
+  return options;
+}
+
+// theta at the paper's truth for exposure positions from `c`, the given flux and effects.
+std::vector<double> TruthTheta(const FitModel& m, const SimulationConfig& c, double flux,
+                               const std::vector<EffectValue>& effects) {
+  std::vector<double> theta(m.dim(), 0.0);
+  theta[kFluxE] = flux;
+  theta[kAiryRadiusPx] = c.airy_radius_px;
+  theta[kDefocusPx] = c.defocus_px;
+  theta[kCcdSigmaXPx] = c.ccd_sigma_x_px;
+  theta[kCcdSigmaYPx] = c.ccd_sigma_y_px;
+  for (int k = 0; k < m.num_exposures(); ++k) {
+    theta[FitModel::XIndex(k)] = c.exposures[k].x_px;
+    theta[FitModel::YIndex(k)] = c.exposures[k].y_px;
+    if (m.RatioIndex(k) >= 0)
+      theta[m.RatioIndex(k)] = c.exposures[k].flux_e / c.exposures[0].flux_e;
+  }
+  for (const EffectValue& e : effects) {
+    for (size_t p = 0; p < e.values.size(); ++p) theta[m.EffectIndex(e.kind) + p] = e.values[p];
+  }
+  return theta;
+}
+
+// The fit's expected image is the simulator's (simulate.h ExpectedElectrons, which draws the
+// brighter-fatter signal with model::BrighterFatterSignal and applies the image effects to the
+// frame): each effect alone and all together. The stamp is the whole 21 x 21 frame, so the
+// image effects see the same pixels. Both are sums of the same terms in different orders:
+// agreement to 1e-12 of the peak.
+TEST(FitEffects, ModelImageIsTheSimulatorsExpectation) {
+  std::vector<std::vector<EffectValue>> cases;
+  for (const EffectValue& e : StrongEffects()) cases.push_back({e});
+  cases.push_back(StrongEffects());
+  for (const auto& effects : cases) {
+    SimulationConfig c = PaperConfig(model::Sampling::kIntegrated, 1, 3);
+    std::string error;
+    for (const EffectValue& e : effects) {
+      ASSERT_TRUE(model::SetEffectParameters(e.kind, e.values, &c.effects, &error)) << error;
+    }
+    const Image expected = ExpectedElectrons(c, c.exposures[0]);
+    auto m = MustCreate(SimulateStamps(c, 4), WithEffects(effects));
+    ASSERT_TRUE(m);
+    const std::vector<double> theta = TruthTheta(*m, c, c.exposures[0].flux_e, effects);
+    std::vector<double> image;
+    ASSERT_TRUE(m->NewEvaluator()->ModelImage(theta.data(), 0, &image, nullptr));
+    ASSERT_EQ(image.size(), expected.size());
+    double peak = 0.0, worst = 0.0;
+    for (size_t q = 0; q < image.size(); ++q) {
+      peak = std::max(peak, expected.data[q]);
+      worst = std::max(worst, std::fabs(image[q] - expected.data[q]));
+    }
+    EXPECT_LT(worst, 1e-12 * peak)
+        << model::ToString(effects[0].kind) << " (" << effects.size() << " effects)";
+  }
+}
+
+// Largest difference between a residual block's analytic Jacobian and central differences,
+// each column relative to its own largest entry. Steps are 1e-6 of each parameter's value
+// (the effects' parameters are ~1e-7-1e-2, so Ceres' GradientChecker, whose Ridders steps
+// start at 1e-4 absolute, would step them out of their domains): the truncation error is
+// ~1e-12 of a column and the rounding ~1e-16 / 1e-6 = 1e-10.
+double WorstJacobianError(const ceres::CostFunction& cost,
+                          std::vector<std::vector<double>> blocks) {
+  const int nr = cost.num_residuals();
+  const int nb = static_cast<int>(blocks.size());
+  std::vector<const double*> params(nb);
+  for (int b = 0; b < nb; ++b) params[b] = blocks[b].data();
+  std::vector<double> r(nr), rp(nr), rm(nr);
+  std::vector<std::vector<double>> jac(nb);
+  std::vector<double*> jac_ptr(nb);
+  for (int b = 0; b < nb; ++b) {
+    jac[b].resize(static_cast<size_t>(nr) * blocks[b].size());
+    jac_ptr[b] = jac[b].data();
+  }
+  EXPECT_TRUE(cost.Evaluate(params.data(), r.data(), jac_ptr.data()));
+  double worst = 0.0;
+  for (int b = 0; b < nb; ++b) {
+    const int size = static_cast<int>(blocks[b].size());
+    for (int i = 0; i < size; ++i) {
+      const double x = blocks[b][i], h = 1e-6 * std::fabs(x);
+      blocks[b][i] = x + h;
+      EXPECT_TRUE(cost.Evaluate(params.data(), rp.data(), nullptr));
+      blocks[b][i] = x - h;
+      EXPECT_TRUE(cost.Evaluate(params.data(), rm.data(), nullptr));
+      blocks[b][i] = x;
+      double column = 0.0, error = 0.0;
+      for (int q = 0; q < nr; ++q) {
+        const double numeric = (rp[q] - rm[q]) / (2.0 * h);
+        column = std::max(column, std::fabs(numeric));
+        error = std::max(error, std::fabs(numeric - jac[b][static_cast<size_t>(q) * size + i]));
+      }
+      worst = std::max(worst, error / column);
+    }
+  }
+  return worst;
+}
+
+// The Ceres residual block's analytic Jacobian, effects' block included, against central
+// differences, for each effect alone on one exposure and for all of them on the second
+// exposure of a joint fit with per-exposure fluxes (shared, position, ratio and effects
+// blocks). 1e-6 leaves a factor 1e4 over the differences' own error (above).
+TEST(FitEffects, ExposureCostJacobianIsTheDerivative) {
+  for (const EffectValue& e : StrongEffects()) {
+    const SimulationConfig c = PaperConfig(model::Sampling::kIntegrated, 1, 5);
+    auto m = MustCreate(SimulateStamps(c, 6), WithEffects({e}));
+    ASSERT_TRUE(m);
+    std::unique_ptr<ceres::CostFunction> cost(NewExposureCost(*m, 0));
+    ASSERT_EQ(cost->parameter_block_sizes().size(), 3u);  // shared, position, effects
+    const double error =
+        WorstJacobianError(*cost, {{4.0e5, 0.5, 0.38, 0.3, 0.33},
+                                   {c.exposures[0].x_px + 0.02, c.exposures[0].y_px - 0.03},
+                                   e.values});
+    EXPECT_LT(error, 1e-6) << model::ToString(e.kind);
+  }
+  SimulationConfig c = PaperConfig(model::Sampling::kIntegrated, 2, 7);
+  c.exposures[1].flux_e *= 0.4;
+  FitModelOptions options = WithEffects(StrongEffects());
+  options.flux = FluxMode::kPerExposure;
+  auto m = MustCreate(SimulateStamps(c, 8), options);
+  ASSERT_TRUE(m);
+  std::unique_ptr<ceres::CostFunction> cost(NewExposureCost(*m, 1));
+  ASSERT_EQ(cost->parameter_block_sizes().size(), 4u);  // shared, position, ratio, effects
+  std::vector<double> effect;
+  for (const EffectValue& e : StrongEffects()) {
+    effect.insert(effect.end(), e.values.begin(), e.values.end());
+  }
+  const double error =
+      WorstJacobianError(*cost, {{4.0e5, 0.5, 0.38, 0.3, 0.33},
+                                 {c.exposures[1].x_px + 0.02, c.exposures[1].y_px - 0.03},
+                                 {0.42},
+                                 effect});
+  EXPECT_LT(error, 1e-6);
+}
+
+// docs/conventions.md, Noise model: with effects the joint log-likelihood is still the sum of
+// the singles' (each single given the same shared and effect parameters).
+TEST(FitEffects, JointLogLikelihoodIsTheSumOfSingles) {
+  const SimulationConfig c = PaperConfig(model::Sampling::kIntegrated, 3, 9);
+  const std::vector<Stamp> stamps = SimulateStamps(c, 10);
+  const FitModelOptions options = WithEffects(StrongEffects());
+  auto joint = MustCreate(stamps, options);
+  ASSERT_TRUE(joint);
+  const std::vector<double> theta = TruthTheta(*joint, c, 4.1e5, StrongEffects());
+  double sum = 0.0;
+  for (int k = 0; k < 3; ++k) {
+    auto single = MustCreate({stamps[k]}, options);
+    std::vector<double> t(theta.begin(), theta.begin() + kNumShared);
+    t.push_back(theta[FitModel::XIndex(k)]);
+    t.push_back(theta[FitModel::YIndex(k)]);
+    t.insert(t.end(), theta.begin() + joint->EffectsFirstIndex(), theta.end());
+    ASSERT_EQ(static_cast<int>(t.size()), single->dim());
+    sum += single->NewEvaluator()->LogLikelihood(t.data());
+  }
+  const double total = joint->NewEvaluator()->LogLikelihood(theta.data());
+  // The same terms summed in another order: rounding (~1e-16 per term, 1323 terms).
+  EXPECT_NEAR(total, sum, 1e-10 * std::fabs(sum));
+}
+
+TEST(FitEffects, BadEffectsAreReported) {
+  const SimulationConfig c = PaperConfig(model::Sampling::kIntegrated, 1, 11);
+  const std::vector<Stamp> stamps = SimulateStamps(c, 12);
+  std::string error;
+  FitModelOptions options;
+  options.effects = {{EffectKind::kJitter, {}}};
+  EXPECT_EQ(FitModel::Create(stamps, options, &error), nullptr);
+  EXPECT_NE(error.find("jitter"), std::string::npos) << error;
+  options.effects = {{EffectKind::kIpc, {}}, {EffectKind::kIpc, {}}};
+  EXPECT_EQ(FitModel::Create(stamps, options, &error), nullptr);
+  EXPECT_NE(error.find("twice"), std::string::npos) << error;
+  options.effects = {{EffectKind::kIpc, {{0.0, 0.3}}}};  // alpha's domain ends at 0.25
+  EXPECT_EQ(FitModel::Create(stamps, options, &error), nullptr);
+  EXPECT_NE(error.find("ipc.alpha"), std::string::npos) << error;
+  options.effects = {{EffectKind::kHalo, {{0.0, 0.1}}}};  // two parameters, one range
+  EXPECT_EQ(FitModel::Create(stamps, options, &error), nullptr);
+  EXPECT_NE(error.find("priors"), std::string::npos) << error;
+  options.effects = {{EffectKind::kIpc, {}}};
+  options.model.sampling = model::Sampling::kPixelCentre;
+  EXPECT_EQ(FitModel::Create(stamps, options, &error), nullptr);
+  EXPECT_NE(error.find("integrated"), std::string::npos) << error;
+}
+
+}  // namespace
+}  // namespace ccdpsf::fit
