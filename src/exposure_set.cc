@@ -90,15 +90,16 @@ constexpr double kDeficitSd = 3.0;
 // count as one intensity scaled by exposure time.
 constexpr double kTimeScaledTolerance = 0.15;
 
-}  // namespace
-
-void CheckPeakCompression(const std::vector<Exposure>& exposures, Quality* quality) {
+// The check on the exposures `members` (one focus position).
+void CheckPeakCompressionAtOneFocus(const std::vector<Exposure>& exposures,
+                                    const std::vector<int>& members, Severity severity,
+                                    const std::string& modelled, Quality* quality) {
   struct Point {
     int index;
     double peak, box, fraction, exptime;
   };
   std::vector<Point> points;
-  for (size_t k = 0; k < exposures.size(); ++k) {
+  for (int k : members) {
     double peak = 0, box = 0;
     if (!PeakAndBox(exposures[k].stamp, &peak, &box)) continue;
     points.push_back({static_cast<int>(k), peak, box, peak / box,
@@ -156,7 +157,33 @@ void CheckPeakCompression(const std::vector<Exposure>& exposures, Quality* quali
                     "; it lies %.1f %% below the line through their peaks against exposure time",
                     100 * (1 - p.peak / (rate * p.exptime)));
     }
-    quality->Add("compressed_peak", Severity::kSuspect, text, p.index);
+    std::string message = text;
+    if (severity == Severity::kNote) message += "; " + modelled;
+    quality->Add("compressed_peak", severity, message, p.index);
+  }
+}
+
+}  // namespace
+
+void CheckPeakCompression(const std::vector<Exposure>& exposures, Quality* quality,
+                          const std::string& modelled) {
+  // A defocused spot holds less of its light in its peak pixel: only exposures at one focus
+  // position (FOCUSPOS, or none) are compared.
+  std::vector<std::vector<int>> groups;
+  std::vector<double> focus;
+  for (size_t k = 0; k < exposures.size(); ++k) {
+    const double z = exposures[k].stamp.info.focus_position_um;
+    size_t g = 0;
+    while (g < focus.size() && !(focus[g] == z || (std::isnan(focus[g]) && std::isnan(z)))) ++g;
+    if (g == focus.size()) {
+      focus.push_back(z);
+      groups.emplace_back();
+    }
+    groups[g].push_back(static_cast<int>(k));
+  }
+  const Severity severity = modelled.empty() ? Severity::kSuspect : Severity::kNote;
+  for (const std::vector<int>& members : groups) {
+    CheckPeakCompressionAtOneFocus(exposures, members, severity, modelled, quality);
   }
 }
 
@@ -214,7 +241,7 @@ bool LoadExposureSet(const std::vector<InputFile>& inputs, const ExposureSetOpti
       }
     }
   }
-  CheckPeakCompression(set->exposures, &set->quality);
+  CheckPeakCompression(set->exposures, &set->quality, options.compression_modelled);
   return true;
 }
 

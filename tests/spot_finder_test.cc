@@ -244,6 +244,37 @@ TEST(ExposureSet, CompressionAcrossASeries) {
   Quality none;
   CheckPeakCompression(linear, &none);
   EXPECT_TRUE(none.findings.empty()) << none.OneLine();
+  // A fit whose model holds brighter_fatter: the finding is a note that says so.
+  Quality modelled;
+  CheckPeakCompression(exposures, &modelled, "the model fits brighter_fatter");
+  ASSERT_EQ(modelled.findings.size(), 2u) << modelled.OneLine();
+  EXPECT_EQ(modelled.findings[0].severity, Severity::kNote);
+  EXPECT_NE(modelled.findings[0].message.find("the model fits brighter_fatter"), std::string::npos);
+}
+
+// A through-focus series at two intensities: the bright exposures are wider because they are
+// out of focus (sigma 0.6 -> 1.0 px), not compressed, and are compared only with exposures
+// at their own focus position.
+TEST(ExposureSet, NoCompressionAcrossFocusPositions) {
+  std::vector<Exposure> exposures;
+  const double fluxes[] = {1e4, 1.5e4, 2e4, 6e4, 7e4, 8e4};
+  for (int k = 0; k < 6; ++k) {
+    SyntheticFrame spec;
+    spec.flux_e = fluxes[k];
+    spec.seed = 70 + k;
+    spec.sigma_px = k < 3 ? 0.6 : 1.0;
+    Exposure e = Calibrate(test_support::MakeSpotFrame(spec));
+    e.stamp.info.focus_position_um = k < 3 ? 300.0 : 400.0;
+    exposures.push_back(e);
+  }
+  Quality q;
+  CheckPeakCompression(exposures, &q);
+  EXPECT_TRUE(q.findings.empty()) << q.OneLine();
+  // Without the focus positions the wide bright ones are flagged (the check's reading).
+  for (Exposure& e : exposures) e.stamp.info.focus_position_um = NAN;
+  Quality unknown;
+  CheckPeakCompression(exposures, &unknown);
+  EXPECT_FALSE(unknown.findings.empty());
 }
 
 // A linear series whose spot falls anywhere in its pixel: the peak pixel's raw share changes

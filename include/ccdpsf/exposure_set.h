@@ -13,7 +13,9 @@
 // flagged "compressed_peak" (suspect). A core that broadens with the signal (brighter-fatter)
 // lowers the fraction too; the finding names both readings and says by how much and, where
 // the intensity was varied by exposure time, how far the peak falls below the line through
-// the reference peaks.
+// the reference peaks. Only exposures at one focus position (FOCUSPOS) are compared: a
+// through-focus series changes the fraction by its defocus. When the fit's model holds an
+// effect that explains the finding (brighter_fatter or nonlinearity), it is a note saying so.
 #ifndef CCDPSF_EXPOSURE_SET_H_
 #define CCDPSF_EXPOSURE_SET_H_
 
@@ -33,6 +35,9 @@ struct ExposureSetOptions {
   // Exposures at wavelengths more than 1 nm apart are refused unless this is set (they do
   // not share one PSF).
   bool allow_mixed_wavelengths = false;
+  // Not empty: the fit models a core that changes with the signal, and the compression
+  // finding is a note ending with this text (e.g. "the model fits brighter_fatter").
+  std::string compression_modelled;
 };
 
 struct ExposureSet {
@@ -50,8 +55,9 @@ bool LoadExposureSet(const std::vector<InputFile>& inputs, const ExposureSetOpti
                      ExposureSet* set, std::string* error);
 
 // The compression check above on calibrated exposures; findings go to *quality with the
-// exposure's index.
-void CheckPeakCompression(const std::vector<Exposure>& exposures, Quality* quality);
+// exposure's index; `modelled` as ExposureSetOptions::compression_modelled.
+void CheckPeakCompression(const std::vector<Exposure>& exposures, Quality* quality,
+                          const std::string& modelled = "");
 
 }  // namespace ccdpsf
 
