@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "ccdpsf/fit/fit.h"
+#include "ccdpsf/fit/fit_config.h"
 #include "ccdpsf/fit/fit_model.h"
 #include "ccdpsf/fit/map_fit.h"
 #include "ccdpsf/simulate.h"
@@ -225,6 +226,50 @@ TEST(FitEffects, BadEffectsAreReported) {
   options.model.sampling = model::Sampling::kPixelCentre;
   EXPECT_EQ(FitModel::Create(stamps, options, &error), nullptr);
   EXPECT_NE(error.find("integrated"), std::string::npos) << error;
+}
+
+}  // namespace
+}  // namespace ccdpsf::fit
+
+namespace ccdpsf::fit {
+namespace {
+
+// FIT.json "effects" and --effects: parsed, written back whole, and refused with a reason.
+TEST(FitEffects, ConfigParsesWritesAndRefuses) {
+  FitConfig c;
+  std::string error;
+  ASSERT_TRUE(ParseFitConfig(R"({"effects": {"serial_cti": {"trail_fraction": [0, 0.02]},
+                                             "brighter_fatter": {}}})",
+                             &c, &error))
+      << error;
+  ASSERT_EQ(c.model.effects.size(), 2u);
+  const nlohmann::json written = FitConfigJson(c)["effects"];
+  EXPECT_EQ(written["serial_cti"]["trail_fraction"], nlohmann::json({0.0, 0.02}));
+  EXPECT_EQ(written["serial_cti"]["trail_length_px"], nlohmann::json({0.2, 10.0}));  // catalogue
+  FitConfig again;
+  ASSERT_TRUE(ParseFitConfig(FitConfigJson(c).dump(), &again, &error)) << error;
+  EXPECT_EQ(FitConfigJson(again)["effects"], written);
+  const std::pair<const char*, const char*> bad[] = {
+      {R"({"effects": {"glow": {}}})", "unknown effect 'effects.glow'"},
+      {R"({"effects": {"jitter": {}}})", "'effects.jitter' cannot be fitted"},
+      {R"({"effects": {"ipc": {"beta": [0, 1]}}})", "effects.ipc.beta"},
+      {R"({"effects": {"ipc": {"alpha": [0, 0.5]}}})", "effects.ipc.alpha"},
+      {R"({"effects": {"ipc": {"alpha": [0.1, 0.05]}}})", "lower < upper"},
+      {R"({"effects": ["ipc"]})", "must be an object"}};
+  for (const auto& [text, expected] : bad) {
+    FitConfig d;
+    EXPECT_FALSE(ParseFitConfig(text, &d, &error)) << text;
+    EXPECT_NE(error.find(expected), std::string::npos) << text << ": " << error;
+  }
+  std::vector<FitEffect> list;
+  ASSERT_TRUE(ParseFitEffectList("serial_cti,halo", &list, &error)) << error;
+  EXPECT_EQ(list.size(), 2u);
+  EXPECT_TRUE(ParseFitEffectList("", &list, &error));
+  EXPECT_TRUE(list.empty());
+  EXPECT_FALSE(ParseFitEffectList("ipc,ipc", &list, &error));
+  EXPECT_NE(error.find("twice"), std::string::npos) << error;
+  EXPECT_FALSE(ParseFitEffectList("defocus_offset", &list, &error));
+  EXPECT_NE(error.find("shift"), std::string::npos) << error;
 }
 
 }  // namespace

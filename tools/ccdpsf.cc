@@ -27,7 +27,8 @@ namespace ccdpsf::tools {
 
 const std::vector<Command>& Commands() {
   static const std::vector<Command> commands = {SimulateCommand(), FitCommand(),  TrendCommand(),
-                                                DiagnoseCommand(), GainCommand(), GridCommand()};
+                                                DiagnoseCommand(), GainCommand(), GridCommand(),
+                                                EffectsCommand()};
   return commands;
 }
 

@@ -56,6 +56,7 @@ Command TrendCommand();
 Command DiagnoseCommand();
 Command GainCommand();
 Command GridCommand();
+Command EffectsCommand();
 
 // The fit options of `fit`, `trend` and `diagnose`: the command's defaults <- --config=FIT.json
 // (its "flags" applied as flags not given on the command line: run_config.cc) <- the flags

@@ -1,7 +1,9 @@
 // ccdpsf diagnose: find the effect the model is missing (diagnose/diagnose.h).
+#include <algorithm>
 #include <cstdio>
 #include <sstream>
 
+#include "ccdpsf/atomic_file.h"
 #include "ccdpsf/diagnose/diagnose.h"
 #include "ccdpsf/diagnose/diagnose_report.h"
 #include "ccdpsf/exposure.h"
@@ -49,6 +51,43 @@ bool ParseKinds(const std::string& text, std::vector<model::EffectKind>* kinds,
     kinds->push_back(k);
   }
   return true;
+}
+
+// The fit configuration of the diagnosis's final model: `config` with the final round's
+// fittable effects (catalogue priors), its flux mode, a joint fit, and a pillbox defocus if
+// that alternative was adopted. What a fit cannot hold (jitter, defocus_offset, a pixel
+// response) is left out and said in `notes`.
+fit::FitConfig FinalFitConfig(const fit::FitConfig& config, const diagnose::DiagnoseResult& result,
+                              std::vector<std::string>* notes) {
+  fit::FitConfig final_config = config;
+  final_config.joint = true;
+  final_config.model.flux = result.flux == diagnose::FluxMode::kPerExposure
+                                ? fit::FluxMode::kPerExposure
+                                : fit::FluxMode::kShared;
+  final_config.flux_given = true;
+  final_config.model.effects.clear();
+  const diagnose::ModelSpec& spec = result.rounds.back().spec;
+  std::vector<std::string> left_out;
+  for (model::EffectKind kind : model::AllEffectKinds()) {
+    if (!spec.Has(kind)) continue;
+    std::string why;
+    if (fit::IsFittableEffect(kind, &why)) {
+      final_config.model.effects.push_back({kind, {}});
+    } else {
+      left_out.push_back(model::ToString(kind) + " (" + why + ")");
+    }
+  }
+  for (const diagnose::RoundResult& round : result.rounds) {
+    if (round.adopted == diagnose::ToString(diagnose::AlternativeKind::kPillboxDefocus)) {
+      final_config.model.model.defocus = model::DefocusKind::kPillbox;
+    } else if (round.adopted == diagnose::ToString(diagnose::AlternativeKind::kPixelResponse)) {
+      left_out.push_back("pixel_response (a fit has no pixel-response component)");
+    }
+  }
+  for (const std::string& what : left_out) {
+    notes->push_back("final_fit.json leaves out " + what);
+  }
+  return final_config;
 }
 
 int RunDiagnose(const std::vector<std::string>& files) {
@@ -123,6 +162,15 @@ int RunDiagnose(const std::vector<std::string>& files) {
       }
     }
   }
+  // Effects a FIT.json fits (a previous diagnosis's final_fit.json) are part of the
+  // baseline here, with the catalogue's priors: diagnose goes on from that model.
+  for (const fit::FitEffect& e : config.model.effects) {
+    if (std::find(options.baseline_effects.begin(), options.baseline_effects.end(), e.kind) ==
+        options.baseline_effects.end()) {
+      options.baseline_effects.push_back(e.kind);
+    }
+  }
+  config.model.effects.clear();
   if (!options.IsValid(&error)) return Fail(error);
   std::vector<InputFile> inputs;
   Manifest manifest;
@@ -216,19 +264,35 @@ int RunDiagnose(const std::vector<std::string>& files) {
       {"seed", config.fit.mcmc.seed},
       {"software", SoftwareVersions()}};
   std::vector<std::string> warnings;
+  std::vector<std::string> final_notes;
+  const fit::FitConfig final_config = FinalFitConfig(config, result, &final_notes);
+  nlohmann::json final_json = RunConfigJson(final_config, nlohmann::json::object(), &error);
+  if (final_json.is_null()) return Fail(error);
+  {
+    // Only the options `fit` has: the file is for `fit --config=` (and `trend`).
+    const Command fit_command = FitCommand();
+    nlohmann::json flags = nlohmann::json::object();
+    for (auto it = final_json["flags"].begin(); it != final_json["flags"].end(); ++it) {
+      if (fit_command.Find(it.key()) != nullptr) flags[it.key()] = it.value();
+    }
+    final_json["flags"] = flags;
+  }
+  for (const std::string& n : final_notes) result.notes.push_back(n);
   if (!diagnose::WriteDiagnoseReport(out.partial(), *base, result, options, run, &warnings, &error,
                                      plot) ||
       !WriteRunConfig(out.partial(), config, nlohmann::json::object(), &error) ||
+      !WriteTextFileAtomically(out.partial() + "/final_fit.json", final_json.dump(2) + "\n",
+                               &error) ||
       !out.Commit({}, &error)) {
     return Fail(error);
   }
   for (const std::string& w : warnings) std::fprintf(stderr, "ccdpsf: warning: %s\n", w.c_str());
-  std::printf("%s; chi2/dof %.4g -> %.4g; verdict on the data %s; results in %s/diagnose.json "
-              "(report.md, plots)\n",
-              diagnose::DiagnosisVerdict(result).c_str(),
-              result.rounds.front().statistics.chi2_per_dof,
-              result.rounds.back().statistics.chi2_per_dof, result.quality.OneLine().c_str(),
-              FLAGS_out.c_str());
+  std::printf(
+      "%s; chi2/dof %.4g -> %.4g; verdict on the data %s; results in %s/diagnose.json "
+      "(report.md, plots; final_fit.json holds the final model for fit --config=)\n",
+      diagnose::DiagnosisVerdict(result).c_str(), result.rounds.front().statistics.chi2_per_dof,
+      result.rounds.back().statistics.chi2_per_dof, result.quality.OneLine().c_str(),
+      FLAGS_out.c_str());
   if (FLAGS_strict && result.quality.Worst() != Severity::kNote) return kExitStrict;
   return 0;
 }

@@ -38,6 +38,7 @@ DEFINE_double(target_ess, 1000, "");
 DEFINE_int32(threads, 2, "");
 DEFINE_bool(mcmc, true, "");
 DEFINE_string(flux, "auto", "");
+DEFINE_string(effects, "", "");
 DEFINE_bool(mixed_wavelengths, false, "");
 DEFINE_bool(strict, false, "");
 DEFINE_bool(resume, false, "");
@@ -79,6 +80,9 @@ bool ApplyFitFlags(bool given_only, fit::FitConfig* c, std::string* error) {
   if (use("threads")) c->fit.mcmc.num_threads = c->fit.map.num_threads = FLAGS_threads;
   if (use("mcmc")) c->fit.run_mcmc = FLAGS_mcmc;
   if (use("stamp_size")) c->calibration.stamp_size = FLAGS_stamp_size;
+  if (use("effects") && !fit::ParseFitEffectList(FLAGS_effects, &c->model.effects, error)) {
+    return false;
+  }
   if (use("flux")) {
     if (FLAGS_flux == "auto") {
       c->flux_given = false;
@@ -230,6 +234,7 @@ int RunFit(const std::vector<std::string>& files) {
   ExposureSet set;
   ExposureSetOptions set_options;
   set_options.allow_mixed_wavelengths = !joint || FLAGS_mixed_wavelengths;
+  set_options.compression_modelled = fit::SignalDependenceModelled(config.model);
   if (!LoadExposureSet(inputs, set_options, &set, &error)) return Fail(error);
   std::vector<Exposure>& exposures = set.exposures;
   if (config.model.through_focus && !config.joint && inputs.size() > 1) {
@@ -355,6 +360,10 @@ Command FitCommand() {
       {"flux", "auto",
        "How the exposures of a joint fit share the light: auto (chosen from the data and "
        "said), shared, per_exposure or exptime_scaled"},
+      {"effects", "",
+       "Effects of the catalogue fitted with the spot, comma-separated (serial_cti, "
+       "parallel_cti, brighter_fatter, ipc, background, nonlinearity, halo; `ccdpsf effects` "
+       "lists them), with the catalogue's priors (FIT.json \"effects\" sets others)"},
       {"mixed_wavelengths", "false",
        "Let a joint fit share one PSF across exposures at different wavelengths"},
       {"outliers", fit::OutlierOptions().enabled ? "true" : "false",

@@ -29,6 +29,7 @@ const std::map<std::string, std::string>& HeldByFitJson() {
                                                           {"joint", "joint"},
                                                           {"through_focus", "through_focus"},
                                                           {"flux", "flux"},
+                                                          {"effects", "effects"},
                                                           {"seed", "mcmc.seed"},
                                                           {"walkers", "mcmc.walkers"},
                                                           {"max_steps", "mcmc.max_steps"},

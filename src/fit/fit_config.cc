@@ -43,8 +43,95 @@ bool NumberList(JsonReader* r, const std::string& key, std::vector<double>* out)
   return true;
 }
 
-
 }  // namespace
+
+bool ParseFitEffects(const json& effects, std::vector<FitEffect>* out, std::string* error) {
+  if (!effects.is_object()) {
+    *error = "'effects' must be an object: {\"<effect>\": {\"<parameter>\": [lower, upper]}}";
+    return false;
+  }
+  std::vector<FitEffect> parsed;
+  for (const auto& [name, value] : effects.items()) {
+    FitEffect e;
+    if (!model::ParseEffectKind(name, &e.kind)) {
+      *error = "unknown effect 'effects." + name + "' (`ccdpsf effects` lists the catalogue)";
+      return false;
+    }
+    std::string why;
+    if (!IsFittableEffect(e.kind, &why)) {
+      *error = "'effects." + name + "' cannot be fitted: " + why;
+      return false;
+    }
+    JsonReader r(value, "effects." + name, error);
+    if (!value.is_object()) {
+      *error = "'effects." + name + "' must be an object of parameter prior ranges";
+      return false;
+    }
+    for (const model::EffectParameterInfo& p : model::DescribeEffect(e.kind).parameters) {
+      double range[2] = {p.prior_lower, p.prior_upper};
+      Range(&r, p.name, range);
+      e.priors.push_back({range[0], range[1]});
+    }
+    r.RejectUnknownKeys();
+    if (!r.ok()) return false;
+    for (size_t i = 0; i < e.priors.size(); ++i) {
+      for (double v : e.priors[i]) {
+        if (!model::CheckEffectParameter(
+                e.kind, static_cast<int>(i), v,
+                "effects." + name + "." + model::DescribeEffect(e.kind).parameters[i].name,
+                error)) {
+          return false;
+        }
+      }
+    }
+    parsed.push_back(e);
+  }
+  *out = parsed;
+  return true;
+}
+
+bool ParseFitEffectList(const std::string& text, std::vector<FitEffect>* out, std::string* error) {
+  std::vector<FitEffect> parsed;
+  std::stringstream list(text);
+  std::string name;
+  while (std::getline(list, name, ',')) {
+    if (name.empty() || name == "none") continue;
+    FitEffect e;
+    std::string why;
+    if (!model::ParseEffectKind(name, &e.kind)) {
+      *error = "--effects: unknown effect '" + name + "' (`ccdpsf effects` lists the catalogue)";
+      return false;
+    }
+    if (!IsFittableEffect(e.kind, &why)) {
+      *error = "--effects: '" + name + "' cannot be fitted: " + why;
+      return false;
+    }
+    for (const FitEffect& seen : parsed) {
+      if (seen.kind == e.kind) {
+        *error = "--effects: '" + name + "' is given twice";
+        return false;
+      }
+    }
+    parsed.push_back(e);
+  }
+  *out = parsed;
+  return true;
+}
+
+json FitEffectsJson(const std::vector<FitEffect>& effects) {
+  json out = json::object();
+  for (const FitEffect& e : effects) {
+    const model::EffectInfo& info = model::DescribeEffect(e.kind);
+    json params = json::object();
+    for (size_t p = 0; p < info.parameters.size(); ++p) {
+      const double lo = e.priors.empty() ? info.parameters[p].prior_lower : e.priors[p][0];
+      const double hi = e.priors.empty() ? info.parameters[p].prior_upper : e.priors[p][1];
+      params[info.parameters[p].name] = {lo, hi};
+    }
+    out[info.name] = params;
+  }
+  return out;
+}
 
 bool ParseFitConfig(const std::string& text, FitConfig* c, std::string* error) {
   json j = json::parse(text, nullptr, false, true);
@@ -97,6 +184,9 @@ bool ParseFitConfig(const std::string& text, FitConfig* c, std::string* error) {
     } else if (r.ok()) {
       c->flux_given = true;
     }
+  }
+  if (r.ok() && r.Has("effects") && !ParseFitEffects(r.Get("effects"), &c->model.effects, error)) {
+    return false;
   }
   if (r.ok() && r.Has("priors")) {
     JsonReader p(r.Get("priors"), "priors", error);
@@ -281,6 +371,7 @@ json FitConfigJson(const FitConfig& c) {
           {"joint", c.joint},
           {"through_focus", c.model.through_focus},
           {"flux", c.flux_given ? ToString(c.model.flux) : std::string("auto")},
+          {"effects", FitEffectsJson(c.model.effects)},
           {"priors",
            {{"airy_radius_px", {p.airy_radius_px[0], p.airy_radius_px[1]}},
             {"defocus_px", {p.defocus_px[0], p.defocus_px[1]}},

@@ -71,6 +71,16 @@ bool FitModelOptions::HasEffect(model::EffectKind kind) const {
   return false;
 }
 
+std::string SignalDependenceModelled(const FitModelOptions& options) {
+  std::string names;
+  for (const model::EffectKind kind :
+       {model::EffectKind::kBrighterFatter, model::EffectKind::kNonlinearity}) {
+    if (!options.HasEffect(kind)) continue;
+    names += (names.empty() ? "" : " and ") + model::ToString(kind);
+  }
+  return names.empty() ? "" : "the model fits " + names;
+}
+
 bool CcdSplitUnidentified(const FitModelOptions& options) {
   return options.model.sampling == model::Sampling::kIntegrated &&
          options.model.defocus == model::DefocusKind::kGaussian && !options.through_focus;

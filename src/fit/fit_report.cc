@@ -103,6 +103,12 @@ json FitJson(const ExposuresFit& fit) {
                 {"joint", model.num_exposures() > 1},
                 {"through_focus", model.through_focus()},
                 {"flux", ToString(model.options().flux)}};
+  // The fitted effects in catalogue order (their parameters are in "parameters").
+  json effects = json::array();
+  for (model::EffectKind kind : model::AllEffectKinds()) {
+    if (model.EffectIndex(kind) >= 0) effects.push_back(model::ToString(kind));
+  }
+  j["model"]["effects"] = effects;
   j["notes"] = fit.notes;
   json outliers = json::array();
   for (const OutlierMask& m : fit.outliers) {

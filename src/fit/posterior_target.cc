@@ -22,11 +22,14 @@ PosteriorTarget::PosteriorTarget(const FitModel& model, const std::vector<double
   bounds_ = {lo[kDefocusPx],   hi[kDefocusPx],   lo[kCcdSigmaXPx],
              hi[kCcdSigmaXPx], lo[kCcdSigmaYPx], hi[kCcdSigmaYPx]};
   // The split is integrated out only where the model depends on the totals alone, and only
-  // with CCD widths bounded away from zero (else W(t) diverges when t_x = t_y).
+  // with CCD widths bounded away from zero (else W(t) diverges when t_x = t_y). The
+  // brighter-fatter growth adds to the CCD widths alone (not to the totals), so with it the
+  // split is sampled.
   marginal_ = options.marginal_defocus &&
               model.options().model.sampling == model::Sampling::kIntegrated &&
               model.options().model.defocus == model::DefocusKind::kGaussian &&
-              !model.through_focus() && bounds_.sigma_x_lower > 0 && bounds_.sigma_y_lower > 0;
+              !model.through_focus() && bounds_.sigma_x_lower > 0 && bounds_.sigma_y_lower > 0 &&
+              !model.options().HasEffect(model::EffectKind::kBrighterFatter);
   num_shared_ = model.NumSharedParams() - (marginal_ ? 1 : 0);
   const int dim = theta_dim - (marginal_ ? 1 : 0);
 

@@ -73,6 +73,7 @@ GroupResult FitOne(const CampaignGroup& group, int position, int index,
       for (const std::string& f : group.files) inputs.push_back({f, "", config.calibration});
     }
     ExposureSetOptions set_options;
+    set_options.compression_modelled = fit::SignalDependenceModelled(config.model);
     if (!LoadExposureSet(inputs, set_options, &set, &error)) return finish(error);
   }
   if (set.exposures.size() == 1) {

@@ -2,6 +2,8 @@
 //
 //   {"sampling": "integrated", "defocus": "gaussian", "likelihood": "gaussian",
 //    "joint": false, "through_focus": false, "flux": "auto",
+//    "effects": {"serial_cti": {"trail_fraction": [0, 0.01], "trail_length_px": [0.2, 10]},
+//                "brighter_fatter": {}},
 //    "priors": {"airy_radius_px": [0.1, 1.5], "defocus_px": [0.0, 1.5],
 //               "ccd_sigma_x_px": [0.05, 1.5], "ccd_sigma_y_px": [0.05, 1.5],
 //               "position_halfwidth_px": 2.0, "flux_fraction": [0.2, 5.0]},
@@ -26,6 +28,10 @@
 // keeps it as read (FitConfig::flags); the ccdpsf tool checks and applies it. Every run of
 // `ccdpsf fit`, `trend` and `diagnose` writes config.json in this format: every option it
 // resolved, so that `--config=OUT/config.json` with the same inputs repeats the run.
+//
+// "effects" names the catalogue's effects fitted with the spot (fit_model.h, Effects), each
+// with optional flat prior ranges by parameter name (absent: the catalogue's, `ccdpsf
+// effects`); jitter and defocus_offset cannot be fitted (IsFittableEffect says why).
 //
 // Every key is optional; unknown keys are errors. "through_focus" fits a joint set as a
 // through-focus series (fit_model.h); `ccdpsf fit --joint` switches it on by itself when it
@@ -69,6 +75,15 @@ constexpr long long kMaxSteps = 100000000;
 constexpr long long kMaxThreads = 1024;
 bool CheckMcmcSettings(long long walkers, long long max_steps, long long threads,
                        double target_ess, const std::string& prefix, std::string* error);
+
+// FIT.json's "effects" object, and `--effects=a,b` (catalogue priors; "" or "none": no
+// effects). False with a one-line reason on unknown or unfittable effects, unknown
+// parameters, ranges outside a parameter's domain or repeated names.
+bool ParseFitEffects(const nlohmann::json& effects, std::vector<FitEffect>* out,
+                     std::string* error);
+bool ParseFitEffectList(const std::string& text, std::vector<FitEffect>* out, std::string* error);
+// The effects as FIT.json holds them, every prior range written out.
+nlohmann::json FitEffectsJson(const std::vector<FitEffect>& effects);
 
 // The resolved configuration as JSON (for run.json; FIT.json reads it back).
 nlohmann::json FitConfigJson(const FitConfig& config);

@@ -106,6 +106,12 @@ struct FitEffect {
 // sampling is exactly a shift of the position.
 bool IsFittableEffect(model::EffectKind kind, std::string* why);
 
+// For the compression check of a set (exposure_set.h): "the model fits brighter_fatter"
+// (and/or nonlinearity) when the options fit an effect that changes the core with the
+// signal, else "".
+struct FitModelOptions;
+std::string SignalDependenceModelled(const FitModelOptions& options);
+
 struct FitModelOptions {
   model::ModelOptions model;
   LikelihoodKind likelihood = LikelihoodKind::kGaussian;
