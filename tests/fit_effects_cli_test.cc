@@ -160,5 +160,18 @@ TEST(FitEffectsCli, DiagnoseFinalModelContinuesInFit) {
   EXPECT_FALSE(fs::exists(dir + "/bad"));
 }
 
+// brighter_fatter at one intensity is not identified: a one-line error, nothing written.
+TEST(FitEffectsCli, BrighterFatterAtOneIntensityIsRefused) {
+  const std::string out = FreshDir("FitEffectsCli", "one_intensity") + "/fit";
+  const RunResult r = RunCcdpsf("fit --joint --effects=brighter_fatter --out=" + out + " " +
+                                testing_support::DemoSet() + "/exposure_000.fits " +
+                                testing_support::DemoSet() + "/exposure_001.fits");
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.output.find("brighter_fatter needs exposures at two or more intensities"),
+            std::string::npos)
+      << r.output;
+  EXPECT_FALSE(fs::exists(out));
+}
+
 }  // namespace
 }  // namespace ccdpsf

@@ -286,7 +286,7 @@ bool FitExposures(const std::vector<Exposure>& exposures, const Quality& set_qua
     out->notes.push_back("flux: " + ToString(model_options.flux) + " (given)");
   }
   std::unique_ptr<FitModel> model = FitModel::Create(stamps, model_options, error);
-  if (!model) return false;
+  if (!model || !EffectsIdentifiable(*model, error)) return false;
   MapResult map;
   if (!FindMap(*model, options.config.fit.map, &map, error)) return false;
 

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <sstream>
 
 #include "glog/logging.h"
@@ -343,6 +344,25 @@ int FitModel::NumMeasuredPixels() const {
   int n = 0;
   for (const Stamp& s : stamps_) n += s.NumValid() - s.NumCensored();
   return n;
+}
+
+bool EffectsIdentifiable(const FitModel& model, std::string* why) {
+  if (model.EffectIndex(model::EffectKind::kBrighterFatter) < 0) return true;
+  double lo = INFINITY, hi = 0.0;
+  for (int k = 0; k < model.num_exposures(); ++k) {
+    const double s = model.StartFluxRatio(k);  // summed signal over exposure 0's
+    lo = std::min(lo, s);
+    hi = std::max(hi, s);
+  }
+  if (hi > 1.25 * lo) return true;
+  char text[300];
+  std::snprintf(text, sizeof text,
+                "brighter_fatter needs exposures at two or more intensities (the summed signals "
+                "here span x%.3g, at most x1.25): at one intensity its slope is exactly a change "
+                "of the CCD widths",
+                hi / lo);
+  *why = text;
+  return false;
 }
 
 bool FitModel::EffectsAt(const double* theta, model::ExposureEffects* effects) const {

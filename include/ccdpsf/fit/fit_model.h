@@ -134,6 +134,13 @@ bool CcdSplitUnidentified(const FitModelOptions& options);
 // focus position and there are at least 3 distinct ones. False with a one-line reason.
 bool IsFocusSeries(const std::vector<Stamp>& stamps, std::string* why);
 
+class FitModel;
+// Whether the data can identify the model's effects, with a one-line reason when not:
+// brighter_fatter needs exposures at two or more intensities (summed signals spanning more
+// than x1.25), since at one its slope is exactly a change of the CCD widths. For the
+// commands, before a fit (the model itself is well defined either way).
+bool EffectsIdentifiable(const FitModel& model, std::string* why);
+
 // Renders the model of each stamp for a parameter vector; owns scratch space, so use one per
 // thread.
 class FitEvaluator;
