@@ -7,8 +7,14 @@ namespace ccdpsf {
 
 std::string UnitOfName(const std::string& name) {
   // An exposure index after a dot or a final underscore (x_px.3, x_px_3, flux_ratio_2) is not
-  // part of the unit.
-  std::string base = name.substr(0, name.find('.'));
+  // part of the unit; an effect's parameter (serial_cti.trail_length_px) has it after the dot.
+  std::string base = name;
+  const std::size_t dot = name.rfind('.');
+  if (dot != std::string::npos) {
+    const std::string after = name.substr(dot + 1);
+    const bool index = !after.empty() && after.find_first_not_of("0123456789") == std::string::npos;
+    base = index ? name.substr(0, dot) : after;
+  }
   const std::size_t last = base.find_last_of('_');
   if (last != std::string::npos && last + 1 < base.size() &&
       base.find_first_not_of("0123456789", last + 1) == std::string::npos) {
@@ -16,6 +22,8 @@ std::string UnitOfName(const std::string& name) {
   }
   // Longest suffixes first: _e_per_adu before _adu, _px_per_um before _um, _px2 before _px.
   static const std::pair<const char*, const char*> kSuffixes[] = {{"_e_per_adu", "electron/adu"},
+                                                                  {"_px_per_e", "pix/electron"},
+                                                                  {"_per_e", "1/electron"},
                                                                   {"_px_per_um", "pix/um"},
                                                                   {"_arcsec2", "arcsec2"},
                                                                   {"_adu2", "adu2"},

@@ -21,6 +21,12 @@ TEST(ColumnUnits, UnitFromTheNamesSuffix) {
   EXPECT_EQ(UnitOfName("variance_adu2"), "adu2");
   EXPECT_EQ(UnitOfName("gain_e_per_adu"), "electron/adu");
   EXPECT_EQ(UnitOfName("defocus_rate_px_per_um"), "pix/um");
+  // A fitted effect's parameter: the unit is the parameter's, after the dot.
+  EXPECT_EQ(UnitOfName("serial_cti.trail_length_px"), "pix");
+  EXPECT_EQ(UnitOfName("serial_cti.trail_fraction"), "");
+  EXPECT_EQ(UnitOfName("brighter_fatter.slope_x_px_per_e"), "pix/electron");
+  EXPECT_EQ(UnitOfName("nonlinearity.beta_per_e"), "1/electron");
+  EXPECT_EQ(UnitOfName("background.pedestal_e"), "electron");
   for (const char* dimensionless : {"ellipticity", "log_prob", "flux_ratio.2", "flux_ratio_2",
                                     "chi2_per_dof", "exposures", "focus_series", "e", "_px"}) {
     EXPECT_EQ(UnitOfName(dimensionless), "") << dimensionless;

@@ -25,6 +25,8 @@ _SUFFIX_UNITS = sorted(
         "_s": u.s,
         "_adu": u.adu,
         "_e_per_adu": u.electron / u.adu,
+        "_px_per_e": u.pix / u.electron,
+        "_per_e": 1 / u.electron,
     }.items(),
     key=lambda item: -len(item[0]),
 )

@@ -234,3 +234,15 @@ def test_residuals(tmp_path):
     (folder / "residuals.fits").unlink()
     with pytest.raises(ccdpsf.OutputMissingError):
         ccdpsf.read_fit(folder).residuals.data(0)
+
+
+def test_effect_parameter_units():
+    """A fitted effect's parameter takes the unit of its own name, after the dot."""
+    from ccdpsf.units import unit_from_name
+
+    assert unit_from_name("serial_cti.trail_length_px", indexed=True) == u.pix
+    assert unit_from_name("serial_cti.trail_fraction", indexed=True) == u.dimensionless_unscaled
+    assert unit_from_name("brighter_fatter.slope_x_px_per_e", indexed=True) == u.pix / u.electron
+    assert unit_from_name("nonlinearity.beta_per_e", indexed=True) == 1 / u.electron
+    assert unit_from_name("background.pedestal_e", indexed=True) == u.electron
+    assert unit_from_name("x_px.3", indexed=True) == u.pix
