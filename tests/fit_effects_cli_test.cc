@@ -160,6 +160,24 @@ TEST(FitEffectsCli, DiagnoseFinalModelContinuesInFit) {
   EXPECT_FALSE(fs::exists(dir + "/bad"));
 }
 
+// An effect the data do not hold: its strength at zero is a note (an upper limit), not a
+// reason for a suspect verdict. (MAP and Laplace only: at zero strength the trail's length is
+// free, a funnel the MCMC crosses slowly; docs/trust.md, Fitting effects.)
+TEST(FitEffectsCli, AnAbsentEffectIsAnUpperLimitNotAFault) {
+  const std::string out = FreshDir("FitEffectsCli", "absent") + "/fit";
+  const RunResult r = RunCcdpsf("fit --nomcmc --effects=serial_cti --out=" + out + " " +
+                                testing_support::DemoSet() + "/exposure_000.fits");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const json j = ReadJson(out + "/fit.json");
+  for (const json& reason : j["quality"]["reasons"]) {
+    EXPECT_EQ(reason["message"].get<std::string>().find("serial_cti"), std::string::npos)
+        << reason.dump();
+  }
+  // The strength's 99.7 % Laplace reach includes zero.
+  const json& f = j["parameters"]["serial_cti.trail_fraction"];
+  EXPECT_LT(f["map"].get<double>() - 3 * f["laplace_sd"].get<double>(), 1e-4) << f.dump();
+}
+
 // brighter_fatter at one intensity is not identified: a one-line error, nothing written.
 TEST(FitEffectsCli, BrighterFatterAtOneIntensityIsRefused) {
   const std::string out = FreshDir("FitEffectsCli", "one_intensity") + "/fit";

@@ -89,6 +89,22 @@ void AssessChi2(double chi2, int dof, const FitQualityOptions& options, Quality*
 
 }
 
+// Whether theta index i is a fitted effect's parameter whose effect's strength (its first
+// parameter, with a prior starting at 0, "no effect") is at zero or within 2 Laplace sd of it.
+bool EffectConsistentWithZero(const FitModel& model, const FitResult& r, int i) {
+  const int first = model.EffectsFirstIndex();
+  if (first < 0 || i < first) return false;
+  for (const FitEffect& e : model.options().effects) {
+    const int start = model.EffectIndex(e.kind);
+    const int size = static_cast<int>(model::DescribeEffect(e.kind).parameters.size());
+    if (i < start || i >= start + size) continue;
+    if (model.lower()[start] != 0.0) return false;
+    const double strength = r.map.theta[start], sd = r.laplace.sd[start];
+    return strength <= 0.0 || !(std::isfinite(sd)) || strength < 2.0 * sd;
+  }
+  return false;
+}
+
 void AssessBounds(const FitModel& model, const FitResult& r, Quality* quality) {
   // Parameters at prior bounds.
   const bool split_unidentified = model.options().model.sampling == model::Sampling::kIntegrated &&
@@ -112,6 +128,15 @@ void AssessBounds(const FitModel& model, const FitResult& r, Quality* quality) {
       continue;
     }
     if (shape) ++shape_at_bound;
+    if (EffectConsistentWithZero(model, r, i)) {
+      // An effect's strength at zero is its "no effect" value: an upper limit, not a fault;
+      // and its shape (a trail's length, a halo's width) is then not measured at all.
+      quality->Add("effect_at_zero", Severity::kNote,
+                   where +
+                       ": the data show no sign of the effect (its strength is consistent "
+                       "with zero), so this is an upper limit or unmeasured, not a fault");
+      continue;
+    }
     if ((i == kCcdSigmaXPx || i == kCcdSigmaYPx) && at_lower) {
       quality->Add("width_upper_limit", Severity::kSuspect,
                    where + ": the spot is narrower than the model resolves there, so the width "
