@@ -218,7 +218,8 @@ int RunDiagnose(const std::vector<std::string>& files) {
     result.quality.Add("censored_masked", Severity::kNote,
                        std::to_string(censored) +
                            " censored pixel(s) (saturated or clipped) left out: the effect models "
-                           "fit measured pixels only");
+                           "fit measured pixels only (a fit with final_fit.json keeps them as "
+                           "bounds, so its numbers can differ)");
   }
   {
     // The noise check: the tests compare residuals with the noise model, so a chi^2 below
