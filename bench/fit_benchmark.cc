@@ -8,10 +8,13 @@
 // evaluations (walkers x steps: one per walker update, stretch or independence move), the
 // exposure renders they and the positions' conditional moves cost, and renders per effective
 // sample (renders / smallest ESS, the cost measure of issue 18). The *StretchOnly variants
-// switch the Laplace-informed independence move off (the sampler before issue 18).
+// switch the Laplace-informed independence move off (the sampler before issue 18). The
+// *SerialCti and *Halo variants simulate the exposure with that effect (f 3e-3, L 1.5 px; 3 %
+// at 2.5 px) and fit it as a model component (issue 16: an effect adds at most 2x).
 #include <algorithm>
 #include <cmath>
 #include <string>
+#include <vector>
 
 #include "benchmark/benchmark.h"
 #include "ccdpsf/fit/fit.h"
@@ -22,10 +25,19 @@ namespace {
 
 using namespace ccdpsf;
 
-std::unique_ptr<fit::FitModel> Model(int exposures, model::Sampling sampling) {
-  const SimulationConfig c = testing_support::PaperConfig(sampling, exposures, 42);
+// With `effect` set, the simulation holds it (catalogue parameters `values`) and the model
+// fits it.
+std::unique_ptr<fit::FitModel> Model(int exposures, model::Sampling sampling,
+                                     const model::EffectKind* effect = nullptr,
+                                     const std::vector<double>& values = {}) {
+  SimulationConfig c = testing_support::PaperConfig(sampling, exposures, 42);
   fit::FitModelOptions o;
   o.model.sampling = sampling;
+  if (effect != nullptr) {
+    std::string error;
+    if (!model::SetEffectParameters(*effect, values, &c.effects, &error)) return nullptr;
+    o.effects.push_back({*effect, {}});
+  }
   std::string error;
   return fit::FitModel::Create(testing_support::SimulateStamps(c, 43), o, &error);
 }
@@ -40,8 +52,13 @@ void Map(benchmark::State& state, int exposures) {
   }
 }
 
-void FullFit(benchmark::State& state, int exposures, bool laplace_move = true) {
-  auto model = Model(exposures, model::Sampling::kIntegrated);
+void FullFit(benchmark::State& state, int exposures, bool laplace_move = true,
+             const model::EffectKind* effect = nullptr, const std::vector<double>& values = {}) {
+  auto model = Model(exposures, model::Sampling::kIntegrated, effect, values);
+  if (!model) {
+    state.SkipWithError("bad effect");
+    return;
+  }
   fit::FitOptions options;
   if (!laplace_move) options.target.laplace_move_fraction = 0.0;
   options.mcmc.progress = false;
@@ -79,6 +96,15 @@ void BM_SingleFullFit(benchmark::State& s) { FullFit(s, 1); }
 void BM_JointFullFit5(benchmark::State& s) { FullFit(s, 5); }
 void BM_SingleFullFitStretchOnly(benchmark::State& s) { FullFit(s, 1, false); }
 void BM_JointFullFit5StretchOnly(benchmark::State& s) { FullFit(s, 5, false); }
+constexpr model::EffectKind kSerialCti = model::EffectKind::kSerialCti;
+constexpr model::EffectKind kHalo = model::EffectKind::kHalo;
+void BM_SingleFullFitSerialCti(benchmark::State& s) {
+  FullFit(s, 1, true, &kSerialCti, {3e-3, 1.5});
+}
+void BM_SingleFullFitHalo(benchmark::State& s) { FullFit(s, 1, true, &kHalo, {0.03, 2.5}); }
+void BM_JointFullFit5SerialCti(benchmark::State& s) {
+  FullFit(s, 5, true, &kSerialCti, {3e-3, 1.5});
+}
 
 BENCHMARK(BM_SingleMap)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_JointMap12)->Unit(benchmark::kMillisecond);
@@ -86,6 +112,9 @@ BENCHMARK(BM_SingleFullFit)->Unit(benchmark::kSecond)->Iterations(1)->UseRealTim
 BENCHMARK(BM_JointFullFit5)->Unit(benchmark::kSecond)->Iterations(1)->UseRealTime();
 BENCHMARK(BM_SingleFullFitStretchOnly)->Unit(benchmark::kSecond)->Iterations(1)->UseRealTime();
 BENCHMARK(BM_JointFullFit5StretchOnly)->Unit(benchmark::kSecond)->Iterations(1)->UseRealTime();
+BENCHMARK(BM_SingleFullFitSerialCti)->Unit(benchmark::kSecond)->Iterations(1)->UseRealTime();
+BENCHMARK(BM_SingleFullFitHalo)->Unit(benchmark::kSecond)->Iterations(1)->UseRealTime();
+BENCHMARK(BM_JointFullFit5SerialCti)->Unit(benchmark::kSecond)->Iterations(1)->UseRealTime();
 
 }  // namespace
 
