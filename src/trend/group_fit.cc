@@ -105,6 +105,11 @@ GroupResult FitOne(const CampaignGroup& group, int position, int index,
   if (model->FocusIndex() >= 0) {
     out.summaries[result.names[model->FocusIndex()]] = result.parameters[model->FocusIndex()];
   }
+  // Fitted effects' parameters ("serial_cti.trail_fraction", ...), to the end of theta.
+  for (int i = std::max(0, model->EffectsFirstIndex()); model->HasEffects() && i < model->dim();
+       ++i) {
+    out.summaries[result.names[i]] = result.parameters[i];
+  }
   out.peak_e = out.summaries["peak_e"];
   // An anchored defocus box splits the total widths (defocus_anchor.h).
   out.ccd_split_unidentified = fit::CcdSplitUnidentified(model->options()) && !group.defocus_anchor;
