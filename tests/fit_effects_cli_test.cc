@@ -189,6 +189,13 @@ TEST(FitEffectsCli, BrighterFatterAtOneIntensityIsRefused) {
             std::string::npos)
       << r.output;
   EXPECT_FALSE(fs::exists(out));
+  // trend fits each setting alone (one intensity): refused before any fit.
+  const std::string trend_out = FreshDir("FitEffectsCli", "trend_bf") + "/trend";
+  const RunResult t = RunCcdpsf("trend --effects=brighter_fatter --out=" + trend_out + " " +
+                                std::string(CCDPSF_TESTDATA) + "/campaign_small");
+  EXPECT_NE(t.exit_code, 0);
+  EXPECT_NE(t.output.find("trend fits each setting alone"), std::string::npos) << t.output;
+  EXPECT_FALSE(fs::exists(trend_out));
 }
 
 }  // namespace

@@ -85,6 +85,13 @@ int RunTrend(const std::vector<std::string>& inputs) {
   trend::GroupFitOptions fit_options;
   fit_options.plot_format = report_options.plot.format;
   if (!ResolveFitConfig(&fit_options.config, &error)) return Fail(error);
+  if (fit_options.config.model.HasEffect(model::EffectKind::kBrighterFatter)) {
+    return Fail(
+        "trend fits each setting alone, at one intensity, where the brighter_fatter slope is "
+        "a fixed change of the CCD widths: it cannot be a group's effect (the intensity "
+        "relations measure the growth of the widths with the signal; `fit --joint` on "
+        "exposures at several intensities fits the slope)");
+  }
   fit_options.seed = fit_options.config.fit.mcmc.seed;
   fit_options.flux_given = fit_options.config.flux_given;
   // --threads (or FIT.json's mcmc.threads): groups fitted at a time, each MCMC as many.
