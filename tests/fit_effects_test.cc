@@ -205,6 +205,57 @@ TEST(FitEffects, JointLogLikelihoodIsTheSumOfSingles) {
   EXPECT_NEAR(total, sum, 1e-10 * std::fabs(sum));
 }
 
+// The background is a bias residual (model/effects.h): the pedestal P shifts the expectation
+// but carries no shot noise, as the simulator adds it and diagnose scores it. The fit's
+// log-likelihood is therefore sum log N(d; m, (m - P)+ + RN^2 + g^2/12), written out here
+// from the stamp's noise figures; the Fisher information of P alone is sum 1/var (the
+// variance does not move with P). Both are the same terms summed in another order (1e-10).
+TEST(FitEffects, TheBackgroundCarriesNoShotNoise) {
+  const double pedestal = 35.0;
+  SimulationConfig c = PaperConfig(model::Sampling::kIntegrated, 1, 13);
+  std::string error;
+  ASSERT_TRUE(model::SetEffectParameters(EffectKind::kBackground, {pedestal}, &c.effects, &error))
+      << error;
+  const std::vector<EffectValue> effects = {{EffectKind::kBackground, {pedestal}}};
+  auto m = MustCreate(SimulateStamps(c, 14), WithEffects(effects));
+  ASSERT_TRUE(m);
+  const std::vector<double> theta = TruthTheta(*m, c, c.exposures[0].flux_e, effects);
+  std::vector<double> image;
+  auto ev = m->NewEvaluator();
+  ASSERT_TRUE(ev->ModelImage(theta.data(), 0, &image, nullptr));
+  const Stamp& s = m->stamps()[0];
+  double expected = 0.0, pedestal_information = 0.0;
+  int pixels = 0;
+  for (size_t q = 0; q < image.size(); ++q) {
+    if (!s.valid[q]) continue;
+    ASSERT_EQ(s.CensorAt(q), Censor::kNone);
+    const double var = std::max(image[q] - pedestal, 0.0) + s.read_noise_e * s.read_noise_e +
+                       s.gain_e_per_adu * s.gain_e_per_adu / 12.0;
+    const double r = s.electrons.data[q] - image[q];
+    expected += -0.5 * r * r / var - 0.5 * std::log(2.0 * M_PI * var);
+    pedestal_information += 1.0 / var;
+    ++pixels;
+  }
+  ASSERT_GT(pixels, 400);
+  const double ll = ev->LogLikelihood(theta.data());
+  EXPECT_NEAR(ll, expected, 1e-10 * std::fabs(expected));
+  const int p = m->EffectIndex(EffectKind::kBackground);
+  const std::vector<double> fisher = ev->FisherInformation(theta.data());
+  EXPECT_NEAR(fisher[static_cast<size_t>(p) * m->dim() + p], pedestal_information,
+              1e-10 * pedestal_information);
+  // A likelihood that gave the pedestal shot noise (variance from m, not m - P) differs by
+  // far more than the tolerance: the test can tell the two apart.
+  double with_shot_noise = 0.0;
+  for (size_t q = 0; q < image.size(); ++q) {
+    if (!s.valid[q]) continue;
+    const double var = std::max(image[q], 0.0) + s.read_noise_e * s.read_noise_e +
+                       s.gain_e_per_adu * s.gain_e_per_adu / 12.0;
+    const double r = s.electrons.data[q] - image[q];
+    with_shot_noise += -0.5 * r * r / var - 0.5 * std::log(2.0 * M_PI * var);
+  }
+  EXPECT_GT(std::fabs(with_shot_noise - expected), 1e4 * 1e-10 * std::fabs(expected));
+}
+
 TEST(FitEffects, BadEffectsAreReported) {
   const SimulationConfig c = PaperConfig(model::Sampling::kIntegrated, 1, 11);
   const std::vector<Stamp> stamps = SimulateStamps(c, 12);

@@ -150,6 +150,16 @@ TEST(PixelLikelihood, ResidualDerivativesMatchCentralDifferences) {
         EXPECT_NEAR(v.dr_dm[i], numeric, 1e-5 * (1e-3 + std::fabs(numeric)))
             << "d " << c.d << " m " << m << " residual " << i;
       }
+      // The same with respect to the datum at a fixed expectation (a censored pixel's level
+      // moves with it: it is d -/+ h).
+      const double hd = 1e-4 * std::max(1.0, std::fabs(c.d));
+      EvaluatePixel(LikelihoodKind::kGaussian, c.d + hd, c.censor, m, c.noise, true, &plus);
+      EvaluatePixel(LikelihoodKind::kGaussian, c.d - hd, c.censor, m, c.noise, true, &minus);
+      for (int i = 0; i < 2; ++i) {
+        const double numeric = (plus.r[i] - minus.r[i]) / (2 * hd);
+        EXPECT_NEAR(v.dr_dd[i], numeric, 1e-5 * (1e-3 + std::fabs(numeric)))
+            << "d " << c.d << " m " << m << " residual " << i << " (datum)";
+      }
     }
   }
 }
@@ -164,6 +174,8 @@ TEST(PixelLikelihood, IntervalResidualIsSmoothThroughItsZero) {
   EXPECT_NEAR(at.r[0], 0.0, 1e-6);
   EXPECT_NEAR(at.dr_dm[0], beside.dr_dm[0], 2e-3 * std::fabs(beside.dr_dm[0]));
   EXPECT_LT(at.dr_dm[0], 0.0);
+  EXPECT_NEAR(at.dr_dd[0], beside.dr_dd[0], 2e-3 * std::fabs(beside.dr_dd[0]));
+  EXPECT_GT(at.dr_dd[0], 0.0);
 }
 
 TEST(PixelLikelihood, GaussianFormIsLikelihoodH) {

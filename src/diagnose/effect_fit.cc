@@ -62,14 +62,13 @@ double StampSum(const Stamp& s) {
 
 // Pixel q of stamp s under the fit's pixel likelihood (fit/pixel_likelihood.h: the CCD noise
 // model, censored pixels as bounds, coarse ADC steps as intervals), so that diagnose and fit
-// score a pixel alike. The expectation is charge + pedestal and the shot noise the charge's
-// (the pedestal is a bias residual): that is the likelihood of the datum less the pedestal
-// at expectation `charge_e`, censoring level included (it moves with the datum).
+// score a pixel alike: the expectation is charge + pedestal, and the shot noise the charge's
+// (the pedestal is a bias residual).
 void EvaluateStampPixel(const Stamp& s, const fit::PixelNoise& noise, size_t q, double data_e,
                         double model_e, double charge_e, bool want_residuals,
                         fit::PixelValue* out) {
-  fit::EvaluatePixel(fit::LikelihoodKind::kGaussian, data_e - (model_e - charge_e), s.CensorAt(q),
-                     charge_e, noise, want_residuals, out);
+  fit::EvaluatePixelWithPedestal(fit::LikelihoodKind::kGaussian, data_e, s.CensorAt(q), model_e,
+                                 model_e - charge_e, noise, want_residuals, out);
 }
 
 // The residual block of exposure k: r1 and r2 per valid pixel (see the header), with numeric

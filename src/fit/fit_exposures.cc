@@ -31,8 +31,8 @@ std::vector<double> Residuals(const FitModel& model, FitEvaluator* ev, const dou
   PixelValue v;
   for (size_t q = 0; q < m.size(); ++q) {
     if (!s.valid[q] || s.CensorAt(q) != Censor::kNone) continue;
-    EvaluatePixel(LikelihoodKind::kGaussian, s.electrons.data[q], Censor::kNone, m[q], noise,
-                  false, &v);
+    EvaluatePixelWithPedestal(LikelihoodKind::kGaussian, s.electrons.data[q], Censor::kNone, m[q],
+                              model.PedestalAt(theta), noise, false, &v);
     z[q] = v.normalised;
   }
   return z;

@@ -680,12 +680,13 @@ bool FitEvaluator::ModelImage(const double* theta, int k, std::vector<double>* m
 
 template <typename Visit>
 bool FitEvaluator::ForEachValidPixel(const double* theta, int first, int last, Visit visit) {
+  const double pedestal = fit_model_.PedestalAt(theta);
   for (int k = first; k < last; ++k) {
     const Stamp& s = fit_model_.stamps()[k];
     const PixelNoise noise = StampNoise(s);
     if (!ModelImage(theta, k, &pixels_, nullptr)) return false;
     for (size_t q = 0; q < pixels_.size(); ++q) {
-      if (s.valid[q]) visit(s.electrons.data[q], s.CensorAt(q), pixels_[q], noise);
+      if (s.valid[q]) visit(s.electrons.data[q] - pedestal, s.CensorAt(q), pixels_[q] - pedestal, noise);
     }
   }
   return true;
@@ -702,13 +703,15 @@ double FitEvaluator::ExposureLogLikelihood(const double* theta, int k) {
     GaussianLogLikelihoodSum gaussian(stamp_noise.ccd);
     double censored = 0.0;
     PixelValue v;
+    const double pedestal = fit_model_.PedestalAt(theta);
     for (size_t q = 0; q < pixels_.size(); ++q) {
       if (!stamp.valid[q]) continue;
       const Censor censor = stamp.CensorAt(q);
       if (censor == Censor::kNone) {
-        gaussian.Add(stamp.electrons.data[q], pixels_[q]);
+        gaussian.Add(stamp.electrons.data[q] - pedestal, pixels_[q] - pedestal);
       } else {
-        EvaluatePixel(kind, stamp.electrons.data[q], censor, pixels_[q], stamp_noise, false, &v);
+        EvaluatePixelWithPedestal(kind, stamp.electrons.data[q], censor, pixels_[q], pedestal,
+                                  stamp_noise, false, &v);
         censored += v.log_p;
       }
     }
@@ -831,8 +834,17 @@ int FitEvaluator::CensoredViolations(const double* theta, double sd, double* wor
 std::vector<double> FitEvaluator::FisherInformation(const double* theta) {
   const int dim = fit_model_.dim();
   std::vector<double> fisher(static_cast<size_t>(dim) * dim, 0.0);
-  std::vector<double> jac;
+  std::vector<double> jac, mean_d(dim), var_d(dim), r0_d(dim), r1_d(dim);
   PixelValue v;
+  // The pedestal moves the mean but not the variance (it has no shot noise).
+  const int pedestal_index = fit_model_.EffectIndex(model::EffectKind::kBackground);
+  const double pedestal = fit_model_.PedestalAt(theta);
+  auto add_outer = [&](const std::vector<double>& u, const std::vector<double>& w, double scale) {
+    for (int a = 0; a < dim; ++a) {
+      if (u[a] == 0.0) continue;
+      for (int b = 0; b < dim; ++b) fisher[a * dim + b] += scale * u[a] * w[b];
+    }
+  };
   for (int k = 0; k < fit_model_.num_exposures(); ++k) {
     const Stamp& s = fit_model_.stamps()[k];
     const PixelNoise noise = StampNoise(s);
@@ -841,24 +853,31 @@ std::vector<double> FitEvaluator::FisherInformation(const double* theta) {
     }
     for (size_t q = 0; q < pixels_.size(); ++q) {
       if (!s.valid[q]) continue;
-      double w = 0.0;
+      const double* g = &jac[q * dim];
+      const double charge = pixels_[q] - pedestal;
       if (s.CensorAt(q) == Censor::kNone && !noise.interval) {
-        const double var = noise.ccd.VarianceE2(pixels_[q]);
-        // dvar/dtheta = dm/dtheta where the signal is positive (VarianceE2 clamps at 0).
-        w = 1.0 / var + (pixels_[q] > 0 ? 0.5 / (var * var) : 0.0);
+        const double var = noise.ccd.VarianceE2(charge);
+        // g = dm/dtheta; dvar/dtheta = d charge/dtheta where the charge is positive
+        // (VarianceE2 clamps at 0).
+        for (int a = 0; a < dim; ++a) {
+          mean_d[a] = g[a];
+          var_d[a] = charge > 0 ? g[a] - (a == pedestal_index ? 1.0 : 0.0) : 0.0;
+        }
+        add_outer(mean_d, mean_d, 1.0 / var);
+        add_outer(var_d, var_d, 0.5 / (var * var));
       } else {
         // Interval and censored pixels: the Gauss-Newton information of their residuals
         // (observed, not expected: a censored pixel informs only where the model nears
-        // its level).
-        EvaluatePixel(LikelihoodKind::kGaussian, s.electrons.data[q], s.CensorAt(q), pixels_[q],
-                      noise, true, &v);
-        w = v.dr_dm[0] * v.dr_dm[0] + v.dr_dm[1] * v.dr_dm[1];
-      }
-      if (!(w > 0)) continue;
-      const double* g = &jac[q * dim];
-      for (int a = 0; a < dim; ++a) {
-        if (g[a] == 0.0) continue;
-        for (int b = 0; b < dim; ++b) fisher[a * dim + b] += w * g[a] * g[b];
+        // its level), dr/dtheta = dr/dm d charge/dtheta - dr/dd d pedestal/dtheta.
+        EvaluatePixelWithPedestal(LikelihoodKind::kGaussian, s.electrons.data[q], s.CensorAt(q),
+                                  pixels_[q], pedestal, noise, true, &v);
+        for (int a = 0; a < dim; ++a) {
+          const double e = a == pedestal_index ? 1.0 : 0.0;
+          r0_d[a] = v.dr_dm[0] * (g[a] - e) - v.dr_dd[0] * e;
+          r1_d[a] = v.dr_dm[1] * (g[a] - e) - v.dr_dd[1] * e;
+        }
+        add_outer(r0_d, r0_d, 1.0);
+        add_outer(r1_d, r1_d, 1.0);
       }
     }
   }

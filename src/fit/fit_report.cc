@@ -297,8 +297,8 @@ bool WriteFitReport(const std::string& out_dir, const ExposuresFit& fit, const j
       p.residual.data[q] = ok ? s.electrons.data[q] - m[q] : NAN;
       if (ok) {
         // Censored pixels: the signed square root of their deviance (pixel_likelihood.h).
-        EvaluatePixel(LikelihoodKind::kGaussian, s.electrons.data[q], s.CensorAt(q), m[q], noise,
-                      false, &v);
+        EvaluatePixelWithPedestal(LikelihoodKind::kGaussian, s.electrons.data[q], s.CensorAt(q),
+                                  m[q], model.PedestalAt(r.map.theta.data()), noise, false, &v);
         p.normalised.data[q] = v.normalised;
       } else {
         p.normalised.data[q] = NAN;

@@ -68,11 +68,16 @@ class ExposureCost : public ceres::CostFunction {
     }
     std::vector<Place> column_place(nc);
     for (int c = 0; c < nc; ++c) column_place[c] = place_.at(columns_[c]);
+    // The pedestal has no shot noise (pixel_likelihood.h, EvaluatePixelWithPedestal): its
+    // column is -dr/dd, the others dr/dm times the derivative of the charge (the model less
+    // the pedestal, which depends on no other parameter).
+    const int pedestal_index = model_.EffectIndex(model::EffectKind::kBackground);
+    const double pedestal = model_.PedestalAt(theta.data());
     PixelValue v;
     for (int i = 0; i < n; ++i) {
       const int q = pixels_[i];
-      EvaluatePixel(LikelihoodKind::kGaussian, s.electrons.data[q], s.CensorAt(q),
-                    model_pixels_[q], noise_, true, &v);
+      EvaluatePixelWithPedestal(LikelihoodKind::kGaussian, s.electrons.data[q], s.CensorAt(q),
+                                model_pixels_[q], pedestal, noise_, true, &v);
       residuals[i] = v.r[0];
       residuals[n + i] = v.r[1];
       if (!want_jacobian) continue;
@@ -81,8 +86,9 @@ class ExposureCost : public ceres::CostFunction {
         const Place& where = column_place[c];
         double* block = jacobians[where.block];
         if (block == nullptr) continue;
-        block[i * where.size + where.offset] = v.dr_dm[0] * g[c];
-        block[(n + i) * where.size + where.offset] = v.dr_dm[1] * g[c];
+        const bool is_pedestal = columns_[c] == pedestal_index;
+        block[i * where.size + where.offset] = is_pedestal ? -v.dr_dd[0] : v.dr_dm[0] * g[c];
+        block[(n + i) * where.size + where.offset] = is_pedestal ? -v.dr_dd[1] : v.dr_dm[1] * g[c];
       }
     }
     return true;

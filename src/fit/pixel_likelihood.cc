@@ -89,6 +89,8 @@ void EvaluatePixel(LikelihoodKind kind, double d, Censor censor, double m, const
     const double dvar_dm = m > 0 ? 1.0 : 0.0;
     out->dr_dm[0] = -1.0 / sigma - r / (2.0 * var * sigma) * dvar_dm;
     out->dr_dm[1] = dvar_dm / (2.0 * var * r1);
+    out->dr_dd[0] = 1.0 / sigma;
+    out->dr_dd[1] = 0.0;
     return;
   }
 
@@ -112,20 +114,26 @@ void EvaluatePixel(LikelihoodKind kind, double d, Censor censor, double m, const
     const double dlogp_dm =
         std::exp(LogNormalPdf(b) - log_p) * slope(b) - std::exp(LogNormalPdf(a) - log_p) * slope(a);
     const double dexcess_dm = -dlogp_dm - dl0_ds * ds_dm;
+    // a and b both move by 1/s per unit of d; L0 does not depend on d.
+    const double dexcess_dd =
+        -(std::exp(LogNormalPdf(b) - log_p) - std::exp(LogNormalPdf(a) - log_p)) / s;
     const double sign = d >= m ? 1.0 : -1.0;
     out->r[0] = sign * std::sqrt(2.0 * excess);
     if (excess > 1e-12) {
       out->dr_dm[0] = sign * dexcess_dm / std::sqrt(2.0 * excess);
+      out->dr_dd[0] = sign * dexcess_dd / std::sqrt(2.0 * excess);
     } else {
       // At m = d the excess has a double zero: r0 ~ sqrt(c) (d - m), with c its curvature
       // there at fixed s, 2 (h/s) phi(h/s) / (s^2 (2 Phi(h/s) - 1)).
       const double x = h / s;
       const double curvature = 2.0 * x * std::exp(LogNormalPdf(x)) / (s * s * std::erf(x / kSqrt2));
       out->dr_dm[0] = -std::sqrt(curvature);
+      out->dr_dd[0] = std::sqrt(curvature);
     }
     const double r1 = std::sqrt(std::max(0.0, 2.0 * (l0 - noise.l0_floor)) + 1.0);
     out->r[1] = r1;
     out->dr_dm[1] = dl0_ds * ds_dm / r1;
+    out->dr_dd[1] = 0.0;
     return;
   }
 
@@ -135,6 +143,7 @@ void EvaluatePixel(LikelihoodKind kind, double d, Censor censor, double m, const
   const double threshold = above ? d - h : d + h;
   const double u = above ? (m - threshold) / s : (threshold - m) / s;
   const double du_dm = above ? -slope((threshold - m) / s) : slope(u);
+  const double du_dd = above ? -1.0 / s : 1.0 / s;  // the level moves with the datum
   const double log_p = LogNormalCdf(u);
   out->log_p = log_p;
   const double deviance = std::max(0.0, -2.0 * log_p);
@@ -150,13 +159,22 @@ void EvaluatePixel(LikelihoodKind kind, double d, Censor censor, double m, const
   out->r[0] = r0;
   out->r[1] = 1.0;
   out->dr_dm[1] = 0.0;
+  out->dr_dd[1] = 0.0;
   // d(-log P)/dm = -lambda(u) u', lambda = phi/Phi; dr0/dm = d(-log P)/dm / r0.
   if (r0 > 1e-150) {
     const double lambda = std::exp(LogNormalPdf(u) - log_p);
     out->dr_dm[0] = -lambda * du_dm / r0;
+    out->dr_dd[0] = -lambda * du_dd / r0;
   } else {
     out->dr_dm[0] = 0.0;
+    out->dr_dd[0] = 0.0;
   }
+}
+
+void EvaluatePixelWithPedestal(LikelihoodKind kind, double data_e, Censor censor, double m,
+                               double pedestal_e, const PixelNoise& noise, bool want_residuals,
+                               PixelValue* out) {
+  EvaluatePixel(kind, data_e - pedestal_e, censor, m - pedestal_e, noise, want_residuals, out);
 }
 
 }  // namespace ccdpsf::fit

@@ -196,6 +196,13 @@ class FitModel {
     return HasEffects() ? dim() - static_cast<int>(effect_start_.size()) : -1;
   }
   bool EffectsAt(const double* theta, model::ExposureEffects* effects) const;
+  // The background's pedestal at theta [e-] (0 when it is not fitted): a bias residual
+  // without shot noise, so every pixel is scored with EvaluatePixelWithPedestal
+  // (pixel_likelihood.h), as the simulator makes it and diagnose scores it.
+  double PedestalAt(const double* theta) const {
+    const int i = EffectIndex(model::EffectKind::kBackground);
+    return i >= 0 ? theta[i] : 0.0;
+  }
   // Exposure k's flux over flux_e: the exposure-time ratio, or its fitted ratio, or 1.
   double FluxScale(const double* theta, int k) const;
   // The fixed part of it (t_k / t_0 when exposure-time scaled, else 1).

@@ -25,7 +25,10 @@
 //              r0 behaves like a whitened residual (r0 -> (d - m)/s when s >> h), so the
 //              Gauss-Newton steps stay good;
 //   censored   r0 = sqrt(-2 log P), r1 = 1 (r0 -> 0 when the model is well beyond T).
-// Their derivatives with respect to m, dr/dm, are exact (tested against finite differences).
+// Their derivatives with respect to m, dr/dm, are exact (tested against finite differences),
+// and so are those with respect to the datum d at a fixed m, dr/dd: a pedestal P (a bias
+// residual, without shot noise) shifts the datum and the expectation alike, so a pixel with a
+// pedestal is scored at (d - P, m - P) and d r / d P = -dr/dd (EvaluatePixelWithPedestal).
 //
 // The pixel's chi^2 (for chi^2/dof and normalised residuals): (d - m)^2 / (s^2 + (2h)^2/12)
 // for a measured pixel. A censored pixel is a bound, not a measurement: it adds no chi^2 and
@@ -59,6 +62,7 @@ struct PixelValue {
                           // the probability above for either kind)
   double r[2] = {0, 0};   // residuals for Ceres
   double dr_dm[2] = {0, 0};
+  double dr_dd[2] = {0, 0};  // d r / d data_e at a fixed expectation
   double chi2 = 0;        // whitened residual squared (0 for censored pixels)
   double normalised = 0;  // (d - m)/sigma, or for a censored pixel the signed sqrt of its
                           // deviance (positive when a saturated pixel's model falls short)
@@ -69,6 +73,15 @@ struct PixelValue {
 // chi2 and normalised are computed.
 void EvaluatePixel(LikelihoodKind kind, double data_e, Censor censor, double m,
                    const PixelNoise& noise, bool want_residuals, PixelValue* out);
+
+// A pixel whose expectation m holds a pedestal P [e-] without shot noise (the background
+// effect, model/effects.h: a bias residual): the likelihood of the datum less P at
+// expectation m - P, so that the shot noise follows the charge m - P only, and the censoring
+// level moves with the datum. The residuals' derivative with respect to m is then the one at
+// expectation m - P (P fixed), and with respect to P (m - P fixed) it is -dr_dd.
+void EvaluatePixelWithPedestal(LikelihoodKind kind, double data_e, Censor censor, double m,
+                               double pedestal_e, const PixelNoise& noise, bool want_residuals,
+                               PixelValue* out);
 
 // log Phi(u), accurate far into both tails.
 double LogNormalCdf(double u);
