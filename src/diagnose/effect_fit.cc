@@ -16,42 +16,6 @@ using model::EffectKind;
 
 namespace {
 
-// Writes the catalogue parameters of a non-jitter effect into *e without the domain checks of
-// model::SetEffectParameters: the fit stays inside the prior box, which lies inside the
-// domain, but numeric differences and Ceres' line searches need plain arithmetic at its edges.
-void SetUnchecked(EffectKind kind, const double* v, model::ExposureEffects* e) {
-  switch (kind) {
-    case EffectKind::kBrighterFatter:
-      e->brighter_fatter = model::BrighterFatterParams{v[0], v[1]};
-      return;
-    case EffectKind::kSerialCti:
-      e->serial_cti = model::CtiParams{v[0], v[1]};
-      return;
-    case EffectKind::kParallelCti:
-      e->parallel_cti = model::CtiParams{v[0], v[1]};
-      return;
-    case EffectKind::kIpc:
-      e->ipc = model::IpcParams{v[0]};
-      return;
-    case EffectKind::kBackground:
-      e->background = model::BackgroundParams{v[0]};
-      return;
-    case EffectKind::kNonlinearity:
-      e->nonlinearity = model::NonlinearityParams{v[0]};
-      return;
-    case EffectKind::kHalo:
-      e->halo = model::HaloParams{v[0], v[1]};
-      return;
-    case EffectKind::kDefocusOffset:
-      e->defocus_offset = model::DefocusOffsetParams{v[0], v[1]};
-      return;
-    case EffectKind::kDefocus:
-    case EffectKind::kJitter:
-      break;
-  }
-  LOG(FATAL) << "SetUnchecked: " << model::ToString(kind);
-}
-
 double StampSum(const Stamp& s) {
   double sum = 0.0;
   for (size_t q = 0; q < s.valid.size(); ++q) {
@@ -417,7 +381,11 @@ model::SpotParams EffectModel::SpotFor(const double* p, int k) const {
 
 model::ExposureEffects EffectModel::EffectsFor(const double* p, int k) const {
   model::ExposureEffects e;
-  for (const auto& [kind, begin] : effect_begin_) SetUnchecked(kind, p + begin, &e);
+  // Unchecked: the fit stays inside the prior box, which lies inside the domain, but numeric
+  // differences and Ceres' line searches need plain arithmetic at its edges.
+  for (const auto& [kind, begin] : effect_begin_) {
+    model::SetEffectParametersUnchecked(kind, p + begin, &e);
+  }
   if (spec_.Has(EffectKind::kJitter)) {
     model::JitterParams j{0.0, 0.0, 0.0, 0.0};
     const int i = jitter_index_[k];

@@ -367,14 +367,16 @@ bool EffectsIdentifiable(const FitModel& model, std::string* why) {
 
 bool FitModel::EffectsAt(const double* theta, model::ExposureEffects* effects) const {
   *effects = model::ExposureEffects();
-  std::string why;
   for (const FitEffect& e : options_.effects) {
     const int first = EffectIndex(e.kind);
-    const int np = static_cast<int>(model::DescribeEffect(e.kind).parameters.size());
-    if (!model::SetEffectParameters(e.kind, std::vector<double>(theta + first, theta + first + np),
-                                    effects, &why)) {
-      return false;
+    const std::vector<model::EffectParameterInfo>& parameters =
+        model::DescribeEffect(e.kind).parameters;
+    // The domain check without building the error message a full check would (this runs on
+    // every evaluation; theta is normally inside the prior box, which lies in the domain).
+    for (size_t j = 0; j < parameters.size(); ++j) {
+      if (!model::InsideEffectDomain(parameters[j], theta[first + j])) return false;
     }
+    model::SetEffectParametersUnchecked(e.kind, theta + first, effects);
   }
   return true;
 }

@@ -273,15 +273,19 @@ json EffectCatalogueJson() {
   return list;
 }
 
+bool InsideEffectDomain(const EffectParameterInfo& p, double value) {
+  const bool low_ok = p.lower_open ? value > p.domain_lower : value >= p.domain_lower;
+  const bool high_ok = p.upper_open ? value < p.domain_upper : value <= p.domain_upper;
+  return std::isfinite(value) && low_ok && high_ok;
+}
+
 bool CheckEffectParameter(EffectKind kind, int index, double value, const std::string& path,
                           std::string* error) {
   const EffectInfo& info = DescribeEffect(kind);
   CHECK_GE(index, 0);
   CHECK_LT(index, static_cast<int>(info.parameters.size()));
   const EffectParameterInfo& p = info.parameters[index];
-  const bool low_ok = p.lower_open ? value > p.domain_lower : value >= p.domain_lower;
-  const bool high_ok = p.upper_open ? value < p.domain_upper : value <= p.domain_upper;
-  if (std::isfinite(value) && low_ok && high_ok) return true;
+  if (InsideEffectDomain(p, value)) return true;
   *error = "'" + path + "' must be in " + DomainText(p) + " (got " + FormatNumber(value) + ")";
   return false;
 }
@@ -324,8 +328,14 @@ bool SetEffectParameters(EffectKind kind, const std::vector<double>& v, Exposure
       return false;
     }
   }
+  SetEffectParametersUnchecked(kind, v.data(), e);
+  return true;
+}
+
+void SetEffectParametersUnchecked(EffectKind kind, const double* v, ExposureEffects* e) {
   switch (kind) {
-    case EffectKind::kDefocus: break;
+    case EffectKind::kDefocus:
+      LOG(FATAL) << "defocus is a SpotParams component, not an effect";
     case EffectKind::kBrighterFatter: e->brighter_fatter = BrighterFatterParams{v[0], v[1]}; break;
     case EffectKind::kSerialCti: e->serial_cti = CtiParams{v[0], v[1]}; break;
     case EffectKind::kParallelCti: e->parallel_cti = CtiParams{v[0], v[1]}; break;
@@ -336,7 +346,6 @@ bool SetEffectParameters(EffectKind kind, const std::vector<double>& v, Exposure
     case EffectKind::kHalo: e->halo = HaloParams{v[0], v[1]}; break;
     case EffectKind::kDefocusOffset: e->defocus_offset = DefocusOffsetParams{v[0], v[1]}; break;
   }
-  return true;
 }
 
 void AddDefaultEffect(EffectKind kind, ExposureEffects* effects) {

@@ -226,6 +226,8 @@ std::string FormatEffectCatalogue();
 // "description":}]}].
 nlohmann::json EffectCatalogueJson();
 
+// Whether `value` is finite and inside the parameter's physical domain.
+bool InsideEffectDomain(const EffectParameterInfo& parameter, double value);
 // Checks `value` against the domain of parameter `index` of `kind`. On failure returns false
 // with a one-line reason naming `path` (e.g. "effects.ipc.alpha").
 bool CheckEffectParameter(EffectKind kind, int index, double value, const std::string& path,
@@ -240,6 +242,10 @@ bool CheckEffectParameter(EffectKind kind, int index, double value, const std::s
 std::vector<double> GetEffectParameters(const ExposureEffects& effects, EffectKind kind);
 bool SetEffectParameters(EffectKind kind, const std::vector<double>& values,
                          ExposureEffects* effects, std::string* error);
+// SetEffectParameters without the checks, for values known to lie in the domain (a fit's
+// prior box lies inside it) on a fit's hot path: `values` holds the effect's parameters in
+// EffectParameters order. kDefocus CHECK-fails.
+void SetEffectParametersUnchecked(EffectKind kind, const double* values, ExposureEffects* effects);
 // The effect with its default parameters (kDefocus: CHECK-fails).
 void AddDefaultEffect(EffectKind kind, ExposureEffects* effects);
 
