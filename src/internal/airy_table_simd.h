@@ -41,25 +41,24 @@ inline void TablePolynomial(const double* table, double v, double* amp, double* 
 }
 
 #if defined(__AVX2__) && defined(__FMA__)
-// TablePolynomial at four points. A point's six coefficients are contiguous, so two loads
-// fetch them, and a 4 x 4 (plus a 4 x 2) transpose turns four points' coefficients into one
-// vector per coefficient; the polynomial then runs four points per instruction. (AVX2 gathers
-// of the coefficients measured slower on the development machine, the scalar loop about 2x
-// slower than this.) damp may be null.
-inline __m256d TablePolynomial4(const double* table, __m256d v, __m256d* damp) {
+// The table pieces of four points v >= 0 and the offsets u in them (units of the step), as
+// TablePolynomial finds them.
+inline void TablePieces4(__m256d v, __m128i* index, __m256d* u) {
   constexpr double kInvStep = 1.0 / model::kAiryTableStep;
   constexpr int kLast = static_cast<int>(model::kAiryTableMax * kInvStep + 0.5) - 1;
-  const __m256d inv_step = _mm256_set1_pd(kInvStep);
-  const __m256d sv =
-      _mm256_mul_pd(_mm256_min_pd(v, _mm256_set1_pd(model::kAiryTableMax)), inv_step);
-  const __m128i index = _mm_min_epi32(_mm256_cvttpd_epi32(sv), _mm_set1_epi32(kLast));  // sv >= 0
-  const __m256d u = _mm256_sub_pd(sv, _mm256_cvtepi32_pd(index));
-  // (Extracted from the register: storing the vector and reading its parts back stalls on
-  // store forwarding.)
-  const double* c[4] = {table + 6 * static_cast<long>(_mm_cvtsi128_si32(index)),
-                        table + 6 * static_cast<long>(_mm_extract_epi32(index, 1)),
-                        table + 6 * static_cast<long>(_mm_extract_epi32(index, 2)),
-                        table + 6 * static_cast<long>(_mm_extract_epi32(index, 3))};
+  const __m256d sv = _mm256_mul_pd(_mm256_min_pd(v, _mm256_set1_pd(model::kAiryTableMax)),
+                                   _mm256_set1_pd(kInvStep));
+  *index = _mm_min_epi32(_mm256_cvttpd_epi32(sv), _mm_set1_epi32(kLast));  // sv >= 0
+  *u = _mm256_sub_pd(sv, _mm256_cvtepi32_pd(*index));
+}
+
+// The polynomial of TablePolynomial at four points, whose pieces' six coefficients start at
+// c[0..3], at offsets u. The coefficients of a piece are contiguous, so two loads fetch them,
+// and a 4 x 4 (plus a 4 x 2) transpose turns four points' coefficients into one vector per
+// coefficient; the polynomial then runs four points per instruction. (AVX2 gathers of the
+// coefficients measured slower on the development machine, the scalar loop about 2x slower
+// than this.) damp may be null.
+inline __m256d PiecePolynomial4(const double* const c[4], __m256d u, __m256d* damp) {
   // Rows r_l = (c0, c1, c2, c3) of point l, transposed to columns C0..C3 over the points.
   const __m256d r0 = _mm256_loadu_pd(c[0]), r1 = _mm256_loadu_pd(c[1]);
   const __m256d r2 = _mm256_loadu_pd(c[2]), r3 = _mm256_loadu_pd(c[3]);
@@ -86,9 +85,23 @@ inline __m256d TablePolynomial4(const double* table, __m256d v, __m256d* damp) {
     d = _mm256_fmadd_pd(u, d, _mm256_mul_pd(_mm256_set1_pd(3.0), c3));
     d = _mm256_fmadd_pd(u, d, _mm256_add_pd(c2, c2));
     d = _mm256_fmadd_pd(u, d, c1);
-    *damp = _mm256_mul_pd(d, inv_step);
+    *damp = _mm256_mul_pd(d, _mm256_set1_pd(1.0 / model::kAiryTableStep));
   }
   return a;
+}
+
+// TablePolynomial at four points. damp may be null.
+inline __m256d TablePolynomial4(const double* table, __m256d v, __m256d* damp) {
+  __m128i index;
+  __m256d u;
+  TablePieces4(v, &index, &u);
+  // (Extracted from the register: storing the vector and reading its parts back stalls on
+  // store forwarding.)
+  const double* const c[4] = {table + 6 * static_cast<long>(_mm_cvtsi128_si32(index)),
+                              table + 6 * static_cast<long>(_mm_extract_epi32(index, 1)),
+                              table + 6 * static_cast<long>(_mm_extract_epi32(index, 2)),
+                              table + 6 * static_cast<long>(_mm_extract_epi32(index, 3))};
+  return PiecePolynomial4(c, u, damp);
 }
 #endif
 

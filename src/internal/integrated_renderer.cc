@@ -74,22 +74,52 @@ void FillAiryColumn(const double* table, double k, double norm, double dnorm, do
                     int first, int rows, double* col, double* col_dr) {
   int iu = first;
 #if defined(__AVX2__) && defined(__FMA__)
+  // Software-pipelined in two stages per group of four nodes: first v, its table piece and
+  // the offset in it, then the polynomial. Node by node, the chain sqrt -> piece ->
+  // coefficient loads (mostly from L2: the table holds ~50 bytes per 0.05 of v) -> five
+  // dependent multiply-adds was too long for the out-of-order window to overlap enough nodes
+  // (~9 cycles per node). Here the first stage runs kAhead groups ahead of the second, through
+  // a ring of stage buffers, so that the square roots (the divider's throughput) and the
+  // coefficient transposes (the shuffle port's) of different groups proceed side by side.
+  constexpr int kAhead = 8;  // groups; a power of two
+  alignas(32) int32_t piece[4 * kAhead];
+  alignas(32) double offset[4 * kAhead], vs[4 * kAhead];
   const __m256d kv = _mm256_set1_pd(k), hxv = _mm256_set1_pd(hx), y2v = _mm256_set1_pd(y2);
   const __m256d normv = _mm256_set1_pd(norm), dnormv = _mm256_set1_pd(dnorm);
-  const __m256d step = _mm256_set1_pd(4.0);
-  __m256d index = _mm256_add_pd(_mm256_set1_pd(first), _mm256_set_pd(3.0, 2.0, 1.0, 0.0));
-  for (; iu + 4 <= rows; iu += 4, index = _mm256_add_pd(index, step)) {
-    const __m256d x = _mm256_mul_pd(index, hxv);
+  const __m256d lanes = _mm256_set_pd(3.0, 2.0, 1.0, 0.0);
+  const int groups = (rows - first) / 4;
+  const auto first_stage = [&](int g) {
+    const int slot = 4 * (g % kAhead);
+    const __m256d x = _mm256_mul_pd(_mm256_add_pd(_mm256_set1_pd(first + 4 * g), lanes), hxv);
     const __m256d v = _mm256_mul_pd(kv, _mm256_sqrt_pd(_mm256_fmadd_pd(x, x, y2v)));
+    __m128i p;
+    __m256d u;
+    TablePieces4(v, &p, &u);
+    _mm_store_si128(reinterpret_cast<__m128i*>(piece + slot), p);
+    _mm256_store_pd(offset + slot, u);
+    _mm256_store_pd(vs + slot, v);
+  };
+  for (int g = 0; g < std::min(kAhead, groups); ++g) first_stage(g);
+  for (int g = 0; g < groups; ++g) {
+    const int slot = 4 * (g % kAhead);
+    const double* const c[4] = {table + 6 * static_cast<long>(piece[slot]),
+                                table + 6 * static_cast<long>(piece[slot + 1]),
+                                table + 6 * static_cast<long>(piece[slot + 2]),
+                                table + 6 * static_cast<long>(piece[slot + 3])};
     __m256d da;
-    const __m256d a = TablePolynomial4(table, v, col_dr != nullptr ? &da : nullptr);
+    const __m256d a =
+        PiecePolynomial4(c, _mm256_load_pd(offset + slot), col_dr != nullptr ? &da : nullptr);
     const __m256d a2 = _mm256_mul_pd(a, a);
-    _mm256_storeu_pd(col + iu, _mm256_mul_pd(normv, a2));
+    const int at = first + 4 * g;
+    _mm256_storeu_pd(col + at, _mm256_mul_pd(normv, a2));
     if (col_dr != nullptr) {
-      _mm256_storeu_pd(col_dr + iu,
+      const __m256d v = _mm256_load_pd(vs + slot);
+      _mm256_storeu_pd(col_dr + at,
                        _mm256_mul_pd(dnormv, _mm256_fmadd_pd(_mm256_mul_pd(a, da), v, a2)));
     }
+    if (g + kAhead < groups) first_stage(g + kAhead);  // into the slot just read
   }
+  iu = first + 4 * groups;
 #endif
   // The remainder, rounded as the vector lanes are.
   for (; iu < rows; ++iu) {
@@ -154,7 +184,9 @@ void FillAiryQuadrant(double k, double dk_dr, double hx, double hy, bool derivs,
   const double dnorm = k / (2.0 * M_PI) * dk_dr;  // d(norm a^2)/dr = dnorm (a^2 + a da k d)
   for (int ju = 0; ju < q->cols; ++ju) {
     const double y2 = (ju * hy) * (ju * hy);
-    const int first = (mirror && ju < rows) ? ju : 0;
+    // From the diagonal rounded down to whole vectors of four (rows is a multiple of 4): the
+    // few nodes above the diagonal computed so are overwritten by the mirror.
+    const int first = (mirror && ju < rows) ? ju / 4 * 4 : 0;
     double* col = q->data() + static_cast<size_t>(ju) * rows;
     double* col_dr = derivs ? q_dr->data() + static_cast<size_t>(ju) * rows : nullptr;
     FillAiryColumn(table, k, norm, dnorm, hx, y2, first, rows, col, col_dr);
