@@ -356,6 +356,70 @@ inline void WeightedSums3(int nodes, const double* base, const size_t* offset, c
   WeightedSums<3, 3>(nodes, base, offset, w, w_stride, length, out, out_stride);
 }
 
+// WeightedSums1 for two output lines whose nodes are q apart: line 0 sums nodes m = 0..n-1,
+// line 1 nodes m = q..q+n-1 with weight w[m - q], both through offset[]. The nodes the lines
+// share (q <= m < n) are loaded once for both: half the loads of two WeightedSums1 calls
+// for the same multiply-adds, in the same order (so the same sums, bit for bit). Blocks of
+// at most 6 vectors: 2 x 6 sums, an input and two weights fill the 16 AVX2 registers; the
+// blocks are of nearly equal sizes, so that none is too short to hide the multiply-add
+// latency.
+template <int V>
+inline void PairSumsBlock(int n, int q, const double* base, const size_t* offset, const double* w,
+                          int start, double* out0, double* out1) {
+  Vec4 acc0[V], acc1[V];
+  for (int v = 0; v < V; ++v) acc0[v] = acc1[v] = Vec4{0.0, 0.0, 0.0, 0.0};
+  const int shared_begin = std::min(q, n), shared_end = std::max(q, n);
+  for (int m = 0; m < shared_begin; ++m) {  // line 0 only
+    const double* x = base + offset[m] + start;
+    for (int v = 0; v < V; ++v) acc0[v] += w[m] * LoadVec4(x + 4 * v);
+  }
+  for (int m = q; m < n; ++m) {  // both lines
+    const double* x = base + offset[m] + start;
+    const double w0 = w[m], w1 = w[m - q];
+    for (int v = 0; v < V; ++v) {
+      const Vec4 in = LoadVec4(x + 4 * v);
+      acc0[v] += w0 * in;
+      acc1[v] += w1 * in;
+    }
+  }
+  for (int m = shared_end; m < n + q; ++m) {  // line 1 only
+    const double* x = base + offset[m] + start;
+    for (int v = 0; v < V; ++v) acc1[v] += w[m - q] * LoadVec4(x + 4 * v);
+  }
+  for (int v = 0; v < V; ++v) {
+    StoreVec4(out0 + start + 4 * v, acc0[v]);
+    StoreVec4(out1 + start + 4 * v, acc1[v]);
+  }
+}
+// PairSumsBlock over t in [0, length), length a multiple of 4.
+void PairSums(int n, int q, const double* base, const size_t* offset, const double* w, int length,
+              double* out0, double* out1) {
+  constexpr int kMaxVectors = 6;
+  const int vectors = length / 4;
+  const int blocks = (vectors + kMaxVectors - 1) / kMaxVectors;
+  int start = 0;
+  for (int block = 0; block < blocks; ++block) {
+    // The first (vectors % blocks) blocks take one vector more than the others.
+    const int size = vectors / blocks + (block < vectors % blocks ? 1 : 0);
+    switch (size) {
+#define CCDPSF_BLOCK(v)                                         \
+  case v:                                                       \
+    PairSumsBlock<v>(n, q, base, offset, w, start, out0, out1); \
+    break;
+      CCDPSF_BLOCK(1)
+      CCDPSF_BLOCK(2)
+      CCDPSF_BLOCK(3)
+      CCDPSF_BLOCK(4)
+      CCDPSF_BLOCK(5)
+      CCDPSF_BLOCK(6)
+#undef CCDPSF_BLOCK
+      default:
+        break;
+    }
+    start += 4 * size;
+  }
+}
+
 // Stores four first-pass output rows (rows[l * row_size + rhs * nh + i], for b = b0 + l) into
 // bt[(i * nr + rhs) * ny_pad + b0 + l]: a 4 x 4 transpose per four nodes, so that each store
 // writes four b at once (one strided store per value measured ~15 % of a render).
@@ -493,28 +557,43 @@ void RenderIntegrated(const model::ModelOptions& options, const model::SpotParam
   ws->bt.resize(row_size * ny_pad);
   const int wy_size = static_cast<int>(wy.w.rows());
   const int wx_size = static_cast<int>(wx.w.rows());
-  ws->offset.resize(std::max(wx_size, wy_size));
+  ws->offset.resize(std::max(wx_size, wy_size + qy));
   size_t* offset = ws->offset.data();
   // Rows b in fours, so that the transposed stores are of four b at once.
   for (int b0 = 0; b0 < ny_pad; b0 += 4) {
-    for (int l = 0; l < 4; ++l) {
+    // Rows b, b + 1 in pairs: the nodes of row b + 1 are those of row b shifted by qy, so
+    // offsets m < wy_size + qy serve both, and single-weight sums run on both at once.
+    for (int l = 0; l < 4; l += 2) {
       const int b = b0 + l;
       double* row = ws->row.data() + l * row_size;
+      double* next = row + row_size;
       if (b >= ny) {
-        std::fill_n(row, row_size, 0.0);
+        std::fill_n(row, 2 * row_size, 0.0);
         continue;
       }
-      for (int m = 0; m < wy_size; ++m) {
+      for (int m = 0; m < wy_size + qy; ++m) {
         offset[m] = static_cast<size_t>(std::abs(j_lo + qy * b + m)) * stride;
       }
+      const bool pair = b + 1 < ny;
+      if (!pair) std::fill_n(next, row_size, 0.0);
       if (derivs) {
         WeightedSums3(wy_size, ws->quadrant.data(), offset, wy.w.data(), wy_size, nh, row, nh);
-        WeightedSums1(wy_size, ws->quadrant_dr.data(), offset, wy.w.data(), nh, row + 3 * nh);
-        if (pillbox) {
-          WeightedSums1(wy_size, ws->quadrant_dR.data(), offset, wy.w.data(), nh, row + 4 * nh);
+        if (pair) {
+          WeightedSums3(wy_size, ws->quadrant.data(), offset + qy, wy.w.data(), wy_size, nh, next,
+                        nh);
         }
-      } else {
-        WeightedSums1(wy_size, ws->quadrant.data(), offset, wy.w.data(), nh, row);
+      }
+      // Single-weight sums: S (values only), else dS/dr and dS/dR.
+      for (int rhs = derivs ? 3 : 0; rhs < nr; ++rhs) {
+        const double* base = (rhs == 0   ? ws->quadrant
+                              : rhs == 3 ? ws->quadrant_dr
+                                         : ws->quadrant_dR)
+                                 .data();
+        if (pair) {
+          PairSums(wy_size, qy, base, offset, wy.w.data(), nh, row + rhs * nh, next + rhs * nh);
+        } else {
+          WeightedSums1(wy_size, base, offset, wy.w.data(), nh, row + rhs * nh);
+        }
       }
     }
     TransposeStore4(ws->row.data(), row_size, nh, nr, ny_pad, b0, ws->bt.data());
