@@ -154,39 +154,40 @@ std::vector<GroupResult> FitCampaignGroups(std::vector<CampaignGroup> groups,
                                            const GroupProgress& progress,
                                            std::vector<std::string>* notes) {
   const int total = static_cast<int>(groups.size());
-  std::vector<int> series_at, rest_at;
-  for (int i = 0; i < total; ++i) (groups[i].focus_series ? series_at : rest_at).push_back(i);
-  std::vector<GroupResult> results(total);
-  int done = 0;
-  // One phase: the groups at `positions`, with the seeds and progress of the whole campaign.
-  auto run = [&](const std::vector<int>& positions) {
-    if (positions.empty()) return;
-    std::vector<CampaignGroup> part;
-    GroupFitOptions o = options;
-    o.seed_indices.clear();
-    for (int i : positions) {
-      part.push_back(groups[i]);
-      o.seed_indices.push_back(options.seed_indices.empty() ? i : options.seed_indices[i]);
-    }
-    const int before = done;
-    std::vector<GroupResult> r = FitGroups(part, o, [&](const GroupResult& g, int n, int) {
-      if (progress) progress(g, before + n, total);
-    });
-    for (size_t k = 0; k < positions.size(); ++k) results[positions[k]] = std::move(r[k]);
-    done += static_cast<int>(positions.size());
-  };
-  if (scope == AnchorScope::kOff || series_at.empty()) {
-    std::vector<int> all(total);
-    std::iota(all.begin(), all.end(), 0);
-    run(all);
-    return results;
+  std::vector<int> series_at;
+  for (int i = 0; i < total; ++i) {
+    if (groups[i].focus_series) series_at.push_back(i);
   }
-  run(series_at);
+  if (scope == AnchorScope::kOff || series_at.empty()) return FitGroups(groups, options, progress);
+  // Each single-focus setting waits for the series in its scope (AnchorDefocus looks at no
+  // other), and is anchored by them as soon as they are fitted: no barrier between the
+  // series and the settings, so two workers stay busy while the last series runs.
+  GroupSchedule schedule;
+  schedule.after.resize(total);
+  for (int g = 0; g < total; ++g) {
+    if (groups[g].focus_series) continue;
+    for (int s : series_at) {
+      if (scope == AnchorScope::kAnyWavelength ||
+          std::fabs(groups[s].wavelength_nm - groups[g].wavelength_nm) <= kSameWavelengthNm) {
+        schedule.after[g].push_back(s);
+      }
+    }
+  }
+  schedule.prepare = [&](int g, const std::vector<GroupResult>& results, CampaignGroup* group) {
+    if (group->focus_series) return;
+    std::vector<GroupResult> series;
+    for (int s : schedule.after[g]) series.push_back(results[s]);
+    std::vector<CampaignGroup> one = {*group};
+    AnchorDefocus(series, options.config.model, scope, &one);
+    *group = one[0];
+  };
+  std::vector<GroupResult> results = FitGroups(groups, options, progress, &schedule);
+  // The campaign's notes, from every series at once: the anchors this sets are the ones each
+  // setting was fitted with (the same series in scope, in the same order).
   std::vector<GroupResult> series;
   for (int i : series_at) series.push_back(results[i]);
   const std::vector<std::string> n = AnchorDefocus(series, options.config.model, scope, &groups);
   if (notes != nullptr) notes->insert(notes->end(), n.begin(), n.end());
-  run(rest_at);
   return results;
 }
 

@@ -3,9 +3,11 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <condition_variable>
 #include <filesystem>
 #include <mutex>
 #include <numeric>
+#include <thread>
 
 #include "ccdpsf/exposure.h"
 #include "ccdpsf/exposure_set.h"
@@ -14,7 +16,7 @@
 #include "ccdpsf/provenance.h"
 #include "ccdpsf/random.h"
 #include "ccdpsf/trend/group_store.h"
-#include "internal/parallel_for.h"
+#include "glog/logging.h"
 #include "internal/text.h"
 
 namespace ccdpsf::trend {
@@ -177,43 +179,98 @@ GroupResult FitOne(const CampaignGroup& group, int position, int index,
 }  // namespace
 
 std::vector<GroupResult> FitGroups(const std::vector<CampaignGroup>& groups,
-                                   const GroupFitOptions& options,
-                                   const GroupProgress& progress) {
+                                   const GroupFitOptions& options, const GroupProgress& progress,
+                                   const GroupSchedule* schedule) {
   const int total = static_cast<int>(groups.size());
   std::vector<GroupResult> results(total);
-  // Largest groups first, so that the last to start are the quick ones.
+  if (total == 0) return results;
+  const bool with_schedule = schedule != nullptr && !schedule->after.empty();
+  if (with_schedule) CHECK_EQ(static_cast<int>(schedule->after.size()), total);
+  auto after = [&](int g) -> const std::vector<int>& {
+    static const std::vector<int> kNone;
+    return with_schedule ? schedule->after[g] : kNone;
+  };
+  // Groups that others wait for first, then the largest first, so that the last to start
+  // are the quick ones.
+  std::vector<char> awaited(total, 0);
+  for (int g = 0; g < total; ++g) {
+    for (int d : after(g)) awaited[d] = 1;
+  }
   std::vector<int> order(total);
   std::iota(order.begin(), order.end(), 0);
-  std::stable_sort(order.begin(), order.end(),
-                   [&](int a, int b) { return groups[a].files.size() > groups[b].files.size(); });
-  std::mutex mutex;
-  int done = 0;
-  internal::ParallelFor(total, options.parallel_groups, [&](int i, int) {
-    const int g = order[i];
-    const int index = options.seed_indices.empty() ? g : options.seed_indices[g];
-    GroupResult r;
-    std::string stored;
-    if (!options.store_dir.empty()) {
-      stored = options.store_dir + "/" + GroupStoreName(options.run_signature, groups[g], index);
-      r.group = groups[g];
-      r.resumed = LoadGroupResult(stored, &r);
-    }
-    if (!r.resumed) {
-      // A report folder left by an interrupted fit of this group goes first.
-      if (!options.reports_dir.empty()) {
-        std::error_code ec;
-        std::filesystem::remove_all(options.reports_dir + "/" + groups[g].name, ec);
-      }
-      r = FitOne(groups[g], g, index, options);
-      std::string error;
-      // A group that cannot be stored is only refitted by a resumed run.
-      if (!stored.empty() && !SaveGroupResult(stored, r, &error)) r.warnings.push_back(error);
-    }
-    std::lock_guard<std::mutex> lock(mutex);
-    results[g] = std::move(r);
-    ++done;
-    if (progress) progress(results[g], done, total);
+  std::stable_sort(order.begin(), order.end(), [&](int a, int b) {
+    if (awaited[a] != awaited[b]) return awaited[a] > awaited[b];
+    return groups[a].files.size() > groups[b].files.size();
   });
+  // Workers take the first group in `order` whose dependencies are finished, so a group
+  // waits only for what it needs and no worker idles while another group could run.
+  std::mutex mutex;
+  std::condition_variable changed;
+  std::vector<char> started(total, 0), finished(total, 0);
+  int done = 0, running = 0;
+  auto ready = [&](int g) {
+    for (int d : after(g)) {
+      if (!finished[d]) return false;
+    }
+    return true;
+  };
+  auto worker = [&](int) {
+    std::unique_lock<std::mutex> lock(mutex);
+    for (;;) {
+      int pick = -1;
+      bool left = false;
+      for (int g : order) {
+        if (started[g]) continue;
+        left = true;
+        if (ready(g)) {
+          pick = g;
+          break;
+        }
+      }
+      if (!left) return;
+      if (pick < 0) {
+        CHECK_GT(running, 0) << "FitGroups: groups wait for groups that never finish";
+        changed.wait(lock);
+        continue;
+      }
+      started[pick] = 1;
+      ++running;
+      CampaignGroup group = groups[pick];
+      if (with_schedule && schedule->prepare) schedule->prepare(pick, results, &group);
+      lock.unlock();
+      const int index = options.seed_indices.empty() ? pick : options.seed_indices[pick];
+      GroupResult r;
+      std::string stored;
+      if (!options.store_dir.empty()) {
+        stored = options.store_dir + "/" + GroupStoreName(options.run_signature, group, index);
+        r.group = group;
+        r.resumed = LoadGroupResult(stored, &r);
+      }
+      if (!r.resumed) {
+        // A report folder left by an interrupted fit of this group goes first.
+        if (!options.reports_dir.empty()) {
+          std::error_code ec;
+          std::filesystem::remove_all(options.reports_dir + "/" + group.name, ec);
+        }
+        r = FitOne(group, pick, index, options);
+        std::string error;
+        // A group that cannot be stored is only refitted by a resumed run.
+        if (!stored.empty() && !SaveGroupResult(stored, r, &error)) r.warnings.push_back(error);
+      }
+      lock.lock();
+      results[pick] = std::move(r);
+      finished[pick] = 1;
+      --running;
+      ++done;
+      if (progress) progress(results[pick], done, total);
+      changed.notify_all();
+    }
+  };
+  const int count = std::clamp(options.parallel_groups, 1, total);
+  std::vector<std::thread> pool;
+  for (int w = 1; w < count; ++w) pool.emplace_back(worker, w);
+  worker(0);
+  for (std::thread& t : pool) t.join();
   return results;
 }
 

@@ -50,8 +50,9 @@ std::vector<std::string> AnchorDefocus(const std::vector<GroupResult>& series,
                                        const fit::FitModelOptions& model, AnchorScope scope,
                                        std::vector<CampaignGroup>* groups);
 
-// The whole campaign's fits in two phases: the through-focus series first, then the other
-// groups, anchored by them where AnchorDefocus allows. Results are in the order of `groups`,
+// The whole campaign's fits: the through-focus series first, and each other group as soon
+// as the series in its scope are fitted, anchored by them where AnchorDefocus allows (a
+// GroupSchedule of FitGroups). Results are in the order of `groups`,
 // each group's MCMC seed that of its position (as FitGroups gives it); `progress` counts
 // over all groups. `notes` receives AnchorDefocus's notes.
 std::vector<GroupResult> FitCampaignGroups(std::vector<CampaignGroup> groups,

@@ -83,9 +83,21 @@ struct GroupResult {
 // result and how many are done.
 using GroupProgress = std::function<void(const GroupResult&, int done, int total)>;
 
+// The order in which groups may be fitted: group g waits until every group in after[g] is
+// finished (none may wait for itself, directly or not); then prepare(g, results, &group), if
+// set, may change the group to be fitted from the results of those it waited for (called
+// under FitGroups' lock, from a worker thread). Empty `after`: no group waits.
+struct GroupSchedule {
+  std::vector<std::vector<int>> after;
+  std::function<void(int g, const std::vector<GroupResult>& results, CampaignGroup* group)> prepare;
+};
+
+// Fits (or takes from the store) every group, parallel_groups at a time: a worker takes the
+// next group whose dependencies are finished (groups that others wait for first, then the
+// largest first). Results are in the order of `groups`.
 std::vector<GroupResult> FitGroups(const std::vector<CampaignGroup>& groups,
-                                   const GroupFitOptions& options,
-                                   const GroupProgress& progress);
+                                   const GroupFitOptions& options, const GroupProgress& progress,
+                                   const GroupSchedule* schedule = nullptr);
 
 }  // namespace ccdpsf::trend
 
