@@ -373,6 +373,90 @@ TEST(Diagnose, EffectModelScoresPixelsAsTheFitDoes) {
   EXPECT_LT(plain_base->NewEvaluator()->LogLikelihood(theta.data()), fit_ll - 100.0);
 }
 
+// diagnose's residual blocks take their image and analytic derivatives from the fit's model
+// (EffectModel::fit_twin). Their Gauss-Newton information J^T J must equal that of central
+// differences of the residuals written out here from EffectEvaluator::Render (the simulator's
+// forward model) and the fit's pixel likelihood: the twin draws the same image and maps
+// every derivative to the right parameter (per-exposure fluxes, effects in the spec's order,
+// the pedestal's -dr/dd), with and without the defocus component. Steps of 1e-6 of each
+// parameter's scale leave truncation ~1e-12 and rounding ~1e-10 of an entry; 1e-6 of
+// sqrt(I_aa I_bb) is the tolerance.
+TEST(Diagnose, EffectModelDerivativesAreTheFitsAnalyticOnes) {
+  SimulationConfig c = Paper(3, 5);
+  const double flux[] = {4.0e5, 2.0e5, 1.2e5};
+  for (int k = 0; k < 3; ++k) c.exposures[k].flux_e = flux[k];
+  const std::vector<Stamp> stamps = testing_support::SimulateStamps(c, 43);
+  std::string error;
+  auto base = fit::FitModel::Create(stamps, fit::FitModelOptions(), &error);
+  ASSERT_TRUE(base) << error;
+  for (const bool defocus : {true, false}) {
+    ModelSpec spec;
+    spec.defocus = defocus;
+    spec.flux = FluxMode::kPerExposure;
+    spec.effects = {EffectKind::kSerialCti, EffectKind::kBackground, EffectKind::kBrighterFatter,
+                    EffectKind::kHalo};
+    auto model = EffectModel::Create(*base, spec, &error);
+    ASSERT_TRUE(model) << error;
+    ASSERT_NE(model->fit_twin(), nullptr);
+    std::vector<double> theta = base->MomentStart(c.airy_radius_px, 0.5);
+    theta[fit::kFluxE] = c.exposures[0].flux_e;
+    std::vector<double> p = model->FromBaseline(theta);
+    const std::pair<EffectKind, std::vector<double>> values[] = {
+        {EffectKind::kSerialCti, {3e-3, 1.4}},
+        {EffectKind::kBackground, {15.0}},
+        {EffectKind::kBrighterFatter, {5e-7, 3e-7}},
+        {EffectKind::kHalo, {0.05, 2.4}}};
+    for (const auto& [kind, v] : values) {
+      const std::vector<int> at = model->EffectIndices(kind);
+      ASSERT_EQ(at.size(), v.size());
+      for (size_t j = 0; j < v.size(); ++j) p[at[j]] = v[j];
+    }
+    // The residuals of every exposure at q, as the fit's pixel likelihood gives them.
+    auto residuals = [&](const std::vector<double>& q) {
+      auto ev = model->NewEvaluator();
+      std::vector<double> r, m, charge;
+      for (int k = 0; k < model->num_exposures(); ++k) {
+        EXPECT_TRUE(ev->Render(q.data(), k, &m, &charge));
+        const Stamp& s = stamps[k];
+        const fit::PixelNoise noise = fit::StampNoise(s);
+        fit::PixelValue v;
+        for (size_t i = 0; i < s.valid.size(); ++i) {
+          if (!s.valid[i]) continue;
+          fit::EvaluatePixelWithPedestal(fit::LikelihoodKind::kGaussian, s.electrons.data[i],
+                                         s.CensorAt(i), m[i], m[i] - charge[i], noise, true, &v);
+          r.push_back(v.r[0]);
+          r.push_back(v.r[1]);
+        }
+      }
+      return r;
+    };
+    const int dim = model->dim();
+    std::vector<std::vector<double>> columns(dim);
+    for (int i = 0; i < dim; ++i) {
+      const double h =
+          1e-6 * std::max(std::fabs(p[i]), 1e-3 * (model->upper()[i] - model->lower()[i]));
+      std::vector<double> plus = p, minus = p;
+      plus[i] += h;
+      minus[i] -= h;
+      const std::vector<double> rp = residuals(plus), rm = residuals(minus);
+      columns[i].resize(rp.size());
+      for (size_t j = 0; j < rp.size(); ++j) columns[i][j] = (rp[j] - rm[j]) / (2.0 * h);
+    }
+    const std::vector<double> info = InformationMatrix(*model, p);
+    ASSERT_EQ(static_cast<int>(info.size()), dim * dim);
+    double worst = 0.0;
+    for (int a = 0; a < dim; ++a) {
+      for (int b = 0; b < dim; ++b) {
+        double numeric = 0.0;
+        for (size_t j = 0; j < columns[a].size(); ++j) numeric += columns[a][j] * columns[b][j];
+        const double scale = std::sqrt(info[a * dim + a] * info[b * dim + b]);
+        worst = std::max(worst, std::fabs(info[a * dim + b] - numeric) / scale);
+      }
+    }
+    EXPECT_LT(worst, 1e-6) << (defocus ? "with" : "without") << " the defocus component";
+  }
+}
+
 TEST(Diagnose, FindsNonlinearityAcrossIntensities) {
   // At one intensity a quadratic response is largely a change of the widths (a flatter
   // peak); across intensities its growth with the signal gives it away.

@@ -49,6 +49,7 @@ class ExposureCost : public ceres::CostFunction {
     noise_ = fit::StampNoise(s);
     for (int b : blocks_) mutable_parameter_block_sizes()->push_back(model.blocks()[b].size);
     set_num_residuals(2 * static_cast<int>(pixels_.size()));
+    if (model.fit_twin() != nullptr) twin_evaluator_ = model.fit_twin()->NewEvaluator();
     p_.assign(model.dim(), 0.0);
     // Parameters of other exposures are never read for exposure k; give them valid values.
     for (int i = 0; i < model.dim(); ++i) p_[i] = 0.5 * (model.lower()[i] + model.upper()[i]);
@@ -60,6 +61,7 @@ class ExposureCost : public ceres::CostFunction {
       const EffectModel::Block& block = model_.blocks()[blocks_[b]];
       std::copy(parameters[b], parameters[b] + block.size, p_.begin() + block.begin);
     }
+    if (twin_evaluator_ != nullptr) return AnalyticEvaluate(residuals, jacobians);
     if (!Residuals(p_.data(), residuals)) return false;
     if (jacobians == nullptr) return true;
     const int nr = num_residuals();
@@ -108,6 +110,68 @@ class ExposureCost : public ceres::CostFunction {
   }
 
  private:
+  // Residuals and their derivatives from the fit twin's image and analytic Jacobian (the
+  // fit's residual block, map_fit.cc, does the same on theta): dr/dm times d model/d p, and
+  // for the pedestal -dr/dd (it shifts the datum's expectation without shot noise).
+  bool AnalyticEvaluate(double* residuals, double** jacobians) const {
+    const fit::FitModel& twin = *model_.fit_twin();
+    theta_.resize(twin.dim());
+    model_.TwinTheta(p_.data(), k_, theta_.data());
+    std::string why;
+    if (!model::ValidSpotParams(twin_evaluator_->renderer_options(),
+                                twin.SpotFor(theta_.data(), k_), &why)) {
+      return false;
+    }
+    const bool want = jacobians != nullptr;
+    if (!twin_evaluator_->ModelImageColumns(theta_.data(), k_, &model_e_,
+                                            want ? &jacobian_ : nullptr, &columns_)) {
+      return false;
+    }
+    const Stamp& s = model_.base().stamps()[k_];
+    const int n = static_cast<int>(pixels_.size());
+    const int nc = static_cast<int>(columns_.size());
+    const double pedestal = twin.PedestalAt(theta_.data());
+    const int pedestal_index = twin.EffectIndex(EffectKind::kBackground);
+    // Where each column goes: (local block, offset), or block -1 for a parameter held at 0.
+    std::vector<std::pair<int, int>> where(nc, {-1, 0});
+    if (want) {
+      for (size_t b = 0; b < blocks_.size(); ++b) {
+        if (jacobians[b] != nullptr) {
+          std::fill_n(jacobians[b], 2 * n * model_.blocks()[blocks_[b]].size, 0.0);
+        }
+      }
+      for (int c = 0; c < nc; ++c) {
+        const int i = model_.TwinToP(columns_[c], k_);
+        if (i < 0) continue;
+        for (size_t b = 0; b < blocks_.size(); ++b) {
+          const EffectModel::Block& block = model_.blocks()[blocks_[b]];
+          if (i >= block.begin && i < block.begin + block.size) {
+            where[c] = {static_cast<int>(b), i - block.begin};
+          }
+        }
+      }
+    }
+    fit::PixelValue v;
+    for (int r = 0; r < n; ++r) {
+      const int q = pixels_[r];
+      fit::EvaluatePixelWithPedestal(fit::LikelihoodKind::kGaussian, data_[q], s.CensorAt(q),
+                                     model_e_[q], pedestal, noise_, true, &v);
+      residuals[r] = v.r[0];
+      residuals[n + r] = v.r[1];
+      if (!want) continue;
+      const double* g = &jacobian_[static_cast<size_t>(q) * nc];
+      for (int c = 0; c < nc; ++c) {
+        const auto [b, offset] = where[c];
+        if (b < 0 || jacobians[b] == nullptr) continue;
+        const int size = model_.blocks()[blocks_[b]].size;
+        const bool is_pedestal = columns_[c] == pedestal_index;
+        jacobians[b][r * size + offset] = is_pedestal ? -v.dr_dd[0] : v.dr_dm[0] * g[c];
+        jacobians[b][(n + r) * size + offset] = is_pedestal ? -v.dr_dd[1] : v.dr_dm[1] * g[c];
+      }
+    }
+    return true;
+  }
+
   bool Residuals(const double* p, double* residuals) const {
     if (!evaluator_.Render(p, k_, &model_e_, &charge_e_)) return false;
     const Stamp& s = model_.base().stamps()[k_];
@@ -130,6 +194,10 @@ class ExposureCost : public ceres::CostFunction {
   std::vector<int> pixels_;
   fit::PixelNoise noise_;
   mutable std::vector<double> p_, model_e_, charge_e_, plus_, minus_;
+  // The analytic path (EffectModel::fit_twin()).
+  std::unique_ptr<fit::FitEvaluator> twin_evaluator_;
+  mutable std::vector<double> theta_, jacobian_;
+  mutable std::vector<int> columns_;
 };
 
 }  // namespace
@@ -268,7 +336,54 @@ std::unique_ptr<EffectModel> EffectModel::Create(const fit::FitModel& base, cons
       return nullptr;
     }
   }
+  // The fit twin: the same stamps and effects in the fit's model, for analytic derivatives.
+  const bool twin_possible = base.options().model.sampling == model::Sampling::kIntegrated &&
+                             !spec.Has(EffectKind::kJitter) &&
+                             !spec.Has(EffectKind::kDefocusOffset);
+  if (twin_possible) {
+    fit::FitModelOptions twin_options = base.options();
+    twin_options.flux = fit::FluxMode::kShared;  // exposure k's flux goes into flux_e
+    twin_options.effects.clear();
+    for (EffectKind kind : spec.effects) twin_options.effects.push_back({kind, {}});
+    std::string why;
+    m->twin_ = fit::FitModel::Create(base.stamps(), twin_options, &why);
+    CHECK(m->twin_ != nullptr) << "diagnose's fit twin: " << why;
+    const int first = m->twin_->EffectsFirstIndex();
+    if (first >= 0) {
+      m->twin_effect_to_p_.assign(m->twin_->dim() - first, -1);
+      for (const auto& [kind, begin] : m->effect_begin_) {
+        const int np = static_cast<int>(model::DescribeEffect(kind).parameters.size());
+        for (int j = 0; j < np; ++j) {
+          m->twin_effect_to_p_[m->twin_->EffectIndex(kind) + j - first] = begin + j;
+        }
+      }
+    }
+  }
   return m;
+}
+
+void EffectModel::TwinTheta(const double* p, int k, double* theta) const {
+  std::fill_n(theta, twin_->dim(), 0.0);
+  theta[fit::kFluxE] = p[FluxIndex(k)];
+  for (int i = fit::kAiryRadiusPx; i <= fit::kCcdSigmaYPx; ++i) {
+    const int j = ShapeIndex(i);
+    theta[i] = j >= 0 ? p[j] : 0.0;  // no defocus component: held at 0
+  }
+  theta[fit::FitModel::XIndex(k)] = p[XIndex(k)];
+  theta[fit::FitModel::YIndex(k)] = p[YIndex(k)];
+  const int first = twin_->EffectsFirstIndex();
+  for (size_t e = 0; e < twin_effect_to_p_.size(); ++e) theta[first + e] = p[twin_effect_to_p_[e]];
+}
+
+int EffectModel::TwinToP(int theta_index, int k) const {
+  if (theta_index == fit::kFluxE) return FluxIndex(k);
+  if (theta_index < fit::kNumShared) return ShapeIndex(theta_index);
+  if (theta_index == fit::FitModel::XIndex(k)) return XIndex(k);
+  if (theta_index == fit::FitModel::YIndex(k)) return YIndex(k);
+  const int first = twin_->EffectsFirstIndex();
+  CHECK(first >= 0 && theta_index >= first)
+      << "exposure " << k << " does not depend on theta[" << theta_index << "]";
+  return twin_effect_to_p_[theta_index - first];
 }
 
 int EffectModel::FluxIndex(int k) const {

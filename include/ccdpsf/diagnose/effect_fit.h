@@ -39,9 +39,14 @@
 // on), effect ranges from the catalogue's prior_lower / prior_upper (jitter variance:
 // [0, prior_upper^2]). Bounds are Ceres parameter bounds.
 //
-// Derivatives are numeric (the effects are double-only code): central differences of step
-// 1e-5 x max(|p_i|, 1e-2 x prior width), one-sided where a central step would leave the prior
-// box (several effects are not defined, or not meaningful, below their lower bound).
+// Derivatives: where the spec is a model the fit holds (integrated sampling, no jitter, no
+// defocus_offset), the image and its analytic derivatives come from the fit's own model
+// (fit::FitEvaluator::ModelImageColumns on a fit::FitModel with the same effects: the
+// "fit twin"), so that diagnose and fit draw and differentiate one model. Otherwise (the
+// per-exposure jitter variances, the 2015 discretisation) they are numeric: central
+// differences of step 1e-5 x max(|p_i|, 1e-2 x prior width), one-sided where a central step
+// would leave the prior box (several effects are not defined, or not meaningful, below their
+// lower bound).
 #ifndef CCDPSF_DIAGNOSE_EFFECT_FIT_H_
 #define CCDPSF_DIAGNOSE_EFFECT_FIT_H_
 
@@ -132,6 +137,14 @@ class EffectModel {
 
   std::unique_ptr<EffectEvaluator> NewEvaluator() const;
 
+  // The fit's model of this spec, when it has one (see the top of this file), else null;
+  // theta for exposure k at p in its layout (shared flux: exposure k's own flux), and the
+  // index in p of each theta index exposure k depends on (-1: held at 0, the defocus of a
+  // spec without it).
+  const fit::FitModel* fit_twin() const { return twin_.get(); }
+  void TwinTheta(const double* p, int k, double* theta) const;
+  int TwinToP(int theta_index, int k) const;
+
  private:
   EffectModel(const fit::FitModel& base, const ModelSpec& spec) : base_(base), spec_(spec) {}
   void Add(const std::string& name, double lower, double upper, double start);
@@ -149,6 +162,8 @@ class EffectModel {
   std::vector<int> jitter_index_;  // per exposure: var_x index, or -1 for the reference
   int effect_block_ = -1;          // block index of the shared effect parameters
   std::vector<int> jitter_block_;  // per exposure: block index, or -1
+  std::unique_ptr<fit::FitModel> twin_;
+  std::vector<int> twin_effect_to_p_;  // theta index - twin's first effect index -> p index
 };
 
 // Renders the model of an EffectModel; owns scratch space and a renderer, so use one per
@@ -180,8 +195,9 @@ struct EffectFitOptions {
   int num_threads = 1;  // Ceres threads (one residual block per exposure)
   // Convergence: Ceres' function tolerance (relative change of the cost).
   double function_tolerance = 1e-10;
-  // The Laplace approximation after the solve (numeric information matrix, about the cost of
-  // two iterations); off for refits that only need the point (predictive simulations).
+  // The Laplace approximation after the solve (the information matrix J^T J of the residual
+  // blocks, about the cost of an iteration); off for refits that only need the point
+  // (predictive simulations).
   bool laplace = true;
 };
 
@@ -216,8 +232,8 @@ bool AddLaplace(const EffectModel& model, EffectFitResult* result, std::string* 
                 const std::vector<Image>* data_e = nullptr);
 
 // The Gauss-Newton information matrix (dim x dim, row-major) at p: J^T J of the whitened
-// residuals (r1 and r2), by numeric differences. Empty when an exposure's residuals cannot be
-// evaluated at p.
+// residuals (r1 and r2), with the residual blocks' derivatives (see the top of this file). Empty
+// when an exposure's residuals cannot be evaluated at p.
 std::vector<double> InformationMatrix(const EffectModel& model, const std::vector<double>& p,
                                       const std::vector<Image>* data_e = nullptr);
 
