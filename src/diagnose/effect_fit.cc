@@ -525,10 +525,33 @@ std::unique_ptr<EffectEvaluator> EffectModel::NewEvaluator() const {
 }
 
 EffectEvaluator::EffectEvaluator(const EffectModel& model)
-    : model_(model), renderer_(model.base().options().model) {}
+    : model_(model), renderer_(model.base().options().model) {
+  if (model.fit_twin() != nullptr) twin_evaluator_ = model.fit_twin()->NewEvaluator();
+}
 
 bool EffectEvaluator::Render(const double* p, int k, std::vector<double>* model_e,
                              std::vector<double>* charge_e) {
+  if (twin_evaluator_ != nullptr) {
+    // The fit's own model image (the residual blocks' too): one drawing of the model.
+    const fit::FitModel& twin = *model_.fit_twin();
+    theta_.resize(twin.dim());
+    model_.TwinTheta(p, k, theta_.data());
+    std::string why;
+    if (!model::ValidSpotParams(renderer_.options(), twin.SpotFor(theta_.data(), k), &why) ||
+        !twin_evaluator_->ModelImage(theta_.data(), k, &twin_image_, nullptr)) {
+      return false;
+    }
+    for (double v : twin_image_) {
+      if (!std::isfinite(v)) return false;
+    }
+    const double pedestal = twin.PedestalAt(theta_.data());
+    if (charge_e != nullptr) {
+      charge_e->resize(twin_image_.size());
+      for (size_t q = 0; q < twin_image_.size(); ++q) (*charge_e)[q] = twin_image_[q] - pedestal;
+    }
+    if (model_e != nullptr) *model_e = twin_image_;
+    return true;
+  }
   const model::SpotParams sp = model_.SpotFor(p, k);
   std::string why;
   if (!model::ValidSpotParams(renderer_.options(), sp, &why)) return false;

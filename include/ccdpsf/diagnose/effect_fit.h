@@ -174,7 +174,8 @@ class EffectEvaluator {
 
   // Expected electrons of exposure k (stamp-sized, row-major) and the charge part of it
   // (the same without the background pedestal; the shot noise follows it). Either may be
-  // null. False (nothing written) if p is outside the renderer's domain.
+  // null. False (nothing written) if p is outside the renderer's domain. With a fit twin
+  // these are its images (fit::FitEvaluator::ModelImage), else the simulator's functions'.
   bool Render(const double* p, int k, std::vector<double>* model_e,
               std::vector<double>* charge_e);
 
@@ -188,6 +189,8 @@ class EffectEvaluator {
   const EffectModel& model_;
   model::SpotRenderer renderer_;
   std::vector<double> model_buf_, charge_buf_;
+  std::unique_ptr<fit::FitEvaluator> twin_evaluator_;  // with a fit twin: its images
+  std::vector<double> theta_, twin_image_;
 };
 
 struct EffectFitOptions {
