@@ -378,7 +378,8 @@ TEST(Diagnose, EffectModelScoresPixelsAsTheFitDoes) {
 // differences of the residuals written out here from EffectEvaluator::Render (the simulator's
 // forward model) and the fit's pixel likelihood: the twin draws the same image and maps
 // every derivative to the right parameter (per-exposure fluxes, effects in the spec's order,
-// the pedestal's -dr/dd), with and without the defocus component. Steps of 1e-6 of each
+// the pedestal's -dr/dd, jitter variances through the CCD widths; one of them at its bound
+// 0), with and without the defocus component. Steps of 1e-6 of each
 // parameter's scale leave truncation ~1e-12 and rounding ~1e-10 of an entry; 1e-6 of
 // sqrt(I_aa I_bb) is the tolerance.
 TEST(Diagnose, EffectModelDerivativesAreTheFitsAnalyticOnes) {
@@ -389,12 +390,17 @@ TEST(Diagnose, EffectModelDerivativesAreTheFitsAnalyticOnes) {
   std::string error;
   auto base = fit::FitModel::Create(stamps, fit::FitModelOptions(), &error);
   ASSERT_TRUE(base) << error;
-  for (const bool defocus : {true, false}) {
+  for (const int variant : {0, 1, 2}) {
+    // 0: with the defocus component, 1: without it, 2: jitter variances instead of the
+    // brighter-fatter growth (the reference exposure 1 without).
+    const bool defocus = variant != 1;
     ModelSpec spec;
     spec.defocus = defocus;
     spec.flux = FluxMode::kPerExposure;
-    spec.effects = {EffectKind::kSerialCti, EffectKind::kBackground, EffectKind::kBrighterFatter,
+    spec.effects = {EffectKind::kSerialCti, EffectKind::kBackground,
+                    variant == 2 ? EffectKind::kJitter : EffectKind::kBrighterFatter,
                     EffectKind::kHalo};
+    spec.jitter_reference = 1;
     auto model = EffectModel::Create(*base, spec, &error);
     ASSERT_TRUE(model) << error;
     ASSERT_NE(model->fit_twin(), nullptr);
@@ -405,8 +411,10 @@ TEST(Diagnose, EffectModelDerivativesAreTheFitsAnalyticOnes) {
         {EffectKind::kSerialCti, {3e-3, 1.4}},
         {EffectKind::kBackground, {15.0}},
         {EffectKind::kBrighterFatter, {5e-7, 3e-7}},
+        {EffectKind::kJitter, {0.02, 0.01, 0.0, 0.015}},  // [px^2]: exposures 0 and 2
         {EffectKind::kHalo, {0.05, 2.4}}};
     for (const auto& [kind, v] : values) {
+      if (!spec.Has(kind)) continue;
       const std::vector<int> at = model->EffectIndices(kind);
       ASSERT_EQ(at.size(), v.size());
       for (size_t j = 0; j < v.size(); ++j) p[at[j]] = v[j];
@@ -431,16 +439,26 @@ TEST(Diagnose, EffectModelDerivativesAreTheFitsAnalyticOnes) {
       return r;
     };
     const int dim = model->dim();
+    const std::vector<double> r0 = residuals(p);
     std::vector<std::vector<double>> columns(dim);
     for (int i = 0; i < dim; ++i) {
       const double h =
           1e-6 * std::max(std::fabs(p[i]), 1e-3 * (model->upper()[i] - model->lower()[i]));
-      std::vector<double> plus = p, minus = p;
-      plus[i] += h;
-      minus[i] -= h;
-      const std::vector<double> rp = residuals(plus), rm = residuals(minus);
-      columns[i].resize(rp.size());
-      for (size_t j = 0; j < rp.size(); ++j) columns[i][j] = (rp[j] - rm[j]) / (2.0 * h);
+      columns[i].resize(r0.size());
+      std::vector<double> a = p, b = p;
+      if (p[i] - h >= model->lower()[i]) {  // central
+        a[i] += h;
+        b[i] -= h;
+        const std::vector<double> ra = residuals(a), rb = residuals(b);
+        for (size_t j = 0; j < r0.size(); ++j) columns[i][j] = (ra[j] - rb[j]) / (2.0 * h);
+      } else {  // at the bound: the one-sided second-order formula
+        a[i] += h;
+        b[i] += 2.0 * h;
+        const std::vector<double> ra = residuals(a), rb = residuals(b);
+        for (size_t j = 0; j < r0.size(); ++j) {
+          columns[i][j] = (-3.0 * r0[j] + 4.0 * ra[j] - rb[j]) / (2.0 * h);
+        }
+      }
     }
     const std::vector<double> info = InformationMatrix(*model, p);
     ASSERT_EQ(static_cast<int>(info.size()), dim * dim);
@@ -453,7 +471,7 @@ TEST(Diagnose, EffectModelDerivativesAreTheFitsAnalyticOnes) {
         worst = std::max(worst, std::fabs(info[a * dim + b] - numeric) / scale);
       }
     }
-    EXPECT_LT(worst, 1e-6) << (defocus ? "with" : "without") << " the defocus component";
+    EXPECT_LT(worst, 1e-6) << "variant " << variant;
   }
 }
 

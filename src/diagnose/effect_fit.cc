@@ -132,21 +132,28 @@ class ExposureCost : public ceres::CostFunction {
     const int nc = static_cast<int>(columns_.size());
     const double pedestal = twin.PedestalAt(theta_.data());
     const int pedestal_index = twin.EffectIndex(EffectKind::kBackground);
-    // Where each column goes: (local block, offset), or block -1 for a parameter held at 0.
-    std::vector<std::pair<int, int>> where(nc, {-1, 0});
+    // Where each column goes, with its chain-rule factor: (column, local block, offset,
+    // factor); none for a parameter held at 0, two for a CCD width with jitter.
+    struct Target {
+      int column, block, offset;
+      double factor;
+    };
+    std::vector<Target> where;
     if (want) {
       for (size_t b = 0; b < blocks_.size(); ++b) {
         if (jacobians[b] != nullptr) {
           std::fill_n(jacobians[b], 2 * n * model_.blocks()[blocks_[b]].size, 0.0);
         }
       }
+      std::vector<std::pair<int, double>> targets;
       for (int c = 0; c < nc; ++c) {
-        const int i = model_.TwinToP(columns_[c], k_);
-        if (i < 0) continue;
-        for (size_t b = 0; b < blocks_.size(); ++b) {
-          const EffectModel::Block& block = model_.blocks()[blocks_[b]];
-          if (i >= block.begin && i < block.begin + block.size) {
-            where[c] = {static_cast<int>(b), i - block.begin};
+        model_.TwinToP(columns_[c], k_, p_.data(), &targets);
+        for (const auto& [i, factor] : targets) {
+          for (size_t b = 0; b < blocks_.size(); ++b) {
+            const EffectModel::Block& block = model_.blocks()[blocks_[b]];
+            if (jacobians[b] != nullptr && i >= block.begin && i < block.begin + block.size) {
+              where.push_back({c, static_cast<int>(b), i - block.begin, factor});
+            }
           }
         }
       }
@@ -160,13 +167,13 @@ class ExposureCost : public ceres::CostFunction {
       residuals[n + r] = v.r[1];
       if (!want) continue;
       const double* g = &jacobian_[static_cast<size_t>(q) * nc];
-      for (int c = 0; c < nc; ++c) {
-        const auto [b, offset] = where[c];
-        if (b < 0 || jacobians[b] == nullptr) continue;
-        const int size = model_.blocks()[blocks_[b]].size;
-        const bool is_pedestal = columns_[c] == pedestal_index;
-        jacobians[b][r * size + offset] = is_pedestal ? -v.dr_dd[0] : v.dr_dm[0] * g[c];
-        jacobians[b][(n + r) * size + offset] = is_pedestal ? -v.dr_dd[1] : v.dr_dm[1] * g[c];
+      for (const Target& t : where) {
+        const int size = model_.blocks()[blocks_[t.block]].size;
+        const bool is_pedestal = columns_[t.column] == pedestal_index;
+        const double d0 = is_pedestal ? -v.dr_dd[0] : v.dr_dm[0] * g[t.column];
+        const double d1 = is_pedestal ? -v.dr_dd[1] : v.dr_dm[1] * g[t.column];
+        jacobians[t.block][r * size + t.offset] += t.factor * d0;
+        jacobians[t.block][(n + r) * size + t.offset] += t.factor * d1;
       }
     }
     return true;
@@ -337,14 +344,20 @@ std::unique_ptr<EffectModel> EffectModel::Create(const fit::FitModel& base, cons
     }
   }
   // The fit twin: the same stamps and effects in the fit's model, for analytic derivatives.
-  const bool twin_possible = base.options().model.sampling == model::Sampling::kIntegrated &&
-                             !spec.Has(EffectKind::kJitter) &&
-                             !spec.Has(EffectKind::kDefocusOffset);
+  // The per-exposure jitter variances are CCD widths of their own per exposure,
+  // sqrt(sigma^2 + v_k); with brighter_fatter the growth applies before the jitter, which the
+  // fit's model cannot express, so that spec keeps numeric derivatives.
+  const bool twin_possible =
+      base.options().model.sampling == model::Sampling::kIntegrated &&
+      !spec.Has(EffectKind::kDefocusOffset) &&
+      !(spec.Has(EffectKind::kJitter) && spec.Has(EffectKind::kBrighterFatter));
   if (twin_possible) {
     fit::FitModelOptions twin_options = base.options();
     twin_options.flux = fit::FluxMode::kShared;  // exposure k's flux goes into flux_e
     twin_options.effects.clear();
-    for (EffectKind kind : spec.effects) twin_options.effects.push_back({kind, {}});
+    for (EffectKind kind : spec.effects) {
+      if (kind != EffectKind::kJitter) twin_options.effects.push_back({kind, {}});
+    }
     std::string why;
     m->twin_ = fit::FitModel::Create(base.stamps(), twin_options, &why);
     CHECK(m->twin_ != nullptr) << "diagnose's fit twin: " << why;
@@ -369,21 +382,50 @@ void EffectModel::TwinTheta(const double* p, int k, double* theta) const {
     const int j = ShapeIndex(i);
     theta[i] = j >= 0 ? p[j] : 0.0;  // no defocus component: held at 0
   }
+  const int v = jitter_index_[k];
+  if (v >= 0) {
+    // Jitter: the variance added to the CCD kernel's on each axis (as model::AdjustSpotParams).
+    theta[fit::kCcdSigmaXPx] =
+        std::sqrt(theta[fit::kCcdSigmaXPx] * theta[fit::kCcdSigmaXPx] + std::max(p[v], 0.0));
+    theta[fit::kCcdSigmaYPx] =
+        std::sqrt(theta[fit::kCcdSigmaYPx] * theta[fit::kCcdSigmaYPx] + std::max(p[v + 1], 0.0));
+  }
   theta[fit::FitModel::XIndex(k)] = p[XIndex(k)];
   theta[fit::FitModel::YIndex(k)] = p[YIndex(k)];
   const int first = twin_->EffectsFirstIndex();
   for (size_t e = 0; e < twin_effect_to_p_.size(); ++e) theta[first + e] = p[twin_effect_to_p_[e]];
 }
 
-int EffectModel::TwinToP(int theta_index, int k) const {
-  if (theta_index == fit::kFluxE) return FluxIndex(k);
-  if (theta_index < fit::kNumShared) return ShapeIndex(theta_index);
-  if (theta_index == fit::FitModel::XIndex(k)) return XIndex(k);
-  if (theta_index == fit::FitModel::YIndex(k)) return YIndex(k);
-  const int first = twin_->EffectsFirstIndex();
-  CHECK(first >= 0 && theta_index >= first)
-      << "exposure " << k << " does not depend on theta[" << theta_index << "]";
-  return twin_effect_to_p_[theta_index - first];
+void EffectModel::TwinToP(int theta_index, int k, const double* p,
+                          std::vector<std::pair<int, double>>* targets) const {
+  targets->clear();
+  const int v = jitter_index_[k];
+  if (v >= 0 && (theta_index == fit::kCcdSigmaXPx || theta_index == fit::kCcdSigmaYPx)) {
+    // s' = sqrt(s^2 + v): ds'/ds = s / s', ds'/dv = 1 / (2 s') (from above at v = 0, the
+    // prior's bound; 0 below it, where v is clamped).
+    const int axis = theta_index - fit::kCcdSigmaXPx;
+    const double sigma = p[ShapeIndex(theta_index)], variance = p[v + axis];
+    const double total = std::sqrt(sigma * sigma + std::max(variance, 0.0));
+    targets->push_back({ShapeIndex(theta_index), sigma / total});
+    if (variance >= 0.0) targets->push_back({v + axis, 0.5 / total});
+    return;
+  }
+  int i = -1;
+  if (theta_index == fit::kFluxE) {
+    i = FluxIndex(k);
+  } else if (theta_index < fit::kNumShared) {
+    i = ShapeIndex(theta_index);
+  } else if (theta_index == fit::FitModel::XIndex(k)) {
+    i = XIndex(k);
+  } else if (theta_index == fit::FitModel::YIndex(k)) {
+    i = YIndex(k);
+  } else {
+    const int first = twin_->EffectsFirstIndex();
+    CHECK(first >= 0 && theta_index >= first)
+        << "exposure " << k << " does not depend on theta[" << theta_index << "]";
+    i = twin_effect_to_p_[theta_index - first];
+  }
+  if (i >= 0) targets->push_back({i, 1.0});
 }
 
 int EffectModel::FluxIndex(int k) const {

@@ -39,11 +39,12 @@
 // on), effect ranges from the catalogue's prior_lower / prior_upper (jitter variance:
 // [0, prior_upper^2]). Bounds are Ceres parameter bounds.
 //
-// Derivatives: where the spec is a model the fit holds (integrated sampling, no jitter, no
-// defocus_offset), the image and its analytic derivatives come from the fit's own model
-// (fit::FitEvaluator::ModelImageColumns on a fit::FitModel with the same effects: the
-// "fit twin"), so that diagnose and fit draw and differentiate one model. Otherwise (the
-// per-exposure jitter variances, the 2015 discretisation) they are numeric: central
+// Derivatives: where the spec is a model the fit holds (integrated sampling, no
+// defocus_offset, not jitter together with brighter_fatter), the image and its analytic derivatives
+// come from the fit's own model (fit::FitEvaluator::ModelImageColumns on a fit::FitModel with the
+// same effects: the "fit twin"; exposure k's jitter variances enter as its CCD widths sqrt(sigma^2
+// + v_k)), so that diagnose and fit draw and differentiate one model. Otherwise (jitter with
+// brighter_fatter, the 2015 discretisation) they are numeric: central
 // differences of step 1e-5 x max(|p_i|, 1e-2 x prior width), one-sided where a central step
 // would leave the prior box (several effects are not defined, or not meaningful, below their
 // lower bound).
@@ -138,12 +139,14 @@ class EffectModel {
   std::unique_ptr<EffectEvaluator> NewEvaluator() const;
 
   // The fit's model of this spec, when it has one (see the top of this file), else null;
-  // theta for exposure k at p in its layout (shared flux: exposure k's own flux), and the
-  // index in p of each theta index exposure k depends on (-1: held at 0, the defocus of a
-  // spec without it).
+  // theta for exposure k at p in its layout (shared flux: exposure k's own flux; CCD widths
+  // sqrt(sigma^2 + v_k) with exposure k's jitter variances), and for a theta index exposure
+  // k depends on, the p indices it moves with d theta / d p_i at p (none: held at 0, the
+  // defocus of a spec without it; two: a CCD width with jitter).
   const fit::FitModel* fit_twin() const { return twin_.get(); }
   void TwinTheta(const double* p, int k, double* theta) const;
-  int TwinToP(int theta_index, int k) const;
+  void TwinToP(int theta_index, int k, const double* p,
+               std::vector<std::pair<int, double>>* targets) const;
 
  private:
   EffectModel(const fit::FitModel& base, const ModelSpec& spec) : base_(base), spec_(spec) {}
