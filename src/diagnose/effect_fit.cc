@@ -132,23 +132,17 @@ class ExposureCost : public ceres::CostFunction {
     const int nc = static_cast<int>(columns_.size());
     const double pedestal = twin.PedestalAt(theta_.data());
     const int pedestal_index = twin.EffectIndex(EffectKind::kBackground);
-    // Where each column goes, with its chain-rule factor: (column, local block, offset,
-    // factor); none for a parameter held at 0, two for a CCD width with jitter.
-    struct Target {
-      int column, block, offset;
-      double factor;
-    };
-    std::vector<Target> where;
+    std::vector<Target>& where = targets_;
+    where.clear();
     if (want) {
       for (size_t b = 0; b < blocks_.size(); ++b) {
         if (jacobians[b] != nullptr) {
           std::fill_n(jacobians[b], 2 * n * model_.blocks()[blocks_[b]].size, 0.0);
         }
       }
-      std::vector<std::pair<int, double>> targets;
       for (int c = 0; c < nc; ++c) {
-        model_.TwinToP(columns_[c], k_, p_.data(), &targets);
-        for (const auto& [i, factor] : targets) {
+        model_.TwinToP(columns_[c], k_, p_.data(), &p_targets_);
+        for (const auto& [i, factor] : p_targets_) {
           for (size_t b = 0; b < blocks_.size(); ++b) {
             const EffectModel::Block& block = model_.blocks()[blocks_[b]];
             if (jacobians[b] != nullptr && i >= block.begin && i < block.begin + block.size) {
@@ -205,6 +199,14 @@ class ExposureCost : public ceres::CostFunction {
   std::unique_ptr<fit::FitEvaluator> twin_evaluator_;
   mutable std::vector<double> theta_, jacobian_;
   mutable std::vector<int> columns_;
+  // Where each twin column goes, with its chain-rule factor: none for a parameter held at 0,
+  // two for a CCD width with jitter.
+  struct Target {
+    int column, block, offset;
+    double factor;
+  };
+  mutable std::vector<Target> targets_;
+  mutable std::vector<std::pair<int, double>> p_targets_;
 };
 
 }  // namespace
@@ -358,10 +360,11 @@ std::unique_ptr<EffectModel> EffectModel::Create(const fit::FitModel& base, cons
     for (EffectKind kind : spec.effects) {
       if (kind != EffectKind::kJitter) twin_options.effects.push_back({kind, {}});
     }
+    // The fit accepts every such spec on stamps it already holds; should it refuse one, the
+    // numeric path below is the model itself, so nothing is lost but speed.
     std::string why;
     m->twin_ = fit::FitModel::Create(base.stamps(), twin_options, &why);
-    CHECK(m->twin_ != nullptr) << "diagnose's fit twin: " << why;
-    const int first = m->twin_->EffectsFirstIndex();
+    const int first = m->twin_ != nullptr ? m->twin_->EffectsFirstIndex() : -1;
     if (first >= 0) {
       m->twin_effect_to_p_.assign(m->twin_->dim() - first, -1);
       for (const auto& [kind, begin] : m->effect_begin_) {
