@@ -35,8 +35,9 @@ void EvaluateStampPixel(const Stamp& s, const fit::PixelNoise& noise, size_t q, 
                                  model_e - charge_e, noise, want_residuals, out);
 }
 
-// The residual block of exposure k: r1 and r2 per valid pixel (see the header), with numeric
-// derivatives that stay inside the prior box.
+// The residual block of exposure k: r1 and r2 per valid pixel (see the header), with the fit
+// twin's analytic derivatives when the model has a twin, else numeric derivatives that stay
+// inside the prior box.
 class ExposureCost : public ceres::CostFunction {
  public:
   ExposureCost(const EffectModel& model, int k, const Image* data)
