@@ -132,17 +132,17 @@ TEST(AiryDiscAverage, SmallDiscIsTheAiryIntensity) {
 // not its sample points (every sub-piece holds several), all at once and one by one (a
 // point's lanes must round alike however the points are grouped), and at every 25th distance
 // against the direct quadrature over the disc, the independent truth. Tolerances: the
-// truncated series are below 1e-15 of the peak (J_44(16) ~ 5e-16 per piece, J_24(4) ~ 2e-17
+// truncated series are below 1e-12 of the peak (J_40(16) ~ 3e-13 per piece, J_20(4) ~ 4e-13
 // per sub-piece) and the conversion to power series rounds at ~1e-14 of it, but the circle
 // integral's samples carry the Airy table's wiggles, which the series smooths. Measured over
-// these distances: up to 7e-12 of the peak between the profile and the circle integral (at
-// R = 0.05 px, r = 0.9 px; the same for the earlier profile of 48-term Chebyshev series
+// these distances: up to 2.4e-12 of the peak between the profile and the circle integral
+// (2.7e-12 with 44 and 24 terms; 7e-12 for the earlier profile of 48-term Chebyshev series
 // summed by Clenshaw's rule: the circle integral's own error, cf. the 1e-11 of
-// MatchesDirectQuadratureOverTheDisc), and up to 1.0e-12 from the direct quadrature (the
-// earlier profile: 1.5e-12). dS/dR = (2 / R) (<I> - S) carries the wiggles of both terms
-// times 2 / R (measured up to 6e-12 of peak / R, at R = 0.05 px). So, against the circle
-// integral, 1.5e-11 of the peak for S and 2e-11 of peak / k and peak / R for the
-// derivatives; against the direct quadrature, 5e-12 of the peak.
+// MatchesDirectQuadratureOverTheDisc), and up to 9.5e-13 from the direct quadrature (44 and
+// 24 terms: 6.9e-13; the Clenshaw profile: 1.5e-12). dS/dR = (2 / R) (<I> - S) carries the wiggles
+// of both terms times 2 / R (measured up to 4.7e-12 of peak / R, at R = 0.05 px; 5.4e-12 with 44
+// and 24). So, against the circle integral, 1.5e-11 of the peak for S and 2e-11 of peak / k and
+// peak / R for the derivatives; against the direct quadrature, 5e-12 of the peak.
 TEST(AiryDiscProfile, MatchesTheCircleIntegralBetweenItsPoints) {
   for (const double r : {0.3, 0.47, 0.9}) {
     for (const double radius : {0.05, 0.6, 3.0}) {

@@ -89,35 +89,50 @@ void AiryDiscAverage::Evaluate4(const double* d, double* value, double* d_dk, do
   const __m256d lowest = _mm256_set1_pd(kSeriesBelow);
   const __m256d highest = _mm256_set1_pd(model::kAiryTableMax);
   __m256d flux4 = _mm256_setzero_pd(), ring4 = _mm256_setzero_pd(), ring_cos4 = _mm256_setzero_pd();
-  for (const double cos_theta : cos_theta_) {
-    const __m256d c = _mm256_set1_pd(cos_theta);
-    const __m256d rho2 = _mm256_max_pd(_mm256_setzero_pd(), _mm256_fmadd_pd(cross, c, base));
-    const __m256d v = _mm256_mul_pd(kv, _mm256_sqrt_pd(rho2));
-    __m256d da;
-    __m256d a = TablePolynomial4(table, v, &da);
-    const __m256d j1 = _mm256_mul_pd(_mm256_mul_pd(half, v), a);
-    const __m256d j0 = _mm256_fmadd_pd(_mm256_mul_pd(half, v), da, a);
-    const __m256d rest = _mm256_fnmadd_pd(j1, j1, _mm256_fnmadd_pd(j0, j0, one));
-    __m256d e = _mm256_div_pd(rest, _mm256_mul_pd(v, v));
-    const int outside = _mm256_movemask_pd(
-        _mm256_or_pd(_mm256_cmp_pd(v, lowest, _CMP_LT_OQ), _mm256_cmp_pd(v, highest, _CMP_GE_OQ)));
-    if (outside != 0) {
-      alignas(32) double vs[4], es[4], as[4];
-      _mm256_store_pd(vs, v);
-      _mm256_store_pd(es, e);
-      _mm256_store_pd(as, a);
-      for (int lane = 0; lane < 4; ++lane) {
-        if ((outside >> lane) & 1)
-          EncircledOverSquareAndAmplitude(vs[lane], table, &es[lane], &as[lane]);
-      }
-      e = _mm256_load_pd(es);
-      a = _mm256_load_pd(as);
+  // Angles in chunks, each in three stages over the whole chunk: v; the table's a and a';
+  // the rest. Angle by angle, the chain square root -> table piece -> coefficient loads ->
+  // polynomial -> division was longer than the out-of-order window could overlap; staged,
+  // each loop's iterations are independent. Every lane's operations are the same.
+  constexpr int kChunk = 16;
+  __m256d v_at[kChunk], a_at[kChunk], da_at[kChunk];
+  const int n_angles = static_cast<int>(cos_theta_.size());
+  for (int l0 = 0; l0 < n_angles; l0 += kChunk) {
+    const int m = std::min(kChunk, n_angles - l0);
+    const double* cosines = cos_theta_.data() + l0;
+    for (int l = 0; l < m; ++l) {
+      const __m256d c = _mm256_set1_pd(cosines[l]);
+      const __m256d rho2 = _mm256_max_pd(_mm256_setzero_pd(), _mm256_fmadd_pd(cross, c, base));
+      v_at[l] = _mm256_mul_pd(kv, _mm256_sqrt_pd(rho2));
     }
-    flux4 = _mm256_fmadd_pd(e, _mm256_fmadd_pd(dv, c, Rv), flux4);
-    if (derivs) {
-      const __m256d a2 = _mm256_mul_pd(a, a);
-      ring4 = _mm256_add_pd(ring4, a2);
-      ring_cos4 = _mm256_fmadd_pd(a2, c, ring_cos4);
+    for (int l = 0; l < m; ++l) a_at[l] = TablePolynomial4(table, v_at[l], &da_at[l]);
+    for (int l = 0; l < m; ++l) {
+      const __m256d c = _mm256_set1_pd(cosines[l]);
+      const __m256d v = v_at[l];
+      __m256d a = a_at[l];
+      const __m256d j1 = _mm256_mul_pd(_mm256_mul_pd(half, v), a);
+      const __m256d j0 = _mm256_fmadd_pd(_mm256_mul_pd(half, v), da_at[l], a);
+      const __m256d rest = _mm256_fnmadd_pd(j1, j1, _mm256_fnmadd_pd(j0, j0, one));
+      __m256d e = _mm256_div_pd(rest, _mm256_mul_pd(v, v));
+      const int outside = _mm256_movemask_pd(_mm256_or_pd(_mm256_cmp_pd(v, lowest, _CMP_LT_OQ),
+                                                          _mm256_cmp_pd(v, highest, _CMP_GE_OQ)));
+      if (outside != 0) {
+        alignas(32) double vs[4], es[4], as[4];
+        _mm256_store_pd(vs, v);
+        _mm256_store_pd(es, e);
+        _mm256_store_pd(as, a);
+        for (int lane = 0; lane < 4; ++lane) {
+          if ((outside >> lane) & 1)
+            EncircledOverSquareAndAmplitude(vs[lane], table, &es[lane], &as[lane]);
+        }
+        e = _mm256_load_pd(es);
+        a = _mm256_load_pd(as);
+      }
+      flux4 = _mm256_fmadd_pd(e, _mm256_fmadd_pd(dv, c, Rv), flux4);
+      if (derivs) {
+        const __m256d a2 = _mm256_mul_pd(a, a);
+        ring4 = _mm256_add_pd(ring4, a2);
+        ring_cos4 = _mm256_fmadd_pd(a2, c, ring_cos4);
+      }
     }
   }
   _mm256_storeu_pd(flux, flux4);
@@ -161,8 +176,8 @@ namespace {
 //                  b_l (l < kMonomials) of the sub-piece's interpolant in u: the piece's
 //                  interpolant evaluated at the sub-piece's Chebyshev points, then a discrete
 //                  cosine transform. Its entries are bounded by ~ the Lebesgue constant.
-//   power basis    b_l -> a_i with sum_l b_l T_l(u) = sum_i a_i u^i. Entries reach ~1e8
-//                  (T_23's), but b_l falls like J_l(2 k H / kSub) = J_l(4), so the products
+//   power basis    b_l -> a_i with sum_l b_l T_l(u) = sum_i a_i u^i. Entries reach ~3e6
+//                  (T_19's), but b_l falls like J_l(2 k H / kSub) = J_l(4), so the products
 //                  stay small: the rounding error is ~1e-14 of the peak (measured on test
 //                  functions of the same band while this was written;
 //                  tests/airy_disc_average_test.cc holds the profile to the direct
@@ -296,7 +311,7 @@ double AiryDiscProfile::Reach(double k, double d_max) {
   return 2.0 * half_length * std::max(1.0, std::ceil(d_max / (2.0 * half_length)));
 }
 
-void AiryDiscProfile::Build(double k, double radius, double d_max, bool derivs) {
+void AiryDiscProfile::Build(double k, double radius, double d_max, bool derivs, double dk_scale) {
   constexpr int n = kTerms, d = kMonomials;
   derivs_ = derivs;
   // Pieces of half-length 8 / k (2 k H = 16) from d = 0 on, as many as reach d_max. A piece
@@ -319,6 +334,10 @@ void AiryDiscProfile::Build(double k, double radius, double d_max, bool derivs) 
       }
       average.Evaluate4(dist, &values[j], derivs ? &values[n + j] : nullptr,
                         derivs ? &values[2 * n + j] : nullptr);
+    }
+    // The series are linear in the sampled values: scaling these scales every node's value.
+    if (derivs) {
+      for (int j = 0; j < n; ++j) values[n + j] *= dk_scale;
     }
     // The sums over l (and i) run side by side in registers, summed over j (and l) outermost.
     for (int s = 0; s < kSub; ++s) {

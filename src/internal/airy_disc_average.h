@@ -45,27 +45,31 @@ class AiryDiscAverage {
 
 // S(d) and its derivatives on [0, d_max] as piecewise polynomials, for filling many nodes:
 // S is band-limited to angular frequency 2 k (its transform is the pupil OTF times the
-// disc's), so on a piece of half-length H the Chebyshev coefficients fall like J_m(2 k H),
-// below 1e-16 of the peak by m = kTerms at 2 k H = 16. Building takes kTerms AiryDiscAverage
-// evaluations per piece (at its Chebyshev points). Each piece is then split into kSub
-// sub-pieces, where the coefficients fall like J_l(16 / kSub) = J_l(4), below 1e-16 by
-// l = kMonomials, and each sub-piece's interpolant is stored as a power series in its local
-// variable (airy_disc_average.cc says how, keeping the rounding at ~1e-14 of the peak). A node
-// then costs kMonomials multiply-adds of Horner's rule (a Clenshaw sum over the whole piece
-// cost twice the operations per term and twice the terms).
+// disc's), so on a piece of half-length H the Chebyshev coefficients fall like J_m(2 k H):
+// at 2 k H = 16, J_40(16) = 3e-13 of the peak, below the ~1e-12 of the Airy table the samples
+// come from. Building takes kTerms AiryDiscAverage evaluations per piece (at its Chebyshev
+// points). Each piece is then split into kSub sub-pieces, where the coefficients fall like
+// J_l(16 / kSub) = J_l(4), J_20(4) = 4e-13, and each sub-piece's interpolant is stored as a
+// power series in its local variable (airy_disc_average.cc says how, keeping the rounding at
+// ~1e-14 of the peak). A node then costs kMonomials multiply-adds of Horner's rule (a Clenshaw
+// sum over the whole piece cost twice the operations per term and twice the terms). (44 and
+// 24 terms, at 5e-16 and 2e-17, measured the same against the circle integral and the direct
+// quadrature, whose own errors dominate; they cost 12 % more per render.)
 class AiryDiscProfile {
  public:
-  static constexpr int kTerms = 44;      // a multiple of 4 (Build evaluates four points at once)
+  static constexpr int kTerms = 40;      // a multiple of 4 (Build evaluates four points at once)
   static constexpr int kSub = 4;         // sub-pieces per piece
-  static constexpr int kMonomials = 24;  // power-series terms per sub-piece
+  static constexpr int kMonomials = 20;  // power-series terms per sub-piece
 
-  // Same k and radius as AiryDiscAverage; derivs: also dS/dk and dS/dR. Reuses its storage.
+  // Same k and radius as AiryDiscAverage; derivs: also dS/dk (times dk_scale: the renderer
+  // passes dk/dr to get the derivative by the Airy radius) and dS/dR. Reuses its storage.
   // model::EnsureAiryTable(k (Reach(k, d_max) + radius)) must have been called.
-  void Build(double k, double radius, double d_max, bool derivs);
+  void Build(double k, double radius, double d_max, bool derivs, double dk_scale = 1.0);
   // The largest distance [px] Build evaluates S at: the end of the last piece.
   static double Reach(double k, double d_max);
 
-  // S at d[0..n) (each in [0, d_max]) into value[], and when derivs, dS/dk and dS/dR.
+  // S at d[0..n) (each in [0, d_max]) into value[], and when derivs, dS/dk (times dk_scale)
+  // and dS/dR.
   void Evaluate(const double* d, int n, double* value, double* d_dk, double* d_dR) const;
 
   int pieces() const { return pieces_; }

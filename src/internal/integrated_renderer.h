@@ -61,6 +61,16 @@ struct QuadrantKey {
   }
 };
 
+// The distances [px] of a quadrant's nodes (|i| hx, |j| hy) from the origin, laid out as S
+// (node (iu, ju) at ju * rows + iu). They depend on the quadrant's shape and spacings only,
+// so renders that change only the Airy or pillbox radius (an MCMC's proposals) reuse them.
+struct NodeDistances {
+  int rows = 0, cols = 0;
+  double hx = 0.0, hy = 0.0;
+  std::vector<double> d;
+  void Update(int rows, int cols, double hx, double hy);
+};
+
 // Scratch space reused between renders (sizes change with the parameters).
 struct IntegratedWorkspace {
   // The radially symmetric image S (unit flux) at the nodes (|i|, |j|) of one quadrant, and
@@ -73,7 +83,7 @@ struct IntegratedWorkspace {
   std::vector<double> edges;   // kernel weights: the normal's values at the window edges
   std::vector<size_t> offset;  // where each kernel node's input starts, for one output line
   AiryDiscProfile pillbox_profile;  // the pillbox model's S by distance
-  std::vector<double> distances;    // node distances of one quadrant column [px]
+  NodeDistances distances;          // for the pillbox fill
 };
 
 // Renders with unit flux semantics handled inside; see renderer.h for the output layout.
