@@ -165,10 +165,10 @@ class ExposureCost : public ceres::CostFunction {
       for (const Target& t : where) {
         const int size = model_.blocks()[blocks_[t.block]].size;
         const bool is_pedestal = columns_[t.column] == pedestal_index;
-        const double d0 = is_pedestal ? -v.dr_dd[0] : v.dr_dm[0] * g[t.column];
-        const double d1 = is_pedestal ? -v.dr_dd[1] : v.dr_dm[1] * g[t.column];
-        jacobians[t.block][r * size + t.offset] += t.factor * d0;
-        jacobians[t.block][(n + r) * size + t.offset] += t.factor * d1;
+        jacobians[t.block][r * size + t.offset] +=
+            t.factor * v.ResidualDerivative(0, g[t.column], is_pedestal);
+        jacobians[t.block][(n + r) * size + t.offset] +=
+            t.factor * v.ResidualDerivative(1, g[t.column], is_pedestal);
       }
     }
     return true;

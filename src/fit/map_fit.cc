@@ -87,8 +87,8 @@ class ExposureCost : public ceres::CostFunction {
         double* block = jacobians[where.block];
         if (block == nullptr) continue;
         const bool is_pedestal = columns_[c] == pedestal_index;
-        block[i * where.size + where.offset] = is_pedestal ? -v.dr_dd[0] : v.dr_dm[0] * g[c];
-        block[(n + i) * where.size + where.offset] = is_pedestal ? -v.dr_dd[1] : v.dr_dm[1] * g[c];
+        block[i * where.size + where.offset] = v.ResidualDerivative(0, g[c], is_pedestal);
+        block[(n + i) * where.size + where.offset] = v.ResidualDerivative(1, g[c], is_pedestal);
       }
     }
     return true;

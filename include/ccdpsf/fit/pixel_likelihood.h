@@ -67,6 +67,13 @@ struct PixelValue {
   double normalised = 0;  // (d - m)/sigma, or for a censored pixel the signed sqrt of its
                           // deviance (positive when a saturated pixel's model falls short)
   double censored_sd = INFINITY;  // censored pixels: (m - T)/s above, (T - m)/s below
+
+  // d r[i] / d u for a parameter u that moves the expectation by dm_du, or, when u is the
+  // pedestal of EvaluatePixelWithPedestal (which moves the datum's reference, not the
+  // charge), -dr_dd[i].
+  double ResidualDerivative(int i, double dm_du, bool u_is_pedestal) const {
+    return u_is_pedestal ? -dr_dd[i] : dr_dm[i] * dm_du;
+  }
 };
 
 // Evaluates pixel (data_e, censor) at expectation m. With want_residuals false only log_p,
