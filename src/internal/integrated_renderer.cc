@@ -67,31 +67,31 @@ double KernelHalfWidthSigmas(double tolerance) {
 }
 
 // S for the Gaussian-defocus model, the Airy pattern, on quadrant column ju from row `first`:
-// S = norm a(v)^2 at v = k d, and dS/dr = dnorm (a^2 + a da v) when col_dr is not null.
-// Nodes past the table's end (v >= kAiryTableMax, exact Bessel functions) are redone one by
-// one at the end; v grows down the column, so the check is the last node's.
-void FillAiryColumn(const double* table, double k, double norm, double dnorm, double hx, double y2,
+// S = norm a(v)^2 at v = k d, d = dist[iu] the node's distance, and dS/dr = dnorm (a^2 + a da v)
+// when col_dr is not null. Nodes past the table's end (v >= kAiryTableMax, exact Bessel
+// functions) are redone one by one at the end; v grows down the column, so the check is the
+// last node's.
+void FillAiryColumn(const double* table, double k, double norm, double dnorm, const double* dist,
                     int first, int rows, double* col, double* col_dr) {
   int iu = first;
 #if defined(__AVX2__) && defined(__FMA__)
   // Software-pipelined in two stages per group of four nodes: first v, its table piece and
-  // the offset in it, then the polynomial. Node by node, the chain sqrt -> piece ->
+  // the offset in it, then the polynomial. Node by node, the chain (then with a square root) ->
+  // piece ->
   // coefficient loads (mostly from L2: the table holds ~50 bytes per 0.05 of v) -> five
   // dependent multiply-adds was too long for the out-of-order window to overlap enough nodes
   // (~9 cycles per node). Here the first stage runs kAhead groups ahead of the second, through
-  // a ring of stage buffers, so that the square roots (the divider's throughput) and the
-  // coefficient transposes (the shuffle port's) of different groups proceed side by side.
+  // a ring of stage buffers, so that the coefficient transposes (the shuffle port's) of
+  // different groups proceed side by side.
   constexpr int kAhead = 8;  // groups; a power of two
   alignas(32) int32_t piece[4 * kAhead];
   alignas(32) double offset[4 * kAhead], vs[4 * kAhead];
-  const __m256d kv = _mm256_set1_pd(k), hxv = _mm256_set1_pd(hx), y2v = _mm256_set1_pd(y2);
+  const __m256d kv = _mm256_set1_pd(k);
   const __m256d normv = _mm256_set1_pd(norm), dnormv = _mm256_set1_pd(dnorm);
-  const __m256d lanes = _mm256_set_pd(3.0, 2.0, 1.0, 0.0);
   const int groups = (rows - first) / 4;
   const auto first_stage = [&](int g) {
     const int slot = 4 * (g % kAhead);
-    const __m256d x = _mm256_mul_pd(_mm256_add_pd(_mm256_set1_pd(first + 4 * g), lanes), hxv);
-    const __m256d v = _mm256_mul_pd(kv, _mm256_sqrt_pd(_mm256_fmadd_pd(x, x, y2v)));
+    const __m256d v = _mm256_mul_pd(kv, _mm256_loadu_pd(dist + first + 4 * g));
     __m128i p;
     __m256d u;
     TablePieces4(v, &p, &u);
@@ -123,19 +123,16 @@ void FillAiryColumn(const double* table, double k, double norm, double dnorm, do
 #endif
   // The remainder, rounded as the vector lanes are.
   for (; iu < rows; ++iu) {
-    const double x = iu * hx;
-    const double v = k * std::sqrt(std::fma(x, x, y2));
+    const double v = k * dist[iu];
     double a, da;
     TablePolynomial(table, v, &a, col_dr != nullptr ? &da : nullptr);
     const double a2 = a * a;
     col[iu] = norm * a2;
     if (col_dr != nullptr) col_dr[iu] = dnorm * std::fma(a * da, v, a2);
   }
-  const double x_last = (rows - 1) * hx;
-  if (k * std::sqrt(std::fma(x_last, x_last, y2)) < model::kAiryTableMax) return;
+  if (k * dist[rows - 1] < model::kAiryTableMax) return;
   for (iu = first; iu < rows; ++iu) {
-    const double x = iu * hx;
-    const double v = k * std::sqrt(std::fma(x, x, y2));
+    const double v = k * dist[iu];
     if (v < model::kAiryTableMax) continue;
     double a, da;
     model::AiryAmplitudeAndDerivative(v, &a, &da);
@@ -193,21 +190,22 @@ void MirrorLowerTriangle(NodeImage* q) {
 // S for the Gaussian-defocus model on the whole quadrant, column by column (FillAiryColumn).
 // The values are those of AiryIntensity node by node.
 void FillAiryQuadrant(double k, double dk_dr, double hx, double hy, bool derivs, NodeImage* q,
-                      NodeImage* q_dr) {
+                      NodeImage* q_dr, NodeDistances* distances) {
   // With equal spacings S(|i|, |j|) = S(|j|, |i|): compute the lower triangle, mirror the rest.
   static const double* const table = model::AiryTableCoefficients();
   const bool mirror = hx == hy;
   const int rows = q->rows;
   const double norm = k * k / (4.0 * M_PI);
   const double dnorm = k / (2.0 * M_PI) * dk_dr;  // d(norm a^2)/dr = dnorm (a^2 + a da k d)
+  distances->Update(rows, q->cols, hx, hy);
   for (int ju = 0; ju < q->cols; ++ju) {
-    const double y2 = (ju * hy) * (ju * hy);
     // From the diagonal rounded down to whole vectors of four (rows is a multiple of 4): the
     // few nodes above the diagonal computed so are overwritten by the mirror.
     const int first = (mirror && ju < rows) ? ju / 4 * 4 : 0;
     double* col = q->data() + static_cast<size_t>(ju) * rows;
     double* col_dr = derivs ? q_dr->data() + static_cast<size_t>(ju) * rows : nullptr;
-    FillAiryColumn(table, k, norm, dnorm, hx, y2, first, rows, col, col_dr);
+    FillAiryColumn(table, k, norm, dnorm, distances->d.data() + static_cast<size_t>(ju) * rows,
+                   first, rows, col, col_dr);
   }
   if (!mirror) return;
   MirrorLowerTriangle(q);
@@ -562,7 +560,8 @@ void RenderIntegrated(const model::ModelOptions& options, const model::SpotParam
       FillPillboxQuadrant(k, dk_dr, defocus, hx, hy, key.derivs, &ws->quadrant, &ws->quadrant_dr,
                           &ws->quadrant_dR, &ws->pillbox_profile, &ws->distances);
     } else {
-      FillAiryQuadrant(k, dk_dr, hx, hy, key.derivs, &ws->quadrant, &ws->quadrant_dr);
+      FillAiryQuadrant(k, dk_dr, hx, hy, key.derivs, &ws->quadrant, &ws->quadrant_dr,
+                       &ws->distances);
       // A pillbox of zero radius: S = Airy, and dS/dR = 0 there (S - Airy is O(R^2)).
       if (pillbox) {
         ws->quadrant_dR.Resize(rows, cols);

@@ -83,7 +83,7 @@ struct IntegratedWorkspace {
   std::vector<double> edges;   // kernel weights: the normal's values at the window edges
   std::vector<size_t> offset;  // where each kernel node's input starts, for one output line
   AiryDiscProfile pillbox_profile;  // the pillbox model's S by distance
-  NodeDistances distances;          // for the pillbox fill
+  NodeDistances distances;          // of the quadrant's nodes, for the fills
 };
 
 // Renders with unit flux semantics handled inside; see renderer.h for the output layout.
