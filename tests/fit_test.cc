@@ -416,6 +416,16 @@ TEST(Fit, McmcIsDeterministicAndAgreesWithLaplace) {
   ASSERT_TRUE(RunFit(*model, o, &b, &error)) << error;
   ASSERT_EQ(a.chain.chain.size(), b.chain.chain.size());
   EXPECT_TRUE(a.chain.chain == b.chain.chain);
+  // So are the derived quantities' posteriors, whose peak-pixel draws are rendered on the
+  // MCMC's threads.
+  ASSERT_EQ(a.derived.size(), b.derived.size());
+  const auto same = [](double x, double y) { return x == y || (std::isnan(x) && std::isnan(y)); };
+  for (size_t j = 0; j < a.derived.size(); ++j) {
+    const Summary &sa = a.derived[j].second, &sb = b.derived[j].second;
+    EXPECT_TRUE(same(sa.median, sb.median) && same(sa.lo68, sb.lo68) && same(sa.hi68, sb.hi68) &&
+                same(sa.lo997, sb.lo997) && same(sa.hi997, sb.hi997))
+        << a.derived[j].first;
+  }
   const Summary& tx = a.derived[IndexOf(a, "total_sigma_x_px")].second;
   const double truth = TotalSigma(c.defocus_px, c.ccd_sigma_x_px);
   EXPECT_GT(truth, tx.lo997);
