@@ -97,6 +97,7 @@ void FullFit(benchmark::State& state, int exposures, bool laplace_move = true,
 void BM_SingleMap(benchmark::State& s) { Map(s, 1); }
 void BM_JointMap12(benchmark::State& s) { Map(s, 12); }
 void BM_SingleFullFit(benchmark::State& s) { FullFit(s, 1); }
+void BM_SingleFullFitOneThread(benchmark::State& s) { FullFit(s, 1, true, nullptr, {}, 1); }
 void BM_JointFullFit5(benchmark::State& s) { FullFit(s, 5); }
 // The same on one thread: two threads' speed-up (issue 18 asks >= 1.7x).
 void BM_JointFullFit5OneThread(benchmark::State& s) { FullFit(s, 5, true, nullptr, {}, 1); }
@@ -115,6 +116,7 @@ void BM_JointFullFit5SerialCti(benchmark::State& s) {
 BENCHMARK(BM_SingleMap)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_JointMap12)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_SingleFullFit)->Unit(benchmark::kSecond)->Iterations(1)->UseRealTime();
+BENCHMARK(BM_SingleFullFitOneThread)->Unit(benchmark::kSecond)->Iterations(1)->UseRealTime();
 BENCHMARK(BM_JointFullFit5)->Unit(benchmark::kSecond)->Iterations(1)->UseRealTime();
 BENCHMARK(BM_JointFullFit5OneThread)->Unit(benchmark::kSecond)->Iterations(1)->UseRealTime();
 BENCHMARK(BM_SingleFullFitStretchOnly)->Unit(benchmark::kSecond)->Iterations(1)->UseRealTime();
