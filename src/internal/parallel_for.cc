@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <system_error>
 #include <thread>
 #include <vector>
 
@@ -15,7 +16,13 @@ void ParallelFor(int n, int threads, const std::function<void(int index, int wor
   };
   const int count = std::clamp(threads, 1, n);
   std::vector<std::thread> pool;
-  for (int w = 1; w < count; ++w) pool.emplace_back(worker, w);
+  for (int w = 1; w < count; ++w) {
+    try {
+      pool.emplace_back(worker, w);
+    } catch (const std::system_error&) {
+      break;  // the system refuses a thread: the workers started do the rest
+    }
+  }
   worker(0);
   for (std::thread& t : pool) t.join();
 }

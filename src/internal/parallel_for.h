@@ -12,6 +12,7 @@ namespace ccdpsf::internal {
 // the next free worker, so long and short tasks mix well; worker (in [0, threads)) lets a task
 // keep state per thread, since one worker runs one task at a time. Returns when all are done.
 // Results must be stored by index: which worker runs which index varies from run to run.
+// If the system refuses a thread, fewer workers run the indices.
 void ParallelFor(int n, int threads, const std::function<void(int index, int worker)>& task);
 
 }  // namespace ccdpsf::internal
