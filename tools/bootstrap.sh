@@ -19,6 +19,9 @@ jobs="$(nproc 2>/dev/null || echo 2)"
 # python3-numpy, -scipy, -astropy and -pytest: the tests add lab defects to simulated frames
 # and simulate spots by photon shooting with separate scripts (tests/support/lab_defects.py,
 # reference_sensor.py) that share no code with the tool, and check those scripts themselves.
+# python3-emcee and -matplotlib: the Python package's tests check its chain reader against
+# emcee's own backend (python/tests/test_fit_reader.py) and run the documented example,
+# which plots (docs/examples/load_fit.py).
 # fitsverify (HEASARC's FITS validator): the tests check that every table and image the tool
 # writes is valid FITS, without warnings, for astropy, TOPCAT and DS9.
 # libopenmpi-dev and openmpi-bin: `mpirun -np N ccdpsf grid ...` shards a campaign across
@@ -26,7 +29,7 @@ jobs="$(nproc 2>/dev/null || echo 2)"
 packages=(build-essential cmake pkg-config libceres-dev libeigen3-dev libgoogle-glog-dev
           libgflags-dev libcfitsio-dev libgtest-dev nlohmann-json3-dev libbenchmark-dev
           gnuplot-nox fitsverify python3-numpy python3-scipy python3-astropy
-          python3-pytest libopenmpi-dev openmpi-bin)
+          python3-pytest python3-emcee python3-matplotlib libopenmpi-dev openmpi-bin)
 # clang-14 and its sanitizer and libFuzzer runtimes: the test mode's short fuzzing run.
 if [ "$mode" = test ]; then packages+=(clang-14 libclang-rt-14-dev); fi
 missing=()
