@@ -483,6 +483,66 @@ TEST(Relations, DeterministicForASeed) {
   EXPECT_EQ(ToJson(a)["seed"].get<uint64_t>(), 9u);
 }
 
+// Points of one joint fit (RelationPoint::joint_set): state j of a posterior puts every
+// point on its own line, y_k = a_j + b_j x_k. Resampled state by state, the weighted fit
+// through exactly collinear points returns that state's line whatever the weights, so
+// every intercept and slope draw is one of the states' (to rounding, 1e-9 relative), and
+// their summaries are those of the states' a_j and b_j. Resampled independently (no joint
+// set), the draws mix states: most are none of them, and the slope's spread differs.
+TEST(Relations, JointPointsAreResampledStateByState) {
+  std::mt19937_64 engine(7);
+  const int states = 500;
+  std::vector<double> a(states), b(states);
+  for (int j = 0; j < states; ++j) {
+    a[j] = 6.6 + 0.05 * StandardNormal(engine);
+    // Anticorrelated with the intercept, as a kernel width and its slope are.
+    b[j] = 1.1e-5 - 2e-7 * (a[j] - 6.6) / 0.05 + 3e-8 * StandardNormal(engine);
+  }
+  const double xs[] = {3.0e4, 8.0e4, 1.6e5};
+  auto points = [&](int joint_set) {
+    std::vector<RelationPoint> out;
+    for (double x : xs) {
+      std::vector<double> draws(states);
+      for (int j = 0; j < states; ++j) draws[j] = a[j] + b[j] * x;
+      RelationPoint p = RelationPoint::FromDraws("x" + std::to_string(x), x, draws);
+      p.joint_set = joint_set;
+      out.push_back(p);
+    }
+    return out;
+  };
+  RelationOptions options;
+  std::string error;
+  auto joint = FitRelation(RelationKind::kLinear, points(0), options, &error);
+  ASSERT_TRUE(joint.has_value()) << error;
+  ASSERT_TRUE(joint->fitted);
+  EXPECT_TRUE(joint->HasFlag(kFlagJointPoints));
+  EXPECT_FALSE(joint->HasFlag(kFlagPoorlyConstrained));  // 1 dof, but one fit's own line
+  const Coefficient* intercept = joint->Find("intercept");
+  const Coefficient* slope = joint->Find("slope");
+  ASSERT_EQ(intercept->draws.size(), slope->draws.size());
+  for (size_t r = 0; r < slope->draws.size(); ++r) {
+    bool found = false;
+    for (int j = 0; j < states && !found; ++j) {
+      found = std::fabs(slope->draws[r] - b[j]) <= 1e-9 * std::fabs(b[j]) &&
+              std::fabs(intercept->draws[r] - a[j]) <= 1e-9 * std::fabs(a[j]);
+    }
+    ASSERT_TRUE(found) << "resampling " << r << ": slope " << slope->draws[r];
+  }
+  auto independent = FitRelation(RelationKind::kLinear, points(-1), options, &error);
+  ASSERT_TRUE(independent.has_value()) << error;
+  int matching = 0;
+  for (double d : independent->Find("slope")->draws) {
+    for (int j = 0; j < states; ++j) {
+      if (std::fabs(d - b[j]) <= 1e-9 * std::fabs(b[j])) {
+        ++matching;
+        break;
+      }
+    }
+  }
+  // A resampling picks the same state for all three points with probability 1 / states^2.
+  EXPECT_LT(matching, 20);
+}
+
 TEST(Relations, InvalidOptionsAreRejected) {
   RelationOptions o;
   o.resamples = 10;

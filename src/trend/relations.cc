@@ -4,6 +4,7 @@
 #include <cstdio>
 #include <initializer_list>
 #include <limits>
+#include <map>
 #include <random>
 
 #include "ccdpsf/chi_square.h"
@@ -77,6 +78,7 @@ struct UsablePoint {
   double s = NAN;                 // sd in y: the weight is 1 / s^2
   Estimate value;                 // of X
   bool gaussian = false;
+  int joint_set = -1;  // RelationPoint::joint_set
 };
 
 // Why the point cannot be used (empty: usable, *out filled).
@@ -100,6 +102,11 @@ std::string PreparePoint(RelationKind kind, const RelationPoint& p, double pivot
     if (finite.size() < 2) {
       return std::to_string(finite.size()) + " finite posterior draws (need at least 2)";
     }
+    if (p.joint_set >= 0 && finite.size() != p.draws.size()) {
+      // Its draws would no longer be aligned with the other points' states.
+      return "a joint fit's point with non-finite draws";
+    }
+    out->joint_set = p.joint_set;
     if (power) {
       const size_t non_positive = static_cast<size_t>(
           std::count_if(finite.begin(), finite.end(), [](double d) { return d <= 0.0; }));
@@ -343,6 +350,36 @@ std::optional<RelationFit> FitRelation(RelationKind kind, const std::vector<Rela
     }
     usable.push_back(std::move(up));
   }
+  // A joint set's points resample state by state: their draws must be as many.
+  {
+    std::map<int, size_t> set_draws;
+    std::vector<UsablePoint> kept;
+    for (UsablePoint& up : usable) {
+      if (up.joint_set >= 0) {
+        const size_t count = set_draws.emplace(up.joint_set, up.y_draws.size()).first->second;
+        if (up.y_draws.size() != count) {
+          fit.gaps.push_back({up.label, up.x,
+                              "a joint fit's point with " + std::to_string(up.y_draws.size()) +
+                                  " draws, its set's first has " + std::to_string(count)});
+          continue;
+        }
+      }
+      kept.push_back(std::move(up));
+    }
+    usable = std::move(kept);
+  }
+  // One joint fit's points only: its medians lie on its own relation (relations.h).
+  const bool one_joint_fit =
+      !usable.empty() && std::all_of(usable.begin(), usable.end(), [&](const UsablePoint& up) {
+        return up.joint_set >= 0 && up.joint_set == usable[0].joint_set;
+      });
+  if (std::any_of(usable.begin(), usable.end(),
+                  [](const UsablePoint& up) { return up.joint_set >= 0; })) {
+    AddFlag(&fit, kFlagJointPoints,
+            "points from one joint fit (an intensity series with the brighter-fatter slope): "
+            "resampled state by state, so the intervals are the joint posterior's; the points "
+            "lie on the fit's own curve, so chi^2 measures its bend, not the scatter");
+  }
   const int n = static_cast<int>(usable.size());
   for (const UsablePoint& up : usable) {
     PointSummary ps;
@@ -417,19 +454,31 @@ std::optional<RelationFit> FitRelation(RelationKind kind, const std::vector<Rela
     h1[i] = (m00 * usable[i].u - m01) * w[i] / det;
   }
 
-  // Resampling: point k draws from its own engine, so gaps do not shift the other streams.
+  // Resampling: point k draws from its own engine, so gaps do not shift the other streams;
+  // a joint set's points take the states its own stream picks (relations.h, Randomness).
   const int num_r = options.resamples;
+  std::map<int, std::vector<double>> joint_states;  // joint set -> a uniform per resampling
+  for (const UsablePoint& up : usable) {
+    if (up.joint_set < 0 || joint_states.count(up.joint_set) > 0) continue;
+    std::mt19937_64 engine(
+        DeriveSeed(DeriveSeed(options.seed, ~uint64_t{0}), static_cast<uint64_t>(up.joint_set)));
+    std::vector<double>& states = joint_states[up.joint_set];
+    for (int r = 0; r < num_r; ++r) states.push_back(Uniform01(engine));
+  }
   std::vector<double> c0(num_r, 0.0), c1(num_r, 0.0);
   for (int i = 0; i < n; ++i) {
     const UsablePoint& up = usable[i];
     std::mt19937_64 engine(DeriveSeed(options.seed, static_cast<uint64_t>(i)));
     const size_t num_draws = up.y_draws.size();
+    const std::vector<double>* states =
+        up.joint_set >= 0 ? &joint_states.at(up.joint_set) : nullptr;
     for (int r = 0; r < num_r; ++r) {
       double y;
       if (up.gaussian) {
         y = up.y_mean + up.y_sd * StandardNormal(engine);
       } else {
-        size_t k = static_cast<size_t>(Uniform01(engine) * static_cast<double>(num_draws));
+        const double v = states != nullptr ? (*states)[r] : Uniform01(engine);
+        size_t k = static_cast<size_t>(v * static_cast<double>(num_draws));
         if (k >= num_draws) k = num_draws - 1;
         y = up.y_draws[k];
       }
@@ -455,7 +504,8 @@ std::optional<RelationFit> FitRelation(RelationKind kind, const std::vector<Rela
   }
 
   // Coefficient draws, primary and inflated.
-  const double inflate = fit.dof >= 1 ? std::max(1.0, fit.scale_factor) : NAN;
+  const double inflate =
+      fit.dof >= 1 ? (one_joint_fit ? 1.0 : std::max(1.0, fit.scale_factor)) : NAN;
   std::vector<std::vector<double>> inflated(3);
   for (Coefficient& c : fit.coefficients) c.draws.resize(num_r);
   for (int r = 0; r < num_r; ++r) {
@@ -478,7 +528,9 @@ std::optional<RelationFit> FitRelation(RelationKind kind, const std::vector<Rela
   fit.fitted = true;
 
   // Flags.
-  if (fit.dof == 0) {
+  if (one_joint_fit) {
+    // The dof and the scatter say nothing about one fit's own relation (kFlagJointPoints).
+  } else if (fit.dof == 0) {
     AddFlag(&fit, kFlagPoorlyConstrained,
             "2 points, 0 degrees of freedom: the relation passes through both points; the "
             "interval rests on the point errors alone and cannot be checked against the "
@@ -507,7 +559,8 @@ std::optional<RelationFit> FitRelation(RelationKind kind, const std::vector<Rela
                   Num(100.0 * options.max_relative_half_width) + " %)");
     }
   }
-  if (fit.dof >= 1 && fit.p_value < options.scatter_p_value && fit.scale_factor > 1.0) {
+  if (!one_joint_fit && fit.dof >= 1 && fit.p_value < options.scatter_p_value &&
+      fit.scale_factor > 1.0) {
     AddFlag(&fit, kFlagScatterExceedsErrors,
             "chi2 = " + Num(fit.chi2) + " for " + std::to_string(fit.dof) + " dof (p = " +
                 Num(fit.p_value) + " < " + Num(options.scatter_p_value) +

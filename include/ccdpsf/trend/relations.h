@@ -68,10 +68,17 @@
 //                         measures the lever arm, not how well the data fix the relation.)
 //   scatter_exceeds_errors  see above
 //   gaussian_approximation  some points had no draws (median/sd Gaussian used)
+//   joint_points          points from one joint fit (RelationPoint::joint_set): resampled
+//                         state by state, so the intervals are the joint posterior's; their
+//                         medians lie on the fit's own curve (a line only if the model's is),
+//                         so chi^2 measures its bend, not scatter: with one joint fit's
+//                         points alone no scatter_exceeds_errors, inflation or dof flag
 //
 // Randomness: point k (k-th usable point, in input order) draws from its own
 // std::mt19937_64 seeded with DeriveSeed(seed, k), so a result depends only on the usable
 // points, the options and the seed; a gap is exactly equivalent to leaving the point out.
+// The points of joint set s share one stream, seeded with DeriveSeed(DeriveSeed(seed,
+// 2^64 - 1), s), that picks the state of each resampling.
 #ifndef CCDPSF_TREND_RELATIONS_H_
 #define CCDPSF_TREND_RELATIONS_H_
 
@@ -94,6 +101,7 @@ inline constexpr char kFlagNotFitted[] = "not_fitted";
 inline constexpr char kFlagPoorlyConstrained[] = "poorly_constrained";
 inline constexpr char kFlagScatterExceedsErrors[] = "scatter_exceeds_errors";
 inline constexpr char kFlagGaussianApproximation[] = "gaussian_approximation";
+inline constexpr char kFlagJointPoints[] = "joint_points";
 
 // The metrics `ccdpsf trend` relates (docs/metrics.md; the fit's derived names).
 const std::vector<std::string>& TrendMetricNames();
@@ -140,6 +148,12 @@ struct RelationPoint {
   // reason make a "bound only" gap (a measurement the data bound from above only): the gap
   // carries the 95th percentile of its finite draws as an upper limit.
   std::string missing_reason;
+  // >= 0: the point is one of a joint fit's (e.g. the settings of an intensity series fitted
+  // with the brighter-fatter slope): points with the same joint_set have draws from the same
+  // posterior states, draw j of each from state j (equal counts, all finite), and a
+  // resampling takes one state for all of them, so their correlation is carried through.
+  // -1: an independent fit's point.
+  int joint_set = -1;
 
   static RelationPoint FromDraws(std::string label, double abscissa, std::vector<double> draws);
   static RelationPoint FromGaussian(std::string label, double abscissa, double median,
