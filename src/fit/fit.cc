@@ -26,14 +26,8 @@ double Percentile(std::vector<double>& sorted, double q) {
 // Index of the peak_e entry in DerivedNames().
 constexpr size_t kPeakIndex = 10;
 
-// The parameters at which peak_e is measured: theta with every exposure's spot moved to the
-// pixel centre nearest its fitted position, and in a through-focus fit the defocus rate set
-// to zero, i.e. every exposure at best focus. Why centred: the intensity names a setting
-// (flux and PSF), not where its spots happened to land; with the spot 0.1 px off centre the
-// brightest pixel of a sharp spot is ~1.5 % lower, which through the intensity relation
-// moved the 800 nm FWHM at I0 by +1.5 sd on simulated campaigns (whose nominal peak is the
-// centred spot's). A series' peak_e is thereby its spot's at best focus, as its total_*
-// metrics are (DerivedAt): the intensity its identified CCD widths belong to.
+}  // namespace
+
 std::vector<double> PeakTheta(const FitModel& model, const double* theta) {
   std::vector<double> out(theta, theta + model.dim());
   for (int k = 0; k < model.num_exposures(); ++k) {
@@ -43,8 +37,6 @@ std::vector<double> PeakTheta(const FitModel& model, const double* theta) {
   if (model.through_focus()) out[kDefocusPx] = 0.0;
   return out;
 }
-
-}  // namespace
 
 void FillPosterior(std::vector<double> values, Summary* s) {
   values.erase(

@@ -515,6 +515,32 @@ std::unique_ptr<FitEvaluator> FitModel::NewEvaluator() const {
 FitEvaluator::FitEvaluator(const FitModel& model)
     : fit_model_(model), renderer_(model.options().model) {}
 
+int FitEvaluator::RenderWithoutGrowth(const model::SpotParams& spot, const model::PixelGrid& grid,
+                                      bool want) {
+  std::string why;
+  if (!model::ValidSpotParams(renderer_.options(), spot, &why)) return -1;
+  plain_.resize(grid.size());
+  if (want) spot_jacobian_.resize(static_cast<size_t>(grid.size()) * model::kNumSpotParams);
+  renderer_.Render(spot, grid, plain_.data(), want ? spot_jacobian_.data() : nullptr);
+  return static_cast<int>(std::max_element(plain_.begin(), plain_.end()) - plain_.begin());
+}
+
+bool FitEvaluator::KernelWidths(const double* theta, int k, double* sigma_x_px,
+                                double* sigma_y_px) {
+  const FitModel& fm = fit_model_;
+  const model::SpotParams spot = fm.SpotFor(theta, k);
+  *sigma_x_px = spot[model::kCcdSigmaX];
+  *sigma_y_px = spot[model::kCcdSigmaY];
+  model::ExposureEffects effects;
+  if (fm.HasEffects() && !fm.EffectsAt(theta, &effects)) return false;
+  if (!effects.brighter_fatter) return true;
+  const int peak = RenderWithoutGrowth(spot, fm.GridFor(k), false);
+  if (peak < 0) return false;
+  *sigma_x_px += effects.brighter_fatter->slope_x_px_per_e * plain_[peak];
+  *sigma_y_px += effects.brighter_fatter->slope_y_px_per_e * plain_[peak];
+  return true;
+}
+
 bool FitEvaluator::ModelImageColumns(const double* theta, int k, std::vector<double>* model,
                                      std::vector<double>* jacobian, std::vector<int>* columns) {
   const FitModel& fm = fit_model_;
@@ -571,11 +597,8 @@ bool FitEvaluator::ModelImageColumns(const double* theta, int k, std::vector<dou
     // The widths grow with the peak pixel I of the spot drawn without the growth
     // (model/effects.h); I depends on theta through that render's own derivatives at its
     // brightest pixel.
-    plain_.resize(n);
-    if (!model::ValidSpotParams(renderer_.options(), spot, &why)) return false;
-    renderer_.Render(spot, grid, plain_.data(), want ? spot_jacobian_.data() : nullptr);
-    const int peak =
-        static_cast<int>(std::max_element(plain_.begin(), plain_.end()) - plain_.begin());
+    const int peak = RenderWithoutGrowth(spot, grid, want);
+    if (peak < 0) return false;
     const double signal = plain_[peak];
     const model::BrighterFatterParams& bf = *effects.brighter_fatter;
     if (want) {

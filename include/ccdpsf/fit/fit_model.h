@@ -284,6 +284,12 @@ class FitEvaluator {
   bool ModelImageColumns(const double* theta, int k, std::vector<double>* model,
                          std::vector<double>* jacobian, std::vector<int>* columns);
 
+  // The CCD widths [px] exposure k's spot is drawn with at theta: theta's, grown by the
+  // brighter-fatter slopes times the peak pixel [e-] of the spot drawn without the growth
+  // (model/effects.h; theta's own widths without the effect). False where the spot cannot
+  // be drawn.
+  bool KernelWidths(const double* theta, int k, double* sigma_x_px, double* sigma_y_px);
+
   // Fisher information of theta for the Gaussian likelihood with model-dependent variance:
   // sum over valid pixels of g g^T / var + (1/2) h h^T / var^2, g = dm/dtheta, h = dvar/dtheta
   // (= g where m > 0). dim x dim, row-major.
@@ -313,6 +319,9 @@ class FitEvaluator {
   // flux. False where a model image cannot be drawn.
   template <typename Visit>
   bool ForEachValidPixel(const double* theta, int first, int last, Visit visit);
+  // Renders the spot without the brighter-fatter growth into plain_ (with its Jacobian in
+  // spot_jacobian_ if want) and returns its brightest pixel's index; -1 if it cannot be drawn.
+  int RenderWithoutGrowth(const model::SpotParams& spot, const model::PixelGrid& grid, bool want);
 
   const FitModel& fit_model_;
   model::SpotRenderer renderer_;
