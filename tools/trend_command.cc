@@ -12,6 +12,7 @@
 #include "ccdpsf/trend/campaign.h"
 #include "ccdpsf/trend/defocus_anchor.h"
 #include "ccdpsf/trend/group_fit.h"
+#include "ccdpsf/trend/intensity_series.h"
 #include "ccdpsf/trend/trend.h"
 #include "ccdpsf/trend/trend_report.h"
 #include "ccdpsf/truth.h"
@@ -85,12 +86,16 @@ int RunTrend(const std::vector<std::string>& inputs) {
   trend::GroupFitOptions fit_options;
   fit_options.plot_format = report_options.plot.format;
   if (!ResolveFitConfig(&fit_options.config, &error)) return Fail(error);
-  if (fit_options.config.model.HasEffect(model::EffectKind::kBrighterFatter)) {
-    return Fail(
-        "trend fits each setting alone, at one intensity, where the brighter_fatter slope is "
-        "a fixed change of the CCD widths: it cannot be a group's effect (the intensity "
-        "relations measure the growth of the widths with the signal; `fit --joint` on "
-        "exposures at several intensities fits the slope)");
+  // A setting at one intensity cannot fit the brighter-fatter slope (it is exactly a change
+  // of the CCD widths there): it goes to the intensity series (intensity_series.h).
+  std::vector<fit::FitEffect>& effects = fit_options.config.model.effects;
+  for (auto it = effects.begin(); it != effects.end();) {
+    if (it->kind == model::EffectKind::kBrighterFatter) {
+      fit_options.intensity_series_effects.push_back(*it);
+      it = effects.erase(it);
+    } else {
+      ++it;
+    }
   }
   fit_options.seed = fit_options.config.fit.mcmc.seed;
   fit_options.flux_given = fit_options.config.flux_given;
@@ -132,6 +137,18 @@ int RunTrend(const std::vector<std::string>& inputs) {
   }
   std::vector<trend::CampaignGroup> groups;
   if (!trend::LoadCampaign(inputs, campaign, &groups, &error)) return Fail(error);
+  if (!fit_options.intensity_series_effects.empty()) {
+    const std::vector<trend::CampaignGroup> series =
+        trend::IntensitySeries(groups, !fit::CcdSplitUnidentified(fit_options.config.model));
+    if (series.empty()) {
+      return Fail(
+          "brighter_fatter needs an intensity series: two or more through-focus "
+          "series at one wavelength, or two or more single-focus settings at one "
+          "wavelength and stage position (FOCUSPOS; without one only where one focus "
+          "identifies the CCD widths: pillbox defocus or pixel_centre sampling)");
+    }
+    groups.insert(groups.end(), series.begin(), series.end());
+  }
   std::vector<std::string> read = inputs;
   for (const trend::CampaignGroup& g : groups) read.insert(read.end(), g.files.begin(), g.files.end());
   // Finished groups are kept in the partial folder's "store" (and their reports in
@@ -187,14 +204,16 @@ int RunTrend(const std::vector<std::string>& inputs) {
     return Fail(error);
   }
   trend_result.notes.insert(trend_result.notes.begin(), anchor_notes.begin(), anchor_notes.end());
-  nlohmann::json run = {{"command", "trend"},
-                        {"inputs", inputs},
-                        {"options", fit::FitConfigJson(fit_options.config)},
-                        {"requirements", trend::RequirementsToJson(trend_options.requirements)},
-                        {"reference_intensity_e", trend_options.reference_intensity_e},
-                        {"parallel_groups", fit_options.parallel_groups},
-                        {"seed", fit_options.seed},
-                        {"software", SoftwareVersions()}};
+  nlohmann::json run = {
+      {"command", "trend"},
+      {"inputs", inputs},
+      {"options", fit::FitConfigJson(fit_options.config)},
+      {"requirements", trend::RequirementsToJson(trend_options.requirements)},
+      {"reference_intensity_e", trend_options.reference_intensity_e},
+      {"intensity_series_effects", fit::FitEffectsJson(fit_options.intensity_series_effects)},
+      {"parallel_groups", fit_options.parallel_groups},
+      {"seed", fit_options.seed},
+      {"software", SoftwareVersions()}};
   std::vector<std::string> warnings;
   report_options.reference_intensity_e = trend_options.reference_intensity_e;
   if (!trend::WriteTrendReport(out.partial(), trend_result, run, &warnings, &error,
@@ -257,7 +276,9 @@ Command TrendCommand() {
       {"effects", "",
        "Effects of the catalogue fitted with every group's spot, comma-separated (serial_cti, "
        "parallel_cti, brighter_fatter, ipc, background, nonlinearity, halo; `ccdpsf effects` "
-       "lists them), with the catalogue's priors (FIT.json \"effects\" sets others)"},
+       "lists them), with the catalogue's priors (FIT.json \"effects\" sets others); "
+       "brighter_fatter is fitted by an intensity series per wavelength, every other setting "
+       "without it (docs/trust.md)"},
       {"requirements", "",
        "JSON list of requirements (not given: the Euclid VIS ones: FWHM <= 10.8 um and e <= "
        "0.156 at 800 nm and I0, alpha of FWHM(lambda) <= -0.2)"},

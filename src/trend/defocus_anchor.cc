@@ -156,7 +156,8 @@ std::vector<GroupResult> FitCampaignGroups(std::vector<CampaignGroup> groups,
   const int total = static_cast<int>(groups.size());
   std::vector<int> series_at;
   for (int i = 0; i < total; ++i) {
-    if (groups[i].focus_series) series_at.push_back(i);
+    // (An intensity series of through-focus series anchors nothing: its members do.)
+    if (groups[i].focus_series && !groups[i].intensity_series) series_at.push_back(i);
   }
   if (scope == AnchorScope::kOff || series_at.empty()) return FitGroups(groups, options, progress);
   // Each single-focus setting waits for the series in its scope (AnchorDefocus looks at no

@@ -16,6 +16,7 @@
 #include "ccdpsf/provenance.h"
 #include "ccdpsf/random.h"
 #include "ccdpsf/trend/group_store.h"
+#include "ccdpsf/trend/intensity_series.h"
 #include "glog/logging.h"
 #include "internal/text.h"
 
@@ -52,6 +53,19 @@ GroupResult FitOne(const CampaignGroup& group, int position, int index,
     out.warnings.push_back(
         "through-focus series: fitted with defocus = rate x |z - z0| (integrated sampling, "
         "Gaussian defocus), which identifies the CCD widths");
+  }
+  if (group.intensity_series) {
+    // intensity_series.h: the settings of one wavelength and focus, with the slope.
+    for (const fit::FitEffect& e : options.intensity_series_effects) {
+      config.model.effects.push_back(e);
+    }
+    out.notes.push_back(
+        std::string("intensity series: ") +
+        (group.focus_series ? "the through-focus series at this wavelength fitted jointly, "
+                              "sharing the CCD kernel and the focus law"
+                            : "the single-focus settings at this wavelength and stage "
+                              "position fitted jointly, sharing the CCD kernel and the defocus") +
+        ", with the brighter-fatter slope: the CCD-only intensity relations are this fit's");
   }
   if (group.defocus_anchor && !group.focus_series) {
     // defocus_anchor.h: the series' 99.73 % interval of the defocus at this stage position.
@@ -145,6 +159,13 @@ GroupResult FitOne(const CampaignGroup& group, int position, int index,
       // A series' best focus too: with the rate it gives the defocus at any stage position.
       const int focus = model->FocusIndex();
       if (focus >= 0) out.draws[result.names[focus]].push_back(theta[focus]);
+    }
+  }
+
+  if (group.intensity_series && result.have_mcmc) {
+    if (!SettingKernelDraws(*model, result, group.member_settings, options.draws, &out.draws,
+                            &error)) {
+      return finish("intensity series: " + error);
     }
   }
 

@@ -5,6 +5,8 @@
 #include <set>
 #include <sstream>
 
+#include "ccdpsf/trend/intensity_series.h"
+
 namespace ccdpsf::trend {
 namespace {
 
@@ -136,6 +138,34 @@ const GroupResult* NearestReference(const std::vector<const GroupResult*>& list,
   return nullptr;
 }
 
+// Setting `label`'s point in an intensity relation of CCD-only `metric` from the intensity
+// series that holds it (intensity_series.h): the series' draws at the setting, at the
+// setting's own intensity, resampled jointly with the series' other points.
+RelationPoint SeriesPoint(const GroupResult& series, const std::string& label, double abscissa,
+                          const std::string& metric) {
+  if (!series.ok)
+    return RelationPoint::Missing(label, abscissa,
+                                  "its intensity series failed: " + series.failure);
+  if (!series.converged) {
+    return RelationPoint::Missing(label, abscissa,
+                                  "its intensity series' MCMC did not converge (see "
+                                  "the series' fit report)");
+  }
+  if (series.ccd_split_unidentified) {
+    return RelationPoint::Missing(
+        label, abscissa,
+        "CCD widths not identified: the intensity series is at one focus with a Gaussian "
+        "defocus and no through-focus series anchors it (docs/trust.md)");
+  }
+  auto draws = series.draws.find(SettingDrawKey(label, metric));
+  if (draws == series.draws.end()) {
+    return RelationPoint::Missing(label, abscissa, "no draws of its intensity series (MCMC off)");
+  }
+  RelationPoint p = RelationPoint::FromDraws(label, abscissa, draws->second);
+  p.joint_set = 0;
+  return p;
+}
+
 }  // namespace
 
 bool ComputeTrend(std::vector<GroupResult> groups, const TrendOptions& options,
@@ -155,7 +185,14 @@ bool ComputeTrend(std::vector<GroupResult> groups, const TrendOptions& options,
   // Groups by wavelength (single-focus settings and through-focus series); groups of unknown
   // wavelength fit nowhere.
   std::map<double, std::vector<const GroupResult*>> by_wavelength;
+  // Intensity series (intensity_series.h) by wavelength: not settings, but the source of
+  // their settings' CCD-only intensity relations.
+  std::map<double, const GroupResult*> series_at;
   for (const GroupResult& g : all) {
+    if (g.group.intensity_series) {
+      series_at[g.group.wavelength_nm] = &g;
+      continue;
+    }
     if (!std::isfinite(g.group.wavelength_nm)) {
       result->notes.push_back(g.group.name + " is in no relation: " + g.failure);
       continue;
@@ -191,8 +228,16 @@ bool ComputeTrend(std::vector<GroupResult> groups, const TrendOptions& options,
       const std::vector<const GroupResult*> list = measuring(all_here, metric);
       if (!main && list.size() < 2) continue;
       std::vector<RelationPoint> points;
+      auto series = series_at.find(wavelength);
       for (const GroupResult* g : list) {
-        points.push_back(PointOf(*g, metric, NominalOrMeasuredPeak(*g)));
+        const std::vector<std::string>& members = series != series_at.end()
+                                                      ? series->second->group.member_settings
+                                                      : std::vector<std::string>();
+        const bool in_series = IsCcdOnlyMetric(metric) && std::find(members.begin(), members.end(),
+                                                                    g->group.name) != members.end();
+        points.push_back(in_series ? SeriesPoint(*series->second, g->group.name,
+                                                 NominalOrMeasuredPeak(*g), metric)
+                                   : PointOf(*g, metric, NominalOrMeasuredPeak(*g)));
       }
       auto fit = FitRelation(RelationKind::kLinear, points, options.relation, error);
       if (!fit) return false;
@@ -291,11 +336,29 @@ bool ComputeTrend(std::vector<GroupResult> groups, const TrendOptions& options,
   std::string series, anchored;
   int unidentified = 0;
   for (const GroupResult& g : all) {
+    if (g.group.intensity_series) continue;
     if (g.group.focus_series) series += (series.empty() ? "" : ", ") + g.group.name;
     if (g.ok && g.ccd_split_unidentified) ++unidentified;
     if (g.ok && g.group.defocus_anchor) {
       anchored += (anchored.empty() ? "" : ", ") + g.group.name;
     }
+  }
+  for (const auto& [wavelength, is] : series_at) {
+    std::vector<std::string> names;
+    for (const std::string& m : is->group.member_settings) {
+      if (std::find(names.begin(), names.end(), m) == names.end()) names.push_back(m);
+    }
+    std::string members;
+    for (const std::string& m : names) members += (members.empty() ? "" : ", ") + m;
+    result->notes.push_back(
+        "at " + Format(wavelength) +
+        " nm the CCD-only intensity relations are those of the "
+        "intensity series " +
+        is->group.name + " (" + members +
+        " fitted jointly with the brighter-fatter slope, sharing the CCD kernel and the "
+        "defocus: the settings are assumed to share the optics and the focus), resampled "
+        "state by state (flag joint_points); each setting is also fitted alone without the "
+        "slope, for the total_* relations and the wavelength relations");
   }
   if (!anchored.empty()) {
     result->notes.push_back(
@@ -323,7 +386,7 @@ bool ComputeTrend(std::vector<GroupResult> groups, const TrendOptions& options,
   }
   result->requirements = EvaluateRequirements(options.requirements, result->relations, i0);
   for (const GroupResult& g : result->groups) {
-    if (!g.group.focus_series || !g.ok) continue;
+    if (!g.group.focus_series || g.group.intensity_series || !g.ok) continue;
     for (const Requirement& req : options.requirements) {
       if (req.target != Requirement::Target::kMetricAt ||
           !(std::fabs(req.wavelength_nm - g.group.wavelength_nm) <= 0.5)) {

@@ -49,6 +49,11 @@ json GroupJson(const GroupResult& g, const std::string& out_dir) {
                                       .lexically_relative(out_dir)
                                       .string())}};
   j["ccd_widths_identified"] = g.ok ? json(!g.ccd_split_unidentified) : json();
+  if (g.group.intensity_series) {
+    // intensity_series.h: the member setting of each file.
+    j["intensity_series"] = true;
+    j["member_settings"] = g.group.member_settings;
+  }
   if (g.group.defocus_anchor) {
     const DefocusAnchor& a = *g.group.defocus_anchor;
     j["defocus_anchor"] = {{"series", a.series},
@@ -590,7 +595,9 @@ bool WriteTrendReport(const std::string& out_dir, const TrendResult& r, const js
        << status << " |\n";
   }
   bool any_focus = false;
-  for (const GroupResult& g : r.groups) any_focus = any_focus || (g.ok && g.group.focus_series);
+  for (const GroupResult& g : r.groups) {
+    any_focus = any_focus || (g.ok && g.group.focus_series && !g.group.intensity_series);
+  }
   if (any_focus) {
     md << "\n## Through-focus series\n\n"
           "At one focus position a Gaussian defocus and the CCD kernel are not separable "
@@ -601,7 +608,7 @@ bool WriteTrendReport(const std::string& out_dir, const TrendResult& r, const js
           "best focus um |\n"
           "|---|---|---|---|---|---|---|---|\n";
     for (const GroupResult& g : r.groups) {
-      if (!g.ok || !g.group.focus_series) continue;
+      if (!g.ok || !g.group.focus_series || g.group.intensity_series) continue;
       auto metric = [&](const std::string& m) {
         auto it = g.summaries.find(m);
         return it == g.summaries.end() ? std::string("n/a") : Interval(it->second);
@@ -610,6 +617,36 @@ bool WriteTrendReport(const std::string& out_dir, const TrendResult& r, const js
          << metric("ccd_sigma_x_px") << " | " << metric("ccd_sigma_y_px") << " | "
          << metric("fwhm_um") << " | " << metric("ellipticity") << " | "
          << metric("defocus_rate_px_per_um") << " | " << metric("best_focus_um") << " |\n";
+    }
+  }
+  bool any_series = false;
+  for (const GroupResult& g : r.groups)
+    any_series = any_series || (g.ok && g.group.intensity_series);
+  if (any_series) {
+    md << "\n## Intensity series (brighter-fatter)\n\n"
+          "The settings of one wavelength fitted jointly with the brighter-fatter slope "
+          "(docs/trust.md, the brighter-fatter slope in a campaign): the CCD kernel at zero "
+          "signal, sigma(I) = sigma_0 + b I with I the peak pixel before the growth. The "
+          "CCD-only intensity relations above are its settings' kernels at their measured "
+          "peaks:\n\n"
+          "| group | nm | settings | sigma_0 x px | sigma_0 y px | b_x px/e- | b_y px/e- | "
+          "chi2/dof | MCMC |\n"
+          "|---|---|---|---|---|---|---|---|---|\n";
+    for (const GroupResult& g : r.groups) {
+      if (!g.ok || !g.group.intensity_series) continue;
+      auto metric = [&](const std::string& m) {
+        auto it = g.summaries.find(m);
+        return it == g.summaries.end() ? std::string("n/a") : Interval(it->second);
+      };
+      std::vector<std::string> settings;
+      for (const std::string& m : g.group.member_settings) {
+        if (std::find(settings.begin(), settings.end(), m) == settings.end()) settings.push_back(m);
+      }
+      md << "| " << g.group.name << " | " << Fmt(g.group.wavelength_nm) << " | " << settings.size()
+         << " | " << metric("ccd_sigma_x_px") << " | " << metric("ccd_sigma_y_px") << " | "
+         << metric("brighter_fatter.slope_x_px_per_e") << " | "
+         << metric("brighter_fatter.slope_y_px_per_e") << " | " << Fmt(g.chi2_per_dof, 3) << " | "
+         << (g.converged ? "converged" : "NOT converged") << " |\n";
     }
   }
   bool any_warning = false;

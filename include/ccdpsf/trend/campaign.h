@@ -55,6 +55,11 @@ struct CampaignGroup {
   std::optional<DefocusAnchor> defocus_anchor;
   std::vector<std::string> files;
   std::vector<InputFile> inputs;  // the same files with each one's options
+  // An intensity series (intensity_series.h): the single-focus settings of one wavelength
+  // fitted jointly with the brighter-fatter slope; member_settings names the setting of each
+  // file (parallel to files).
+  bool intensity_series = false;
+  std::vector<std::string> member_settings;
   // Set when the group cannot be fitted at all (e.g. a file without WAVELEN): why.
   std::string problem;
 };

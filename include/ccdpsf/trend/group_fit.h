@@ -35,6 +35,9 @@ struct GroupFitOptions {
   // are in `plot_format`, with the truth.json of the group's folder when there is one.
   std::string reports_dir;
   PlotFormat plot_format = PlotFormat::kPng;
+  // Effects fitted with an intensity series' spot only (intensity_series.h; the
+  // brighter-fatter slope, which a setting at one intensity cannot fit).
+  std::vector<fit::FitEffect> intensity_series_effects;
   // Where finished groups are kept (group_store.h), and the run's signature that their keys
   // include; empty: not kept. A group kept there by an earlier run with the same signature,
   // group and files is taken from it instead of being fitted again.
@@ -67,7 +70,8 @@ struct GroupResult {
   // Summaries and posterior draws of the derived metrics (fit.h DerivedNames(), peak_e
   // excepted) and of the shared parameters.
   std::map<std::string, fit::Summary> summaries;
-  std::map<std::string, std::vector<double>> draws;
+  std::map<std::string, std::vector<double>> draws;  // an intensity series' also hold its
+                                                     // settings' (SettingDrawKey)
   // Shared parameters the data do not bound from below (trend.h, "bound only"): the MAP sits
   // at the prior's lower bound (within 1e-6 of the range), or, in pixel_centre sampling, the
   // posterior's 0.135th percentile is within 10 % of (median - bound) of the bound.

@@ -1,0 +1,59 @@
+// The brighter-fatter slope in a campaign: the single-focus settings of one wavelength,
+// fitted jointly, give the intensity relation of the CCD kernel itself.
+//
+// Why: a setting holds one intensity, where the slope b of the widths' growth
+// sigma(I) = sigma_0 + b I (model/effects.h, brighter_fatter) is exactly a change of the CCD
+// widths, so a setting cannot fit it. The settings of one wavelength taken at one stage
+// position share the optics, the defocus and the kernel; fitted as one joint group (an
+// "intensity series": per-exposure positions and fluxes, sigma_0, b and the defocus
+// shared), they measure sigma_0 and b. The settings are still fitted on their own as well,
+// without the slope (their total_* metrics and their points in the wavelength relations).
+//
+// The relation: each member setting's point is the series' posterior of the CCD-only metrics
+// of the widths its exposures are drawn with where its intensity is measured (fit.h
+// PeakTheta: centred, at best focus; FitEvaluator::KernelWidths: sigma_0 + b x the peak
+// pixel of the spot before the growth, averaged over the setting's exposures), at the
+// setting's own intensity (its own fit's peak_e, the abscissa of every intensity relation).
+// The points come from one posterior, draw j of each from state j, and the relation is
+// resampled state by state (relations.h, joint_points): its intervals are the joint fit's.
+//
+// The assumption the report states: the settings of one wavelength share the kernel and
+// the optics: through-focus series the focus law, single-focus settings at one stage
+// position the defocus (as a setting's exposures do in its own joint fit).
+#ifndef CCDPSF_TREND_INTENSITY_SERIES_H_
+#define CCDPSF_TREND_INTENSITY_SERIES_H_
+
+#include <string>
+#include <vector>
+
+#include "ccdpsf/fit/fit.h"
+#include "ccdpsf/fit/fit_model.h"
+#include "ccdpsf/trend/campaign.h"
+
+namespace ccdpsf::trend {
+
+// The intensity series of a campaign, one per wavelength at most: its through-focus
+// series when it has two or more ("<wavelength>nm_focus_intensity_series": they identify
+// the CCD widths, and share the focus law of the projector, rate |z - z0|), else its
+// single-focus settings at one stage position, the largest such set of two or more
+// ("<wavelength>nm_intensity_series"; settings without a stage position only when
+// `one_focus_identifies`, i.e. the model splits the CCD widths from the defocus at one focus:
+// otherwise nothing could anchor their shared defocus). Groups with a problem are left out.
+std::vector<CampaignGroup> IntensitySeries(const std::vector<CampaignGroup>& groups,
+                                           bool one_focus_identifies);
+
+// The key under which a series' GroupResult::draws holds `metric` at member `setting`.
+std::string SettingDrawKey(const std::string& setting, const std::string& metric);
+
+// The CCD-only trend metrics (relations.h TrendMetricNames) at each member setting of the
+// series, one value per kept chain state (states [burn_in x walkers + t x kept / n], as
+// group_fit.cc thins the chain), into *draws under SettingDrawKey. `settings` names the
+// member setting of each exposure of `model`. False, with the reason, when the chain is
+// absent or a state's spot cannot be drawn.
+bool SettingKernelDraws(const fit::FitModel& model, const fit::FitResult& result,
+                        const std::vector<std::string>& settings, int num_draws,
+                        std::map<std::string, std::vector<double>>* draws, std::string* error);
+
+}  // namespace ccdpsf::trend
+
+#endif  // CCDPSF_TREND_INTENSITY_SERIES_H_

@@ -1,0 +1,152 @@
+#include "ccdpsf/trend/intensity_series.h"
+
+#include <algorithm>
+#include <cmath>
+#include <map>
+#include <memory>
+#include <set>
+#include <utility>
+
+#include "ccdpsf/metrics.h"
+#include "ccdpsf/trend/relations.h"
+#include "internal/text.h"
+
+namespace ccdpsf::trend {
+
+namespace {
+
+// The series of `members` (the settings of one wavelength), named after its kind.
+CampaignGroup Series(const std::vector<const CampaignGroup*>& members, bool through_focus) {
+  CampaignGroup series;
+  series.wavelength_nm = members[0]->wavelength_nm;
+  series.name = internal::FormatNumber(series.wavelength_nm) +
+                (through_focus ? "nm_focus_intensity_series" : "nm_intensity_series");
+  series.intensity_series = true;
+  series.focus_series = through_focus;
+  std::set<double> positions;
+  bool inputs = true;
+  for (const CampaignGroup* g : members) {
+    positions.insert(g->focus_positions_um.begin(), g->focus_positions_um.end());
+    inputs = inputs && g->inputs.size() == g->files.size();
+    for (size_t f = 0; f < g->files.size(); ++f) {
+      series.files.push_back(g->files[f]);
+      series.member_settings.push_back(g->name);
+    }
+  }
+  series.focus_positions_um.assign(positions.begin(), positions.end());
+  // Inputs only when every file has its own (else the fit reads the files plainly).
+  for (const CampaignGroup* g : members) {
+    if (inputs) series.inputs.insert(series.inputs.end(), g->inputs.begin(), g->inputs.end());
+  }
+  return series;
+}
+
+}  // namespace
+
+std::vector<CampaignGroup> IntensitySeries(const std::vector<CampaignGroup>& groups,
+                                           bool one_focus_identifies) {
+  // By wavelength: the through-focus series, and the single-focus settings by stage
+  // position (FOCUSPOS; "none" for a setting without one, or with several).
+  std::map<double, std::vector<const CampaignGroup*>> focus_series;
+  std::map<double, std::map<std::string, std::vector<const CampaignGroup*>>> single;
+  for (const CampaignGroup& g : groups) {
+    if (!g.problem.empty() || g.intensity_series || !std::isfinite(g.wavelength_nm)) continue;
+    if (g.focus_series) {
+      focus_series[g.wavelength_nm].push_back(&g);
+      continue;
+    }
+    const std::string focus = g.focus_positions_um.size() == 1
+                                  ? internal::FormatNumber(g.focus_positions_um[0], 9)
+                                  : std::string("none");
+    single[g.wavelength_nm][focus].push_back(&g);
+  }
+  std::vector<CampaignGroup> out;
+  std::set<double> wavelengths;
+  for (const auto& [w, list] : focus_series) wavelengths.insert(w);
+  for (const auto& [w, list] : single) wavelengths.insert(w);
+  for (double w : wavelengths) {
+    auto series = focus_series.find(w);
+    if (series != focus_series.end() && series->second.size() >= 2) {
+      out.push_back(Series(series->second, true));
+      continue;
+    }
+    auto by_focus = single.find(w);
+    if (by_focus == single.end()) continue;
+    const std::vector<const CampaignGroup*>* largest = nullptr;
+    for (const auto& [focus, members] : by_focus->second) {
+      // Without a stage position no series can anchor the shared defocus.
+      if (focus == "none" && !one_focus_identifies) continue;
+      if (largest == nullptr || members.size() > largest->size()) largest = &members;
+    }
+    if (largest != nullptr && largest->size() >= 2) out.push_back(Series(*largest, false));
+  }
+  return out;
+}
+
+std::string SettingDrawKey(const std::string& setting, const std::string& metric) {
+  return metric + "@" + setting;
+}
+
+bool SettingKernelDraws(const fit::FitModel& model, const fit::FitResult& result,
+                        const std::vector<std::string>& settings, int num_draws,
+                        std::map<std::string, std::vector<double>>* draws, std::string* error) {
+  if (!result.have_mcmc) {
+    *error = "no MCMC chain: the settings' kernel draws need one";
+    return false;
+  }
+  if (static_cast<int>(settings.size()) != model.num_exposures()) {
+    *error = "the series' fit holds " + std::to_string(model.num_exposures()) +
+             " exposures, its files " + std::to_string(settings.size());
+    return false;
+  }
+  // The member settings in order of first appearance, each with its exposures.
+  std::vector<std::pair<std::string, std::vector<int>>> members;
+  for (int k = 0; k < model.num_exposures(); ++k) {
+    auto it = std::find_if(members.begin(), members.end(),
+                           [&](const auto& m) { return m.first == settings[k]; });
+    if (it == members.end()) {
+      members.push_back({settings[k], {}});
+      it = members.end() - 1;
+    }
+    it->second.push_back(k);
+  }
+  const fit::SamplerResult& c = result.chain;
+  const int dim = model.dim();
+  const size_t kept = static_cast<size_t>(c.num_steps - c.burn_in) * c.num_walkers;
+  const size_t n = std::min<size_t>(kept, static_cast<size_t>(std::max(1, num_draws)));
+  const double pixel_um = model.stamps()[0].info.pixel_um;
+  std::unique_ptr<fit::FitEvaluator> evaluator = model.NewEvaluator();
+  for (size_t t = 0; t < n; ++t) {
+    const size_t s = static_cast<size_t>(c.burn_in) * c.num_walkers + t * kept / n;
+    // Where the settings' intensities are measured (fit.h PeakTheta): centred spots, and a
+    // through-focus series at best focus.
+    const std::vector<double> at = fit::PeakTheta(model, &c.chain[s * dim]);
+    const double* theta = at.data();
+    for (const auto& [setting, exposures] : members) {
+      // The setting's widths: the mean over its exposures (one intensity, nearly one width).
+      double sx = 0.0, sy = 0.0;
+      for (int k : exposures) {
+        double x, y;
+        if (!evaluator->KernelWidths(theta, k, &x, &y)) {
+          *error = "a chain state's spot of exposure " + std::to_string(k) + " cannot be drawn";
+          return false;
+        }
+        sx += x / exposures.size();
+        sy += y / exposures.size();
+      }
+      const PsfMetrics m = GaussianMetrics(sx, sy, pixel_um);
+      const std::map<std::string, double> values = {{"fwhm_um", m.fwhm_um},
+                                                    {"fwhm_x_um", m.fwhm_x_um},
+                                                    {"fwhm_y_um", m.fwhm_y_um},
+                                                    {"r2_px2", m.r2_px2},
+                                                    {"ellipticity", m.ellipticity}};
+      for (const std::string& metric : TrendMetricNames()) {
+        if (!IsCcdOnlyMetric(metric)) continue;
+        (*draws)[SettingDrawKey(setting, metric)].push_back(values.at(metric));
+      }
+    }
+  }
+  return true;
+}
+
+}  // namespace ccdpsf::trend
