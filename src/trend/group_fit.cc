@@ -211,8 +211,9 @@ std::vector<GroupResult> FitGroups(const std::vector<CampaignGroup>& groups,
     static const std::vector<int> kNone;
     return with_schedule ? schedule->after[g] : kNone;
   };
-  // Groups that others wait for first, then the largest first, so that the last to start
-  // are the quick ones.
+  // Intensity series first (the longest fits by far, which nothing waits for: started last
+  // they would run alone at the end), then groups that others wait for, then the largest
+  // first, so that the last to start are the quick ones.
   std::vector<char> awaited(total, 0);
   for (int g = 0; g < total; ++g) {
     for (int d : after(g)) awaited[d] = 1;
@@ -220,6 +221,9 @@ std::vector<GroupResult> FitGroups(const std::vector<CampaignGroup>& groups,
   std::vector<int> order(total);
   std::iota(order.begin(), order.end(), 0);
   std::stable_sort(order.begin(), order.end(), [&](int a, int b) {
+    if (groups[a].intensity_series != groups[b].intensity_series) {
+      return groups[a].intensity_series;
+    }
     if (awaited[a] != awaited[b]) return awaited[a] > awaited[b];
     return groups[a].files.size() > groups[b].files.size();
   });

@@ -97,8 +97,8 @@ struct GroupSchedule {
 };
 
 // Fits (or takes from the store) every group, parallel_groups at a time: a worker takes the
-// next group whose dependencies are finished (groups that others wait for first, then the
-// largest first). Results are in the order of `groups`.
+// next group whose dependencies are finished (intensity series first, then groups that
+// others wait for, then the largest first). Results are in the order of `groups`.
 std::vector<GroupResult> FitGroups(const std::vector<CampaignGroup>& groups,
                                    const GroupFitOptions& options, const GroupProgress& progress,
                                    const GroupSchedule* schedule = nullptr);
