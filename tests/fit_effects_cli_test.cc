@@ -181,15 +181,16 @@ TEST(FitEffectsCli, AnAbsentEffectIsAnUpperLimitNotAFault) {
 }
 
 // trend with brighter_fatter on a campaign whose frames hide it (three through-focus series
-// at 800 nm, 59-180 ke- in the peak pixel): the series fitted jointly give the intensity
-// relation of the CCD kernel itself. The simulator records each exposure's kernel as drawn
-// (truth.json, effects.rendered_ccd_sigma_*: the CCD widths grown by the slope times that
-// exposure's own peak); at best focus, with the spot on a pixel centre, that is the kernel
-// at the setting's intensity. Each setting's point must hold it in its 99.7 % interval; the
-// relation's intercept and slope the same weighted line through those truths (relations.h:
-// a fixed linear map of the points); the series' own parameters (the kernel at zero signal,
-// the slopes) their truths. 16 quantities at 99.7 %: a ~4 % chance of a false failure if
-// the intervals are right.
+// at 800 nm, 59-180 ke- in the peak pixel, and a single-focus setting at a stage position
+// on their focus law): all fitted jointly give the intensity relation of the CCD kernel
+// itself. The simulator records each exposure's kernel as drawn (truth.json,
+// effects.rendered_ccd_sigma_*: the CCD widths grown by the slope times that exposure's own
+// peak); with the spot on a pixel centre, at best focus for a series and at its own focus
+// for the single-focus setting, that is the kernel at the setting's intensity. Each
+// setting's point must hold it in its 99.7 % interval; the relation's intercept and slope
+// the same weighted line through those truths (relations.h: a fixed linear map of the
+// points); the series' own parameters (the kernel at zero signal, the slopes) their truths.
+// 16 quantities at 99.7 %: a ~5 % chance of a false failure if the intervals are right.
 TEST(FitEffectsCli, TrendGivesTheKernelsIntensityRelation) {
   CCDPSF_RELEASE_ONLY();
   const double kFwhmPerSigma = 2.0 * std::sqrt(2.0 * std::log(2.0));
@@ -199,15 +200,22 @@ TEST(FitEffectsCli, TrendGivesTheKernelsIntensityRelation) {
   // the truth; fit --joint on the same files agreed, and eight other seed sets of this
   // design gave every |z| <= 1.8: a chance draw, which this choice of seeds keeps out.)
   int seed = 1;
-  for (const auto& [flux, seconds] :
-       {std::pair<double, double>{1.0e5, 1.0}, {2.2e5, 2.2}, {3.6e5, 3.6}}) {
+  struct Setting {
+    double flux_e, exptime_s;
+    bool single_focus;
+  };
+  for (const Setting& setting : {Setting{1.0e5, 1.0, false}, Setting{2.2e5, 2.2, false},
+                                 Setting{3.6e5, 3.6, false}, Setting{1.6e5, 1.6, true}}) {
     json exposures = json::array();
-    for (int i = 0; i < 5; ++i) {
-      const double z = 200.0 + 50.0 * i;  // best focus at 300 um: exposure 2, on (32, 24)
-      exposures.push_back({{"flux_e", flux},
-                           {"exptime_s", seconds},
-                           {"x_px", 32.0 + 0.05 * (i - 2)},
-                           {"y_px", 24.0 - 0.04 * (i - 2)},
+    for (int i = 0; i < (setting.single_focus ? 3 : 5); ++i) {
+      // A series: best focus at 300 um, exposure 2, on (32, 24). The single-focus setting:
+      // three exposures at 250 um, every spot on (32, 24).
+      const double z = setting.single_focus ? 250.0 : 200.0 + 50.0 * i;
+      const double offset = setting.single_focus ? 0.0 : i - 2.0;
+      exposures.push_back({{"flux_e", setting.flux_e},
+                           {"exptime_s", setting.exptime_s},
+                           {"x_px", 32.0 + 0.05 * offset},
+                           {"y_px", 24.0 - 0.04 * offset},
                            {"focus_position_um", z},
                            {"defocus_px", 0.004 * std::fabs(z - 300.0)}});
     }
@@ -221,7 +229,7 @@ TEST(FitEffectsCli, TrendGivesTheKernelsIntensityRelation) {
     ASSERT_EQ(r.exit_code, 0) << r.output;
     fs::remove(campaign + "/" + name + ".json");
     const json truth = ReadJson(dir + "/truth.json");
-    const json& best = truth["exposures"][2]["effects"];
+    const json& best = truth["exposures"][setting.single_focus ? 0 : 2]["effects"];
     kernel_um[name] = {kFwhmPerSigma * 12.0 * best["rendered_ccd_sigma_x_px"].get<double>(),
                        kFwhmPerSigma * 12.0 * best["rendered_ccd_sigma_y_px"].get<double>()};
   }
@@ -241,7 +249,7 @@ TEST(FitEffectsCli, TrendGivesTheKernelsIntensityRelation) {
     const json& rel = t["relations"][metric + "_vs_intensity"];
     ASSERT_TRUE(rel["fitted"].get<bool>()) << rel.dump();
     EXPECT_NE(rel["flags"].dump().find("joint_points"), std::string::npos) << rel["flags"];
-    ASSERT_EQ(rel["points"].size(), 3u) << rel.dump();
+    ASSERT_EQ(rel["points"].size(), 4u) << rel.dump();
     // The weighted line through the truths: y = c0 + c1 u, u = (I - I0) / I0.
     const double i0 = rel["pivot"].get<double>();
     double m00 = 0, m01 = 0, m11 = 0, b0 = 0, b1 = 0;

@@ -61,7 +61,8 @@ GroupResult FitOne(const CampaignGroup& group, int position, int index,
     }
     out.notes.push_back(
         std::string("intensity series: ") +
-        (group.focus_series ? "the through-focus series at this wavelength fitted jointly, "
+        (group.focus_series ? "the through-focus series at this wavelength and its "
+                              "single-focus settings at a stage position fitted jointly, "
                               "sharing the CCD kernel and the focus law"
                             : "the single-focus settings at this wavelength and stage "
                               "position fitted jointly, sharing the CCD kernel and the defocus") +
@@ -163,8 +164,8 @@ GroupResult FitOne(const CampaignGroup& group, int position, int index,
   }
 
   if (group.intensity_series && result.have_mcmc) {
-    if (!SettingKernelDraws(*model, result, group.member_settings, options.draws, &out.draws,
-                            &error)) {
+    if (!SettingKernelDraws(*model, result, group.member_settings, group.member_focus_series,
+                            options.draws, &out.draws, &error)) {
       return finish("intensity series: " + error);
     }
   }

@@ -26,6 +26,7 @@ CampaignGroup Series(const std::vector<const CampaignGroup*>& members, bool thro
   std::set<double> positions;
   bool inputs = true;
   for (const CampaignGroup* g : members) {
+    if (g->focus_series) series.member_focus_series.push_back(g->name);
     positions.insert(g->focus_positions_um.begin(), g->focus_positions_um.end());
     inputs = inputs && g->inputs.size() == g->files.size();
     for (size_t f = 0; f < g->files.size(); ++f) {
@@ -66,11 +67,22 @@ std::vector<CampaignGroup> IntensitySeries(const std::vector<CampaignGroup>& gro
   for (const auto& [w, list] : single) wavelengths.insert(w);
   for (double w : wavelengths) {
     auto series = focus_series.find(w);
-    if (series != focus_series.end() && series->second.size() >= 2) {
-      out.push_back(Series(series->second, true));
-      continue;
-    }
     auto by_focus = single.find(w);
+    if (series != focus_series.end()) {
+      // Through focus: the series and every single-focus setting with a stage position, all
+      // on the series' focus law (the exact form of defocus_anchor.h's box).
+      std::vector<const CampaignGroup*> members = series->second;
+      if (by_focus != single.end()) {
+        for (const auto& [focus, settings] : by_focus->second) {
+          if (focus == "none") continue;
+          members.insert(members.end(), settings.begin(), settings.end());
+        }
+      }
+      if (members.size() >= 2) {
+        out.push_back(Series(members, true));
+        continue;
+      }
+    }
     if (by_focus == single.end()) continue;
     const std::vector<const CampaignGroup*>* largest = nullptr;
     for (const auto& [focus, members] : by_focus->second) {
@@ -88,7 +100,8 @@ std::string SettingDrawKey(const std::string& setting, const std::string& metric
 }
 
 bool SettingKernelDraws(const fit::FitModel& model, const fit::FitResult& result,
-                        const std::vector<std::string>& settings, int num_draws,
+                        const std::vector<std::string>& settings,
+                        const std::vector<std::string>& focus_series, int num_draws,
                         std::map<std::string, std::vector<double>>* draws, std::string* error) {
   if (!result.have_mcmc) {
     *error = "no MCMC chain: the settings' kernel draws need one";
@@ -118,11 +131,15 @@ bool SettingKernelDraws(const fit::FitModel& model, const fit::FitResult& result
   std::unique_ptr<fit::FitEvaluator> evaluator = model.NewEvaluator();
   for (size_t t = 0; t < n; ++t) {
     const size_t s = static_cast<size_t>(c.burn_in) * c.num_walkers + t * kept / n;
-    // Where the settings' intensities are measured (fit.h PeakTheta): centred spots, and a
-    // through-focus series at best focus.
-    const std::vector<double> at = fit::PeakTheta(model, &c.chain[s * dim]);
-    const double* theta = at.data();
+    // Where the settings' intensities are measured (fit.h PeakTheta): centred spots, a
+    // through-focus series at best focus, a single-focus setting at its own defocus.
+    const std::vector<double> at_best = fit::PeakTheta(model, &c.chain[s * dim]);
+    std::vector<double> at_own = at_best;
+    at_own[fit::kDefocusPx] = c.chain[s * dim + fit::kDefocusPx];
     for (const auto& [setting, exposures] : members) {
+      const bool series =
+          std::find(focus_series.begin(), focus_series.end(), setting) != focus_series.end();
+      const double* theta = series ? at_best.data() : at_own.data();
       // The setting's widths: the mean over its exposures (one intensity, nearly one width).
       double sx = 0.0, sy = 0.0;
       for (int k : exposures) {

@@ -355,8 +355,10 @@ bool ComputeTrend(std::vector<GroupResult> groups, const TrendOptions& options,
         " nm the CCD-only intensity relations are those of the "
         "intensity series " +
         is->group.name + " (" + members +
-        " fitted jointly with the brighter-fatter slope, sharing the CCD kernel and the "
-        "defocus: the settings are assumed to share the optics and the focus), resampled "
+        " fitted jointly with the brighter-fatter slope, sharing the CCD kernel and " +
+        (is->group.focus_series ? std::string("the focus law rate |z - z0|")
+                                : std::string("the defocus")) +
+        ": the settings are assumed to share the optics and the focus), resampled "
         "state by state (flag joint_points); each setting is also fitted alone without the "
         "slope, for the total_* relations and the wavelength relations");
   }

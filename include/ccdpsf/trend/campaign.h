@@ -60,6 +60,7 @@ struct CampaignGroup {
   // file (parallel to files).
   bool intensity_series = false;
   std::vector<std::string> member_settings;
+  std::vector<std::string> member_focus_series;  // the members that are through-focus series
   // Set when the group cannot be fitted at all (e.g. a file without WAVELEN): why.
   std::string problem;
 };

@@ -32,10 +32,13 @@
 
 namespace ccdpsf::trend {
 
-// The intensity series of a campaign, one per wavelength at most: its through-focus
-// series when it has two or more ("<wavelength>nm_focus_intensity_series": they identify
-// the CCD widths, and share the focus law of the projector, rate |z - z0|), else its
-// single-focus settings at one stage position, the largest such set of two or more
+// The intensity series of a campaign, one per wavelength at most: when the wavelength has a
+// through-focus series, its series and its single-focus settings with a stage position
+// (FOCUSPOS), two or more in all ("<wavelength>nm_focus_intensity_series": the series
+// identify the CCD widths, and all share the focus law of the projector, rate |z - z0|, so
+// each setting's defocus is rate |z - z0| at its own position: the exact joint form of
+// defocus_anchor.h's box); else its single-focus settings at one stage position, the
+// largest such set of two or more
 // ("<wavelength>nm_intensity_series"; settings without a stage position only when
 // `one_focus_identifies`, i.e. the model splits the CCD widths from the defocus at one focus:
 // otherwise nothing could anchor their shared defocus). Groups with a problem are left out.
@@ -48,10 +51,13 @@ std::string SettingDrawKey(const std::string& setting, const std::string& metric
 // The CCD-only trend metrics (relations.h TrendMetricNames) at each member setting of the
 // series, one value per kept chain state (states [burn_in x walkers + t x kept / n], as
 // group_fit.cc thins the chain), into *draws under SettingDrawKey. `settings` names the
-// member setting of each exposure of `model`. False, with the reason, when the chain is
-// absent or a state's spot cannot be drawn.
+// member setting of each exposure of `model`, `focus_series` the members that are
+// through-focus series (their kernel at best focus, where their intensity is measured; the
+// others' at their own defocus). False, with the reason, when the chain is absent or a
+// state's spot cannot be drawn.
 bool SettingKernelDraws(const fit::FitModel& model, const fit::FitResult& result,
-                        const std::vector<std::string>& settings, int num_draws,
+                        const std::vector<std::string>& settings,
+                        const std::vector<std::string>& focus_series, int num_draws,
                         std::map<std::string, std::vector<double>>* draws, std::string* error);
 
 }  // namespace ccdpsf::trend
