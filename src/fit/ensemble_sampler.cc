@@ -914,4 +914,13 @@ bool RunEnsembleSampler(const BlockedTarget& target, int dim, const std::vector<
   return true;
 }
 
+std::vector<size_t> SamplerResult::ThinnedStates(int max_states) const {
+  const size_t first = static_cast<size_t>(burn_in) * num_walkers;
+  const size_t kept = static_cast<size_t>(num_steps - burn_in) * num_walkers;
+  const size_t n = std::min<size_t>(kept, static_cast<size_t>(std::max(1, max_states)));
+  std::vector<size_t> out(n);
+  for (size_t t = 0; t < n; ++t) out[t] = first + t * kept / n;
+  return out;
+}
+
 }  // namespace ccdpsf::fit

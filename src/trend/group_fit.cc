@@ -146,11 +146,8 @@ GroupResult FitOne(const CampaignGroup& group, int position, int index,
   if (result.have_mcmc) {
     const fit::SamplerResult& c = result.chain;
     const int dim = model->dim();
-    const size_t kept = static_cast<size_t>(c.num_steps - c.burn_in) * c.num_walkers;
-    const size_t n = std::min<size_t>(kept, static_cast<size_t>(std::max(1, options.draws)));
     const std::vector<std::string>& names = fit::DerivedNames();
-    for (size_t t = 0; t < n; ++t) {
-      const size_t s = static_cast<size_t>(c.burn_in) * c.num_walkers + t * kept / n;
+    for (const size_t s : c.ThinnedStates(options.draws)) {
       const double* theta = &c.chain[s * dim];
       const std::vector<double> d = fit::DerivedAt(*model, theta);
       for (size_t j = 0; j < names.size(); ++j) {

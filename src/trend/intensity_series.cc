@@ -125,12 +125,9 @@ bool SettingKernelDraws(const fit::FitModel& model, const fit::FitResult& result
   }
   const fit::SamplerResult& c = result.chain;
   const int dim = model.dim();
-  const size_t kept = static_cast<size_t>(c.num_steps - c.burn_in) * c.num_walkers;
-  const size_t n = std::min<size_t>(kept, static_cast<size_t>(std::max(1, num_draws)));
   const double pixel_um = model.stamps()[0].info.pixel_um;
   std::unique_ptr<fit::FitEvaluator> evaluator = model.NewEvaluator();
-  for (size_t t = 0; t < n; ++t) {
-    const size_t s = static_cast<size_t>(c.burn_in) * c.num_walkers + t * kept / n;
+  for (const size_t s : c.ThinnedStates(num_draws)) {
     // Where the settings' intensities are measured (fit.h PeakTheta): centred spots, a
     // through-focus series at best focus, a single-focus setting at its own defocus.
     const std::vector<double> at_best = fit::PeakTheta(model, &c.chain[s * dim]);

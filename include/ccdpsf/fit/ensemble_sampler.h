@@ -213,6 +213,11 @@ struct SamplerResult {
   std::string stop_reason;
   double seconds = 0.0;  // wall-clock duration of the run [s]
   int resumed_from_step = 0;  // the checkpoint's step when the run resumed from one, else 0
+
+  // The chain's states after burn-in, evenly thinned to at most max_states (>= 1): state
+  // indices s (positions at chain[s * dim]), s = burn_in x walkers + t x kept / n for
+  // t < n = min(kept, max_states), kept = (num_steps - burn_in) x walkers.
+  std::vector<size_t> ThinnedStates(int max_states) const;
 };
 
 // Runs the sampler. initial holds num_walkers x dim starting positions, row-major, with

@@ -49,9 +49,9 @@ std::vector<CampaignGroup> IntensitySeries(const std::vector<CampaignGroup>& gro
 std::string SettingDrawKey(const std::string& setting, const std::string& metric);
 
 // The CCD-only trend metrics (relations.h TrendMetricNames) at each member setting of the
-// series, one value per kept chain state (states [burn_in x walkers + t x kept / n], as
-// group_fit.cc thins the chain), into *draws under SettingDrawKey. `settings` names the
-// member setting of each exposure of `model`, `focus_series` the members that are
+// series, one value per chain state of SamplerResult::ThinnedStates(num_draws) (as
+// group_fit.cc thins the chain for the other draws), into *draws under SettingDrawKey. `settings`
+// names the member setting of each exposure of `model`, `focus_series` the members that are
 // through-focus series (their kernel at best focus, where their intensity is measured; the
 // others' at their own defocus). False, with the reason, when the chain is absent or a
 // state's spot cannot be drawn.
