@@ -95,6 +95,14 @@ std::vector<CampaignGroup> IntensitySeries(const std::vector<CampaignGroup>& gro
   return out;
 }
 
+std::vector<std::string> SeriesMembers(const CampaignGroup& series) {
+  std::vector<std::string> out;
+  for (const std::string& m : series.member_settings) {
+    if (std::find(out.begin(), out.end(), m) == out.end()) out.push_back(m);
+  }
+  return out;
+}
+
 std::string SettingDrawKey(const std::string& setting, const std::string& metric) {
   return metric + "@" + setting;
 }

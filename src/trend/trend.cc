@@ -143,9 +143,10 @@ const GroupResult* NearestReference(const std::vector<const GroupResult*>& list,
 // setting's own intensity, resampled jointly with the series' other points.
 RelationPoint SeriesPoint(const GroupResult& series, const std::string& label, double abscissa,
                           const std::string& metric) {
-  if (!series.ok)
+  if (!series.ok) {
     return RelationPoint::Missing(label, abscissa,
                                   "its intensity series failed: " + series.failure);
+  }
   if (!series.converged) {
     return RelationPoint::Missing(label, abscissa,
                                   "its intensity series' MCMC did not converge (see "
@@ -229,12 +230,12 @@ bool ComputeTrend(std::vector<GroupResult> groups, const TrendOptions& options,
       if (!main && list.size() < 2) continue;
       std::vector<RelationPoint> points;
       auto series = series_at.find(wavelength);
+      const std::vector<std::string> members = series != series_at.end() && IsCcdOnlyMetric(metric)
+                                                   ? SeriesMembers(series->second->group)
+                                                   : std::vector<std::string>();
       for (const GroupResult* g : list) {
-        const std::vector<std::string>& members = series != series_at.end()
-                                                      ? series->second->group.member_settings
-                                                      : std::vector<std::string>();
-        const bool in_series = IsCcdOnlyMetric(metric) && std::find(members.begin(), members.end(),
-                                                                    g->group.name) != members.end();
+        const bool in_series =
+            std::find(members.begin(), members.end(), g->group.name) != members.end();
         points.push_back(in_series ? SeriesPoint(*series->second, g->group.name,
                                                  NominalOrMeasuredPeak(*g), metric)
                                    : PointOf(*g, metric, NominalOrMeasuredPeak(*g)));
@@ -344,12 +345,9 @@ bool ComputeTrend(std::vector<GroupResult> groups, const TrendOptions& options,
     }
   }
   for (const auto& [wavelength, is] : series_at) {
-    std::vector<std::string> names;
-    for (const std::string& m : is->group.member_settings) {
-      if (std::find(names.begin(), names.end(), m) == names.end()) names.push_back(m);
-    }
     std::string members;
-    for (const std::string& m : names) members += (members.empty() ? "" : ", ") + m;
+    for (const std::string& m : SeriesMembers(is->group))
+      members += (members.empty() ? "" : ", ") + m;
     result->notes.push_back(
         "at " + Format(wavelength) +
         " nm the CCD-only intensity relations are those of the "

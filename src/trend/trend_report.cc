@@ -10,6 +10,7 @@
 #include "ccdpsf/atomic_file.h"
 #include "ccdpsf/plot.h"
 #include "ccdpsf/staged_output.h"
+#include "ccdpsf/trend/intensity_series.h"
 #include "internal/parallel_for.h"
 
 namespace ccdpsf::trend {
@@ -638,10 +639,7 @@ bool WriteTrendReport(const std::string& out_dir, const TrendResult& r, const js
         auto it = g.summaries.find(m);
         return it == g.summaries.end() ? std::string("n/a") : Interval(it->second);
       };
-      std::vector<std::string> settings;
-      for (const std::string& m : g.group.member_settings) {
-        if (std::find(settings.begin(), settings.end(), m) == settings.end()) settings.push_back(m);
-      }
+      const std::vector<std::string> settings = SeriesMembers(g.group);
       md << "| " << g.group.name << " | " << Fmt(g.group.wavelength_nm) << " | " << settings.size()
          << " | " << metric("ccd_sigma_x_px") << " | " << metric("ccd_sigma_y_px") << " | "
          << metric("brighter_fatter.slope_x_px_per_e") << " | "

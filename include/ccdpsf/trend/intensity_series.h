@@ -45,6 +45,9 @@ namespace ccdpsf::trend {
 std::vector<CampaignGroup> IntensitySeries(const std::vector<CampaignGroup>& groups,
                                            bool one_focus_identifies);
 
+// The series' member settings, each once, in the order of its files.
+std::vector<std::string> SeriesMembers(const CampaignGroup& series);
+
 // The key under which a series' GroupResult::draws holds `metric` at member `setting`.
 std::string SettingDrawKey(const std::string& setting, const std::string& metric);
 
