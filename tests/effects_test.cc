@@ -95,7 +95,27 @@ TEST(Effects, CatalogueDefaultsPriorsAndDomainsAgree) {
                                        &error)) << error;
       EXPECT_TRUE(CheckEffectParameter(info.kind, static_cast<int>(p), pi.prior_upper, "x",
                                        &error)) << error;
+      // A search starts inside the prior, where a fit can begin.
+      EXPECT_GE(pi.start, pi.prior_lower);
+      EXPECT_LE(pi.start, pi.prior_upper);
+      for (const std::vector<double>& start : info.search_starts) {
+        ASSERT_EQ(start.size(), info.parameters.size());
+        EXPECT_GE(start[p], pi.prior_lower);
+        EXPECT_LE(start[p], pi.prior_upper);
+      }
+      // A "no effect" value on the boundary is the prior's lower edge, 0.
+      if (pi.null_on_boundary) {
+        EXPECT_EQ(pi.prior_lower, 0.0);
+      }
     }
+    EXPECT_FALSE(info.search_starts.empty()) << info.name;
+    // The catalogue is indexed by kind; exactly the kinds a shared fit component cannot be
+    // say why.
+    EXPECT_EQ(&DescribeEffect(info.kind), &info);
+    const bool shared_component = info.kind != EffectKind::kDefocus &&
+                                  info.kind != EffectKind::kJitter &&
+                                  info.kind != EffectKind::kDefocusOffset;
+    EXPECT_EQ(info.not_fittable.empty(), shared_component) << info.name;
     if (info.kind == EffectKind::kDefocus) {
       EXPECT_EQ(info.parameters[0].default_value, DefocusEffectParams().sigma_px);
       continue;

@@ -36,50 +36,27 @@ double StampSum(const Stamp& s) {
   return sum;
 }
 
-// Starting strengths of an effect's parameters (catalogue order; jitter: the variance of
-// every exposure): 1-3 starts spanning the plausible range, so that a multimodal shape
-// parameter (a trail's length, a halo's width) is not missed.
-std::vector<std::vector<double>> EffectStarts(EffectKind kind) {
-  switch (kind) {
-    case EffectKind::kDefocus: return {{0.2}, {0.5}};
-    case EffectKind::kBrighterFatter: return {{1.0e-7, 1.0e-7}, {5.0e-7, 5.0e-7}};
-    case EffectKind::kSerialCti:
-    case EffectKind::kParallelCti: return {{1.0e-3, 0.6}, {1.0e-3, 1.5}, {1.0e-3, 4.0}};
-    case EffectKind::kIpc: return {{0.002}, {0.01}};
-    case EffectKind::kJitter: return {{0.0025}, {0.02}};
-    case EffectKind::kBackground: return {{0.0}};
-    case EffectKind::kNonlinearity: return {{2.0e-8}, {1.0e-7}};
-    case EffectKind::kHalo: return {{0.01, 1.5}, {0.01, 3.0}, {0.01, 5.0}};
-    case EffectKind::kDefocusOffset: return {{0.0, 0.0}, {0.1, 0.1}, {-0.1, -0.1}};
-  }
-  return {};
-}
-
 // Parameters whose "no effect" value sits on the prior's boundary (b of the chi-bar-square
-// mixture); the rest of the effect's parameters count as free.
+// mixture; the catalogue's null_on_boundary); the rest of the effect's parameters count as
+// free. Jitter: every fitted variance (a strength >= 0). Not so for defocus in pixel_centre
+// sampling: the null (no defocus step) is not the alternative at its lower edge
+// (sigma >= 0.02 px; the 2015 kernel, sampled at pixel centres around a sub-pixel spot
+// position, changes the image discontinuously), so the models are not nested and its
+// p-value is not calibrated; delta BIC < 0 is then the working criterion.
 int BoundaryParameters(EffectKind kind, int num_parameters) {
-  switch (kind) {
-    case EffectKind::kBackground:      // a pedestal of either sign
-    case EffectKind::kDefocusOffset:  // an offset of either sign
-      return 0;
-    case EffectKind::kSerialCti:
-    case EffectKind::kParallelCti:
-    case EffectKind::kHalo: return 1;  // the fraction; the length / width is a nuisance
-    // Every parameter is a strength >= 0. Not so for defocus in pixel_centre sampling: the
-    // null (no defocus step) is not the alternative at its lower edge (sigma >= 0.02 px; the
-    // 2015 kernel, sampled at pixel centres around a sub-pixel spot position, changes the
-    // image discontinuously), so the models are not nested and its p-value is not
-    // calibrated; delta BIC < 0 is then the working criterion.
-    default: return num_parameters;
-  }
+  if (kind == EffectKind::kJitter) return num_parameters;
+  const std::vector<model::EffectParameterInfo>& params = model::DescribeEffect(kind).parameters;
+  return static_cast<int>(std::count_if(params.begin(), params.end(),
+                                        [](const auto& q) { return q.null_on_boundary; }));
 }
 
-// Sets every parameter of `kind` in p (of `model`) to `values` (jitter: one variance for all).
+// Sets every parameter of `kind` in p (of `model`) to `values`, in the catalogue's
+// parameters (jitter: the variances sigma_x^2, sigma_y^2 of every exposure).
 void SetEffect(const EffectModel& model, EffectKind kind, const std::vector<double>& values,
                std::vector<double>* p) {
   const std::vector<int> idx = model.EffectIndices(kind);
   for (size_t j = 0; j < idx.size(); ++j) {
-    const double v = kind == EffectKind::kJitter ? values[0] : values[j];
+    const double v = kind == EffectKind::kJitter ? values[j % 2] * values[j % 2] : values[j];
     (*p)[idx[j]] = std::clamp(v, model.lower()[idx[j]], model.upper()[idx[j]]);
   }
 }
@@ -205,7 +182,7 @@ Tested TestCandidate(const fit::FitModel& base, const EffectModel& current,
     return t;
   }
   std::vector<std::vector<double>> starts;
-  for (const std::vector<double>& s : EffectStarts(kind)) {
+  for (const std::vector<double>& s : model::DescribeEffect(kind).search_starts) {
     std::vector<double> p = t.model->FromOther(current, current_fit.p);
     SetEffect(*t.model, kind, s, &p);
     if (kind == EffectKind::kDefocusOffset) {
@@ -251,8 +228,7 @@ Tested TestCandidate(const fit::FitModel& base, const EffectModel& current,
   const std::vector<int> idx = t.model->EffectIndices(kind);
   CandidateResult& c = t.candidate;
   c.num_parameters = static_cast<int>(idx.size());
-  c.boundary_parameters = kind == EffectKind::kJitter ? c.num_parameters
-                                                      : BoundaryParameters(kind, c.num_parameters);
+  c.boundary_parameters = BoundaryParameters(kind, c.num_parameters);
   c.delta_log_likelihood = std::max(0.0, t.fit.log_likelihood - current_fit.log_likelihood);
   c.lr = 2.0 * c.delta_log_likelihood;
   c.p_value = ChiBarSquarePValue(c.lr, c.boundary_parameters,
@@ -318,7 +294,7 @@ bool FitBaseline(const fit::FitModel& base, const EffectModel& model, const Diag
   std::vector<std::vector<double>> starts = {p};
   for (EffectKind kind : model.spec().effects) {
     // Baseline effects: also try their other starting strengths.
-    for (const std::vector<double>& s : EffectStarts(kind)) {
+    for (const std::vector<double>& s : model::DescribeEffect(kind).search_starts) {
       std::vector<double> q = p;
       SetEffect(model, kind, s, &q);
       starts.push_back(q);

@@ -474,19 +474,15 @@ std::vector<int> EffectModel::BlocksOf(int k) const {
 }
 
 std::vector<double> EffectModel::DefaultStart(EffectKind kind) const {
-  switch (kind) {
-    case EffectKind::kDefocus: return {0.3};
-    case EffectKind::kBrighterFatter: return {1.0e-7, 1.0e-7};
-    case EffectKind::kSerialCti:
-    case EffectKind::kParallelCti: return {1.0e-3, 1.5};
-    case EffectKind::kIpc: return {0.003};
-    case EffectKind::kJitter: return {0.005, 0.005};
-    case EffectKind::kBackground: return {0.0};
-    case EffectKind::kNonlinearity: return {3.0e-8};
-    case EffectKind::kHalo: return {0.01, 2.5};
-    case EffectKind::kDefocusOffset: return {0.0, 0.0};
+  const model::EffectInfo& info = model::DescribeEffect(kind);
+  if (kind == EffectKind::kJitter) {
+    // The variances of the Gaussian part.
+    return {info.parameters[0].start * info.parameters[0].start,
+            info.parameters[1].start * info.parameters[1].start};
   }
-  return {};
+  std::vector<double> start;
+  for (const model::EffectParameterInfo& q : info.parameters) start.push_back(q.start);
+  return start;
 }
 
 std::vector<double> EffectModel::FromBaseline(const std::vector<double>& theta) const {

@@ -47,22 +47,8 @@ std::string ToString(FluxMode mode) {
 }
 
 bool IsFittableEffect(model::EffectKind kind, std::string* why) {
-  switch (kind) {
-    case model::EffectKind::kDefocus:
-      *why = "defocus is the model's own component (set 'defocus', not an effect)";
-      return false;
-    case model::EffectKind::kJitter:
-      *why =
-          "jitter shared by every exposure is one more Gaussian convolved with the CCD "
-          "kernel (the widths add in quadrature) and cannot be told apart from it; diagnose "
-          "fits it per exposure";
-      return false;
-    case model::EffectKind::kDefocusOffset:
-      *why = "defocus_offset in integrated sampling is exactly a shift of the spot's position";
-      return false;
-    default:
-      return true;
-  }
+  *why = model::DescribeEffect(kind).not_fittable;
+  return why->empty();
 }
 
 bool FitModelOptions::HasEffect(model::EffectKind kind) const {

@@ -17,27 +17,12 @@ namespace {
 
 constexpr double kInf = std::numeric_limits<double>::infinity();
 
-struct KindName {
-  EffectKind kind;
-  const char* name;
-};
-constexpr KindName kKindNames[] = {
-    {EffectKind::kDefocus, "defocus"},
-    {EffectKind::kBrighterFatter, "brighter_fatter"},
-    {EffectKind::kSerialCti, "serial_cti"},
-    {EffectKind::kParallelCti, "parallel_cti"},
-    {EffectKind::kIpc, "ipc"},
-    {EffectKind::kJitter, "jitter"},
-    {EffectKind::kBackground, "background"},
-    {EffectKind::kNonlinearity, "nonlinearity"},
-    {EffectKind::kHalo, "halo"},
-    {EffectKind::kDefocusOffset, "defocus_offset"},
-};
-
 EffectParameterInfo Param(const std::string& name, const std::string& unit, double def,
                           double prior_lo, double prior_hi, double dom_lo, bool lo_open,
-                          double dom_hi, bool hi_open, const std::string& description) {
-  return {name, unit, def, prior_lo, prior_hi, dom_lo, dom_hi, lo_open, hi_open, description};
+                          double dom_hi, bool hi_open, const std::string& description, double start,
+                          bool null_on_boundary) {
+  return {name,   unit,    def,     prior_lo,    prior_hi, dom_lo,
+          dom_hi, lo_open, hi_open, description, start,    null_on_boundary};
 }
 
 // The catalogue. Defaults are "realistic" strengths for a CCD273 spot at 800 nm, chosen as
@@ -86,67 +71,181 @@ std::vector<EffectInfo> MakeCatalogue() {
   const HaloParams halo;
   const DefocusOffsetParams offset;
   std::vector<EffectInfo> c;
-  c.push_back({EffectKind::kDefocus, "defocus",
+  c.push_back({EffectKind::kDefocus,
+               "defocus",
                "Gaussian (or pillbox) blur of the spot projector out of focus; set in 'model', "
                "never injected",
-               false, true,
+               false,
+               true,
                {Param("sigma_px", "px", defocus.sigma_px, 0.0, 1.5, 0.0, false, kInf, true,
-                      "defocus Gaussian sigma (pillbox: radius)")}});
-  c.push_back({EffectKind::kBrighterFatter, "brighter_fatter",
-               "CCD widths grow linearly with the exposure's peak-pixel signal (paper 4.3)",
-               true, true,
-               {Param("slope_x_px_per_e", "px/e-", bf.slope_x_px_per_e, 0.0, 2.0e-6, 0.0, false,
-                      kInf, true, "growth of ccd_sigma_x per electron in the peak pixel"),
-                Param("slope_y_px_per_e", "px/e-", bf.slope_y_px_per_e, 0.0, 2.0e-6, 0.0, false,
-                      kInf, true, "growth of ccd_sigma_y per electron in the peak pixel")}});
-  for (const bool serial : {true, false}) {
-    c.push_back({serial ? EffectKind::kSerialCti : EffectKind::kParallelCti,
-                 serial ? "serial_cti" : "parallel_cti",
-                 serial ? "charge left behind in serial transfer: exponential trail along +x"
-                        : "charge left behind in parallel transfer: exponential trail along +y",
-                 true, false,
-                 {Param("trail_fraction", "", cti.trail_fraction, 0.0, 1.0e-2, 0.0, false, 1.0,
-                        false, "fraction of each pixel's charge moved into its trail"),
-                  Param("trail_length_px", "px", cti.trail_length_px, 0.2, 10.0, 0.0, true,
-                        kInf, true, "e-folding length of the trail")}});
-  }
-  c.push_back({EffectKind::kIpc, "ipc",
-               "coupling of each pixel to its four edge neighbours (3x3 kernel)", true, false,
-               {Param("alpha", "", ipc.alpha, 0.0, 0.05, 0.0, false, 0.25, true,
-                      "fraction of a pixel's charge seen by each edge neighbour")}});
+                      "defocus Gaussian sigma (pillbox: radius)", 0.3, true)},
+               {{0.2}, {0.5}},
+               "defocus is the model's own component (set 'defocus', not an effect)",
+               [](const ExposureEffects&) { return false; },
+               [](const ExposureEffects&) { return std::vector<double>(); },
+               [](const double*, ExposureEffects*) {
+                 LOG(FATAL) << "defocus is a SpotParams component, not an effect";
+               }});
   c.push_back(
-      {EffectKind::kJitter, "jitter",
-       "extra blur per exposure: axis-aligned Gaussian and/or linear motion", true, true,
+      {EffectKind::kBrighterFatter,
+       "brighter_fatter",
+       "CCD widths grow linearly with the exposure's peak-pixel signal (paper 4.3)",
+       true,
+       true,
+       {Param("slope_x_px_per_e", "px/e-", bf.slope_x_px_per_e, 0.0, 2.0e-6, 0.0, false, kInf, true,
+              "growth of ccd_sigma_x per electron in the peak pixel", 1.0e-7, true),
+        Param("slope_y_px_per_e", "px/e-", bf.slope_y_px_per_e, 0.0, 2.0e-6, 0.0, false, kInf, true,
+              "growth of ccd_sigma_y per electron in the peak pixel", 1.0e-7, true)},
+       {{1.0e-7, 1.0e-7}, {5.0e-7, 5.0e-7}},
+       "",
+       [](const ExposureEffects& e) { return e.brighter_fatter.has_value(); },
+       [](const ExposureEffects& e) {
+         return std::vector<double>{e.brighter_fatter->slope_x_px_per_e,
+                                    e.brighter_fatter->slope_y_px_per_e};
+       },
+       [](const double* v, ExposureEffects* e) {
+         e->brighter_fatter = BrighterFatterParams{v[0], v[1]};
+       }});
+  const auto cti_params = [&cti] {
+    return std::vector<EffectParameterInfo>{
+        Param("trail_fraction", "", cti.trail_fraction, 0.0, 1.0e-2, 0.0, false, 1.0, false,
+              "fraction of each pixel's charge moved into its trail", 1.0e-3, true),
+        Param("trail_length_px", "px", cti.trail_length_px, 0.2, 10.0, 0.0, true, kInf, true,
+              "e-folding length of the trail", 1.5, false)};
+  };
+  const std::vector<std::vector<double>> cti_starts = {{1.0e-3, 0.6}, {1.0e-3, 1.5}, {1.0e-3, 4.0}};
+  c.push_back(
+      {EffectKind::kSerialCti, "serial_cti",
+       "charge left behind in serial transfer: exponential trail along +x", true, false,
+       cti_params(), cti_starts, "",
+       [](const ExposureEffects& e) { return e.serial_cti.has_value(); },
+       [](const ExposureEffects& e) {
+         return std::vector<double>{e.serial_cti->trail_fraction, e.serial_cti->trail_length_px};
+       },
+       [](const double* v, ExposureEffects* e) {
+         e->serial_cti = CtiParams{v[0], v[1]};
+       }});
+  c.push_back({EffectKind::kParallelCti, "parallel_cti",
+               "charge left behind in parallel transfer: exponential trail along +y", true, false,
+               cti_params(), cti_starts, "",
+               [](const ExposureEffects& e) { return e.parallel_cti.has_value(); },
+               [](const ExposureEffects& e) {
+                 return std::vector<double>{e.parallel_cti->trail_fraction,
+                                            e.parallel_cti->trail_length_px};
+               },
+               [](const double* v, ExposureEffects* e) {
+                 e->parallel_cti = CtiParams{v[0], v[1]};
+               }});
+  c.push_back({EffectKind::kIpc,
+               "ipc",
+               "coupling of each pixel to its four edge neighbours (3x3 kernel)",
+               true,
+               false,
+               {Param("alpha", "", ipc.alpha, 0.0, 0.05, 0.0, false, 0.25, true,
+                      "fraction of a pixel's charge seen by each edge neighbour", 0.003, true)},
+               {{0.002}, {0.01}},
+               "",
+               [](const ExposureEffects& e) { return e.ipc.has_value(); },
+               [](const ExposureEffects& e) { return std::vector<double>{e.ipc->alpha}; },
+               [](const double* v, ExposureEffects* e) { e->ipc = IpcParams{v[0]}; }});
+  // Jitter's starts: diagnose fits the variances sigma^2 of each exposure's Gaussian part
+  // (effect_fit.h), starting at sigma^2 = 0.005, 0.0025 and 0.02 px^2.
+  c.push_back(
+      {EffectKind::kJitter,
+       "jitter",
+       "extra blur per exposure: axis-aligned Gaussian and/or linear motion",
+       true,
+       true,
        {Param("sigma_x_px", "px", jitter.sigma_x_px, 0.0, 1.0, 0.0, false, kInf, true,
-              "Gaussian blur sigma along x"),
+              "Gaussian blur sigma along x", std::sqrt(0.005), true),
         Param("sigma_y_px", "px", jitter.sigma_y_px, 0.0, 1.0, 0.0, false, kInf, true,
-              "Gaussian blur sigma along y"),
-        Param("motion_length_px", "px", jitter.motion_length_px, 0.0, 2.0, 0.0, false, 20.0,
-              false, "length of a linear motion during the exposure"),
-        Param("motion_angle_deg", "deg", jitter.motion_angle_deg, -90.0, 90.0, -360.0, false,
-              360.0, false, "direction of the motion, from +x towards +y")}});
-  c.push_back({EffectKind::kBackground, "background",
-               "pedestal left after bias subtraction (no shot noise)", true, false,
-               {Param("pedestal_e", "e-", background.pedestal_e, -100.0, 100.0, -kInf, true,
-                      kInf, true, "electrons added to every pixel")}});
-  c.push_back({EffectKind::kNonlinearity, "nonlinearity",
-               "quadratic response near full well: out = in (1 - beta in)", true, false,
-               {Param("beta_per_e", "1/e-", nl.beta_per_e, 0.0, 5.0e-7, 0.0, false, kInf, true,
-                      "fractional loss per electron")}});
-  c.push_back({EffectKind::kHalo, "halo",
-               "broad Gaussian holding a fraction of the light (red-light diffusion tail)", true,
+              "Gaussian blur sigma along y", std::sqrt(0.005), true),
+        Param("motion_length_px", "px", jitter.motion_length_px, 0.0, 2.0, 0.0, false, 20.0, false,
+              "length of a linear motion during the exposure", 0.0, true),
+        Param("motion_angle_deg", "deg", jitter.motion_angle_deg, -90.0, 90.0, -360.0, false, 360.0,
+              false, "direction of the motion, from +x towards +y", 0.0, false)},
+       {{std::sqrt(0.0025), std::sqrt(0.0025), 0.0, 0.0},
+        {std::sqrt(0.02), std::sqrt(0.02), 0.0, 0.0}},
+       "jitter shared by every exposure is one more Gaussian convolved with the CCD kernel "
+       "(the widths add in quadrature) and cannot be told apart from it; diagnose fits it per "
+       "exposure",
+       [](const ExposureEffects& e) { return e.jitter.has_value(); },
+       [](const ExposureEffects& e) {
+         return std::vector<double>{e.jitter->sigma_x_px, e.jitter->sigma_y_px,
+                                    e.jitter->motion_length_px, e.jitter->motion_angle_deg};
+       },
+       [](const double* v, ExposureEffects* e) {
+         e->jitter = JitterParams{v[0], v[1], v[2], v[3]};
+       }});
+  c.push_back(
+      {EffectKind::kBackground,
+       "background",
+       "pedestal left after bias subtraction (no shot noise)",
+       true,
+       false,
+       {Param("pedestal_e", "e-", background.pedestal_e, -100.0, 100.0, -kInf, true, kInf, true,
+              "electrons added to every pixel", 0.0, false)},
+       {{0.0}},
+       "",
+       [](const ExposureEffects& e) { return e.background.has_value(); },
+       [](const ExposureEffects& e) { return std::vector<double>{e.background->pedestal_e}; },
+       [](const double* v, ExposureEffects* e) { e->background = BackgroundParams{v[0]}; }});
+  c.push_back(
+      {EffectKind::kNonlinearity,
+       "nonlinearity",
+       "quadratic response near full well: out = in (1 - beta in)",
+       true,
+       false,
+       {Param("beta_per_e", "1/e-", nl.beta_per_e, 0.0, 5.0e-7, 0.0, false, kInf, true,
+              "fractional loss per electron", 3.0e-8, true)},
+       {{2.0e-8}, {1.0e-7}},
+       "",
+       [](const ExposureEffects& e) { return e.nonlinearity.has_value(); },
+       [](const ExposureEffects& e) { return std::vector<double>{e.nonlinearity->beta_per_e}; },
+       [](const double* v, ExposureEffects* e) { e->nonlinearity = NonlinearityParams{v[0]}; }});
+  c.push_back({EffectKind::kHalo,
+               "halo",
+               "broad Gaussian holding a fraction of the light (red-light diffusion tail)",
+               true,
                false,
                {Param("fraction", "", halo.fraction, 0.0, 0.2, 0.0, false, 1.0, false,
-                      "fraction of the spot's light moved into the halo"),
+                      "fraction of the spot's light moved into the halo", 0.01, true),
                 Param("sigma_px", "px", halo.sigma_px, 1.0, 8.0, 0.0, true, kInf, true,
-                      "halo Gaussian sigma")}});
-  c.push_back({EffectKind::kDefocusOffset, "defocus_offset",
+                      "halo Gaussian sigma", 2.5, false)},
+               {{0.01, 1.5}, {0.01, 3.0}, {0.01, 5.0}},
+               "",
+               [](const ExposureEffects& e) { return e.halo.has_value(); },
+               [](const ExposureEffects& e) {
+                 return std::vector<double>{e.halo->fraction, e.halo->sigma_px};
+               },
+               [](const double* v, ExposureEffects* e) {
+                 e->halo = HaloParams{v[0], v[1]};
+               }});
+  c.push_back({EffectKind::kDefocusOffset,
+               "defocus_offset",
                "defocus kernel centred away from the Airy centre (integrated: exactly a shift)",
-               true, true,
+               true,
+               true,
                {Param("dx_px", "px", offset.dx_px, -0.5, 0.5, -5.0, false, 5.0, false,
-                      "defocus-kernel centre minus Airy centre along x"),
+                      "defocus-kernel centre minus Airy centre along x", 0.0, false),
                 Param("dy_px", "px", offset.dy_px, -0.5, 0.5, -5.0, false, 5.0, false,
-                      "defocus-kernel centre minus Airy centre along y")}});
+                      "defocus-kernel centre minus Airy centre along y", 0.0, false)},
+               {{0.0, 0.0}, {0.1, 0.1}, {-0.1, -0.1}},
+               "defocus_offset in integrated sampling is exactly a shift of the spot's position",
+               [](const ExposureEffects& e) { return e.defocus_offset.has_value(); },
+               [](const ExposureEffects& e) {
+                 return std::vector<double>{e.defocus_offset->dx_px, e.defocus_offset->dy_px};
+               },
+               [](const double* v, ExposureEffects* e) {
+                 e->defocus_offset = DefocusOffsetParams{v[0], v[1]};
+               }});
+  for (size_t i = 0; i < c.size(); ++i) {
+    // DescribeEffect indexes the catalogue by kind.
+    CHECK_EQ(static_cast<int>(c[i].kind), static_cast<int>(i)) << c[i].name;
+    for (const std::vector<double>& start : c[i].search_starts) {
+      CHECK_EQ(start.size(), c[i].parameters.size()) << c[i].name;
+    }
+  }
   return c;
 }
 
@@ -172,18 +271,12 @@ double LogMotionBound(int n, double l_su, double sx, double sy) {
 
 }  // namespace
 
-std::string ToString(EffectKind kind) {
-  for (const KindName& k : kKindNames) {
-    if (k.kind == kind) return k.name;
-  }
-  LOG(FATAL) << "unknown EffectKind " << static_cast<int>(kind);
-  return "";
-}
+std::string ToString(EffectKind kind) { return DescribeEffect(kind).name; }
 
 bool ParseEffectKind(const std::string& text, EffectKind* kind) {
-  for (const KindName& k : kKindNames) {
-    if (text == k.name) {
-      *kind = k.kind;
+  for (const EffectInfo& e : EffectCatalogue()) {
+    if (text == e.name) {
+      *kind = e.kind;
       return true;
     }
   }
@@ -193,24 +286,24 @@ bool ParseEffectKind(const std::string& text, EffectKind* kind) {
 const std::vector<EffectKind>& AllEffectKinds() {
   static const std::vector<EffectKind> kinds = [] {
     std::vector<EffectKind> v;
-    for (const KindName& k : kKindNames) v.push_back(k.kind);
+    for (const EffectInfo& e : EffectCatalogue()) v.push_back(e.kind);
     return v;
   }();
   return kinds;
 }
 
-bool ExposureEffects::Has(EffectKind kind) const {
-  switch (kind) {
-    case EffectKind::kDefocus: return false;
-    case EffectKind::kBrighterFatter: return brighter_fatter.has_value();
-    case EffectKind::kSerialCti: return serial_cti.has_value();
-    case EffectKind::kParallelCti: return parallel_cti.has_value();
-    case EffectKind::kIpc: return ipc.has_value();
-    case EffectKind::kJitter: return jitter.has_value();
-    case EffectKind::kBackground: return background.has_value();
-    case EffectKind::kNonlinearity: return nonlinearity.has_value();
-    case EffectKind::kHalo: return halo.has_value();
-    case EffectKind::kDefocusOffset: return defocus_offset.has_value();
+bool ExposureEffects::Has(EffectKind kind) const { return DescribeEffect(kind).present(*this); }
+
+bool ExposureEffects::HasKernelEffects() const {
+  for (const EffectInfo& e : EffectCatalogue()) {
+    if (e.kernel_effect && e.present(*this)) return true;
+  }
+  return false;
+}
+
+bool ExposureEffects::HasImageEffects() const {
+  for (const EffectInfo& e : EffectCatalogue()) {
+    if (!e.kernel_effect && e.present(*this)) return true;
   }
   return false;
 }
@@ -229,11 +322,9 @@ const std::vector<EffectInfo>& EffectCatalogue() {
 }
 
 const EffectInfo& DescribeEffect(EffectKind kind) {
-  for (const EffectInfo& e : EffectCatalogue()) {
-    if (e.kind == kind) return e;
-  }
-  LOG(FATAL) << "unknown EffectKind " << static_cast<int>(kind);
-  return EffectCatalogue().front();
+  const int i = static_cast<int>(kind);
+  CHECK(i >= 0 && i < kNumEffectKinds) << "unknown EffectKind " << i;
+  return EffectCatalogue()[i];
 }
 
 std::string FormatEffectCatalogue() {
@@ -293,24 +384,7 @@ bool CheckEffectParameter(EffectKind kind, int index, double value, const std::s
 std::vector<double> GetEffectParameters(const ExposureEffects& e, EffectKind kind) {
   CHECK(kind == EffectKind::kDefocus || e.Has(kind))
       << "effect " << ToString(kind) << " is not present";
-  switch (kind) {
-    case EffectKind::kDefocus: return {};
-    case EffectKind::kBrighterFatter:
-      return {e.brighter_fatter->slope_x_px_per_e, e.brighter_fatter->slope_y_px_per_e};
-    case EffectKind::kSerialCti:
-      return {e.serial_cti->trail_fraction, e.serial_cti->trail_length_px};
-    case EffectKind::kParallelCti:
-      return {e.parallel_cti->trail_fraction, e.parallel_cti->trail_length_px};
-    case EffectKind::kIpc: return {e.ipc->alpha};
-    case EffectKind::kJitter:
-      return {e.jitter->sigma_x_px, e.jitter->sigma_y_px, e.jitter->motion_length_px,
-              e.jitter->motion_angle_deg};
-    case EffectKind::kBackground: return {e.background->pedestal_e};
-    case EffectKind::kNonlinearity: return {e.nonlinearity->beta_per_e};
-    case EffectKind::kHalo: return {e.halo->fraction, e.halo->sigma_px};
-    case EffectKind::kDefocusOffset: return {e.defocus_offset->dx_px, e.defocus_offset->dy_px};
-  }
-  return {};
+  return DescribeEffect(kind).get(e);
 }
 
 bool SetEffectParameters(EffectKind kind, const std::vector<double>& v, ExposureEffects* e,
@@ -333,19 +407,7 @@ bool SetEffectParameters(EffectKind kind, const std::vector<double>& v, Exposure
 }
 
 void SetEffectParametersUnchecked(EffectKind kind, const double* v, ExposureEffects* e) {
-  switch (kind) {
-    case EffectKind::kDefocus:
-      LOG(FATAL) << "defocus is a SpotParams component, not an effect";
-    case EffectKind::kBrighterFatter: e->brighter_fatter = BrighterFatterParams{v[0], v[1]}; break;
-    case EffectKind::kSerialCti: e->serial_cti = CtiParams{v[0], v[1]}; break;
-    case EffectKind::kParallelCti: e->parallel_cti = CtiParams{v[0], v[1]}; break;
-    case EffectKind::kIpc: e->ipc = IpcParams{v[0]}; break;
-    case EffectKind::kJitter: e->jitter = JitterParams{v[0], v[1], v[2], v[3]}; break;
-    case EffectKind::kBackground: e->background = BackgroundParams{v[0]}; break;
-    case EffectKind::kNonlinearity: e->nonlinearity = NonlinearityParams{v[0]}; break;
-    case EffectKind::kHalo: e->halo = HaloParams{v[0], v[1]}; break;
-    case EffectKind::kDefocusOffset: e->defocus_offset = DefocusOffsetParams{v[0], v[1]}; break;
-  }
+  DescribeEffect(kind).set(v, e);
 }
 
 void AddDefaultEffect(EffectKind kind, ExposureEffects* effects) {

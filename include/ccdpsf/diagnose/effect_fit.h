@@ -128,7 +128,8 @@ class EffectModel {
   // p of this model from p of another spec on the same stamps: parameters with the same name
   // are copied, the rest take their default start.
   std::vector<double> FromOther(const EffectModel& other, const std::vector<double>& p) const;
-  // The default starting value of every parameter of `kind` (small, inside the prior).
+  // The starting value of every parameter of `kind`: the catalogue's start (jitter: the
+  // variances, its sigmas squared).
   std::vector<double> DefaultStart(model::EffectKind kind) const;
 
   // The spot parameters and effects of exposure k at p (effects' jitter from the variances).

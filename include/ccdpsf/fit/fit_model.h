@@ -100,10 +100,10 @@ struct FitEffect {
   std::vector<std::array<double, 2>> priors;
 };
 
-// Whether `kind` can be a fit component, with a one-line reason when not: defocus is the
-// model's own component; jitter shared by every exposure is one more Gaussian convolved with
-// the CCD kernel (its widths add in quadrature: not separable); defocus_offset in integrated
-// sampling is exactly a shift of the position.
+// Whether `kind` can be a fit component, with the catalogue's one-line reason when not
+// (EffectInfo::not_fittable): defocus is the model's own component; jitter shared by every exposure
+// is one more Gaussian convolved with the CCD kernel (its widths add in quadrature: not separable);
+// defocus_offset in integrated sampling is exactly a shift of the position.
 bool IsFittableEffect(model::EffectKind kind, std::string* why);
 
 // For the compression check of a set (exposure_set.h): "the model fits brighter_fatter"

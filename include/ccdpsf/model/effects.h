@@ -178,10 +178,9 @@ struct ExposureEffects {
   std::optional<BackgroundParams> background;
 
   bool empty() const { return !HasKernelEffects() && !HasImageEffects(); }
-  bool HasKernelEffects() const { return brighter_fatter || jitter || defocus_offset; }
-  bool HasImageEffects() const {
-    return halo || nonlinearity || ipc || serial_cti || parallel_cti || background;
-  }
+  // Whether a kernel effect (an image effect) of the catalogue is present.
+  bool HasKernelEffects() const;
+  bool HasImageEffects() const;
   // Whether `kind` is present (kDefocus: always false).
   bool Has(EffectKind kind) const;
   // The kinds present, in catalogue order.
@@ -189,8 +188,11 @@ struct ExposureEffects {
 };
 
 // ---------------------------------------------------------------------------------------
-// The catalogue: names, units, defaults, priors and physical domains, for reports, the
-// diagnose tool and the parsers.
+// The catalogue: names, units, defaults, priors, physical domains, starting points and how
+// ExposureEffects holds each effect, for the simulator, the fit, the diagnose tool, reports
+// and the parsers. An effect is added in one place: its entry in the catalogue (effects.cc),
+// with its parameter struct and ExposureEffects member above and its physics (the kernel
+// effects below, the image effects in image_effects.cc).
 
 struct EffectParameterInfo {
   std::string name;         // JSON key, with its unit in the name (e.g. "trail_length_px")
@@ -204,6 +206,14 @@ struct EffectParameterInfo {
   bool lower_open;
   bool upper_open;
   std::string description;  // one line
+  // Where a fit that searches for the effect begins: a small strength inside the prior.
+  // (A fit component, fit/fit_model.h, starts at "no effect" where its prior holds it.)
+  double start;
+  // Whether the parameter's "no effect" value lies on the prior's boundary (a strength
+  // >= 0): such parameters are the boundary terms of diagnose's chi-bar-square test. False
+  // for a value of either sign (a pedestal, an offset) and for a shape parameter that is a
+  // nuisance when the strength is 0 (a trail's length, a halo's width).
+  bool null_on_boundary;
 };
 
 struct EffectInfo {
@@ -213,6 +223,18 @@ struct EffectInfo {
   bool injectable;          // false for defocus
   bool kernel_effect;       // true: changes the rendered spot; false: acts on the image
   std::vector<EffectParameterInfo> parameters;
+  // One to three starting points of a search (one value per parameter, in parameter order)
+  // spanning the plausible range, so that a multimodal shape parameter (a trail's length, a
+  // halo's width) is not missed.
+  std::vector<std::vector<double>> search_starts;
+  // Why the effect cannot be a component of a fit, shared by every exposure (one line);
+  // empty when it can.
+  std::string not_fittable;
+  // How ExposureEffects holds the effect: whether it is present, its parameters in parameter
+  // order (present only), and setting them, creating the effect, without domain checks.
+  bool (*present)(const ExposureEffects& effects);
+  std::vector<double> (*get)(const ExposureEffects& effects);
+  void (*set)(const double* values, ExposureEffects* effects);
 };
 
 // Every effect, in AllEffectKinds() order. Parameter order is the order of EffectParameters.
