@@ -420,6 +420,64 @@ TEST(Grid, AKilledGridResumesWithItsFinishedSpots) {
   EXPECT_FALSE(std::filesystem::exists(dir + "/killed/store"));
 }
 
+// Serial CTI that grows across the sensor, added to the grid's frames by the independent
+// script tests/support/add_serial_cti.py: f(x) = C (x + 1) for the x + 1 transfers of column x
+// to the output, C = 1e-5 (f from 1.7e-3 at the left column of spots to 8.5e-3 at the right:
+// the unirradiated to end-of-life range of the catalogue), trail length 1.5 px. Each spot's
+// fit with --effects=serial_cti recovers its own f(x_c) and the length, and with the trail
+// in the model the identified widths still hold the CTI-free truth. Tolerances: Laplace
+// intervals of a model that holds the data (the script's f varies by +-2 C = 2e-5 over the
+// light of a spot against an sd of ~3e-4): Gaussian pulls, |z| < 4 for 9 spots (P = 6e-4).
+TEST(Grid, SerialCtiAcrossTheSensorIsRecoveredPerSpot) {
+  const std::string frames =
+      GridFrames("cti", "--size 1024 --grid 3 --exposures 2 --seed 7 --no_extras");
+  const std::string dir = FreshDir("Grid", "cti");
+  std::string said;
+  ASSERT_EQ(Shell("/usr/bin/python3 " + std::string(CCDPSF_SOURCE_DIR) +
+                      "/tests/support/add_serial_cti.py " + frames + " " + dir +
+                      "/frames --per_transfer 1e-5 --trail_length_px 1.5",
+                  &said),
+            0)
+      << said;
+  const std::string out = dir + "/out";
+  const RunResult r =
+      RunCcdpsf("grid --nomcmc --effects=serial_cti --out=" + out + Frames(dir + "/frames", 2));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const std::vector<Row> map = ReadCsv(out + "/psf_map.csv");
+  const std::vector<Row> truth = ReadCsv(frames + "/truth.csv");
+  ASSERT_EQ(map.size(), 9u);
+  double f_min = INFINITY, f_max = 0.0;
+  for (const Row& row : map) {
+    SCOPED_TRACE("spot " + row.at("spot"));
+    ASSERT_NE(row.at("verdict"), "refused");
+    double d = INFINITY;
+    const Row* t = NearestTruth(truth, row, &d);
+    ASSERT_LT(d, 0.5);
+    const double f_true = 1e-5 * (Number(*t, "x_px") + 1.0);
+    f_min = std::min(f_min, f_true);
+    f_max = std::max(f_max, f_true);
+    for (const auto& [name, want] : std::vector<std::pair<std::string, double>>{
+             {"serial_cti_trail_fraction", f_true}, {"serial_cti_trail_length_px", 1.5}}) {
+      const double half = 0.5 * (Number(row, name + "_hi68") - Number(row, name + "_lo68"));
+      ASSERT_GT(half, 0.0) << name;
+      EXPECT_LT(std::fabs(Number(row, name) - want) / half, 4.0)
+          << name << " " << Number(row, name) << " against " << want;
+    }
+    // The trail is detected in every spot: f's interval is far from 0.
+    EXPECT_GT(Number(row, "serial_cti_trail_fraction_lo68"), 0.5 * f_true);
+  }
+  EXPECT_GT(f_max, 4.0 * f_min);  // the map spans the range, not one value
+  int ok = 0;
+  for (double p : Pulls(map, truth, &ok)) EXPECT_LT(std::fabs(p), 4.0);
+  EXPECT_GE(ok, 7);
+  // The parameters' maps, and a valid table.
+  for (const char* plot : {"map_serial_cti_trail_fraction", "map_serial_cti_trail_length_px"}) {
+    EXPECT_TRUE(std::filesystem::exists(out + "/plots/" + plot + ".png")) << plot;
+  }
+  EXPECT_EQ(Shell("fitsverify -q " + out + "/psf_map.fits", &said), 0) << said;
+  EXPECT_NE(said.find("verification OK"), std::string::npos) << said;
+}
+
 TEST(Grid, BadInputIsAOneLineError) {
   const std::string dir = FreshDir("Grid", "bad");
   RunResult r = RunCcdpsf("grid " + dir);
@@ -433,6 +491,11 @@ TEST(Grid, BadInputIsAOneLineError) {
   EXPECT_EQ(r.exit_code, 1) << r.output;
   EXPECT_NE(r.output.find("not.fits"), std::string::npos) << r.output;
   EXPECT_EQ(std::count(r.output.begin(), r.output.end(), '\n'), 1) << r.output;
+  // A spot is fitted over one setting, at one intensity: no brighter-fatter slope there.
+  r = RunCcdpsf("grid --effects=brighter_fatter --out=" + dir + "/o " + dir + "/not.fits");
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  EXPECT_NE(r.output.find("grid cannot fit brighter_fatter"), std::string::npos) << r.output;
+  EXPECT_FALSE(std::filesystem::exists(dir + "/o"));
 }
 
 }  // namespace

@@ -81,6 +81,16 @@ int RunGridCommand(const std::vector<std::string>& inputs) {
   if (!ParsePlotFormat(FLAGS_plot_format, &plot.format, &error)) return fatal(error);
   grid::GridOptions options;
   if (!ResolveFitConfig(&options.fit.config, &error)) return fatal(error);
+  for (const fit::FitEffect& e : options.fit.config.model.effects) {
+    if (e.kind == model::EffectKind::kBrighterFatter) {
+      // A setting holds one intensity, where the slope is exactly a change of the CCD widths.
+      return fatal(
+          "grid cannot fit brighter_fatter: each spot is fitted over one setting, at one "
+          "intensity, where the slope is exactly a change of the CCD widths (use trend, whose "
+          "intensity series fits it)",
+          true);
+    }
+  }
   if (FLAGS_match_radius_px <= 0 || !(FLAGS_match_radius_px < 1e6)) {
     return fatal("--match_radius_px must be > 0", true);
   }
@@ -181,7 +191,8 @@ int RunGridCommand(const std::vector<std::string>& inputs) {
   relation_options.seed = options.fit.seed;
   const std::vector<grid::SpotRelation> relations =
       grid::FitSpotRelations(result, options.match_radius_px, relation_options);
-  if (!grid::WritePsfMap(partial, result, relations, have_mcmc, plot, &outputs, &error) ||
+  if (!grid::WritePsfMap(partial, result, relations, options.fit.config.model.effects, have_mcmc,
+                         plot, &outputs, &error) ||
       !WriteTextFileAtomically(partial + "/run.json", run.dump(2) + "\n", &error) ||
       !WriteRunConfig(partial, options.fit.config, nlohmann::json::object(), &error) ||
       !out.Commit({kStore}, &error)) {
@@ -227,6 +238,11 @@ Command GridCommand() {
        "Run each spot's MCMC (--nomcmc: MAP and Laplace only; intervals MAP +- Laplace sd)"},
       {"flux", "auto",
        "How a spot's exposures share the light: auto, shared, per_exposure or exptime_scaled"},
+      {"effects", "",
+       "Effects of the catalogue fitted with every spot, comma-separated (serial_cti, "
+       "parallel_cti, ipc, background, nonlinearity, halo; `ccdpsf effects` lists them), with "
+       "the catalogue's priors (FIT.json \"effects\" sets others); psf_map gets each "
+       "parameter's column and map"},
       {"match_radius_px", "3",
        "Largest distance [px] between a spot's centroids in two exposures of a setting"},
       {"min_significance", "10",

@@ -10,6 +10,7 @@
 #include "ccdpsf/atomic_file.h"
 #include "ccdpsf/column_units.h"
 #include "ccdpsf/fits_io.h"
+#include "ccdpsf/model/effects.h"
 
 namespace ccdpsf::grid {
 namespace {
@@ -143,9 +144,24 @@ const std::vector<std::string>& PsfMapMetrics() {
   return names;
 }
 
+std::vector<std::string> EffectParameterNames(const std::vector<fit::FitEffect>& effects) {
+  std::vector<std::string> names;
+  for (const model::EffectInfo& info : model::EffectCatalogue()) {
+    const bool fitted = std::any_of(effects.begin(), effects.end(),
+                                    [&](const fit::FitEffect& e) { return e.kind == info.kind; });
+    if (!fitted) continue;
+    for (const model::EffectParameterInfo& q : info.parameters) {
+      names.push_back(info.name + "." + q.name);
+    }
+  }
+  return names;
+}
+
 bool WritePsfMap(const std::string& dir, const GridResult& result,
-                 const std::vector<SpotRelation>& relations, bool have_mcmc,
+                 const std::vector<SpotRelation>& relations,
+                 const std::vector<fit::FitEffect>& effects, bool have_mcmc,
                  const PlotOptions& plot, PsfMapOutputs* outputs, std::string* error) {
+  const std::vector<std::string> effect_names = EffectParameterNames(effects);
   const std::string interval =
       have_mcmc ? "posterior median, central 68 % (MCMC)" : "MAP +- Laplace sd (--nomcmc)";
   // psf_map: one row per spot.
@@ -170,6 +186,17 @@ bool WritePsfMap(const std::string& dir, const GridResult& result,
       map.Add(m, c);
       map.Add(m + "_lo68", lo);
       map.Add(m + "_hi68", hi);
+    }
+    for (const std::string& name : effect_names) {
+      double c = kNaN, lo = kNaN, hi = kNaN;
+      if (ok) {
+        const auto it = e.fit.summaries.find(name);
+        if (it != e.fit.summaries.end()) Interval(it->second, have_mcmc, &c, &lo, &hi);
+      }
+      const std::string column = FitsColumnName(name);
+      map.Add(column, c);
+      map.Add(column + "_lo68", lo);
+      map.Add(column + "_hi68", hi);
     }
     map.Add("chi2_per_dof", ok ? e.fit.chi2_per_dof : kNaN);
     map.AddText("verdict", Verdict(e));
@@ -287,6 +314,10 @@ bool WritePsfMap(const std::string& dir, const GridResult& result,
       maps.push_back({"ccd_sigma_x_px", "CCD sigma_x [px]"});
       maps.push_back({"ccd_sigma_y_px", "CCD sigma_y [px]"});
     }
+    for (const std::string& name : effect_names) {
+      const std::string unit = UnitOfName(name);
+      maps.push_back({name, name + (unit.empty() ? "" : " [" + unit + "]")});
+    }
     for (const auto& [metric, label] : maps) {
       SensorMapInput in;
       in.nx = f0.nx;
@@ -308,7 +339,8 @@ bool WritePsfMap(const std::string& dir, const GridResult& result,
         in.value.push_back(c);
       }
       const std::string stem =
-          "map_" + metric + (result.settings.size() > 1 ? "_" + std::to_string(s) : std::string());
+          "map_" + FitsColumnName(metric) +
+          (result.settings.size() > 1 ? "_" + std::to_string(s) : std::string());
       PlotResult made;
       if (!WriteSensorMap(dir + "/plots", stem, in, &made, error, plot)) return false;
       if (!made.image_written) outputs->warnings.push_back(made.message);

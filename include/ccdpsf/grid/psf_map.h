@@ -13,6 +13,11 @@
 //                                wavelength and intensity (spot_relations.h), and a map of
 //                                alpha of the identified FWHM across the sensor
 //
+// With effects fitted (--effects), psf_map also holds each effect parameter
+// (serial_cti_trail_fraction, ...: the fit's name with '.' as '_') with its interval, and a map
+// of each across the sensor: an effect that varies over the device (serial CTI grows with the
+// transfers to the output) is seen where it changes.
+//
 // Metric columns carry the posterior median and central 68 % interval (MCMC), or, with
 // --nomcmc, the MAP +- its Laplace sd (header keyword INTERVAL says which). total_* are the
 // identified widths (defocus and CCD kernel together); fwhm_um, ellipticity, ccd_sigma_* are
@@ -24,6 +29,7 @@
 #include <string>
 #include <vector>
 
+#include "ccdpsf/fit/fit_model.h"
 #include "ccdpsf/grid/grid.h"
 #include "ccdpsf/grid/spot_relations.h"
 #include "ccdpsf/plot.h"
@@ -38,9 +44,15 @@ struct PsfMapOutputs {
 // The metrics of psf_map, in column order, each followed by _lo68 and _hi68.
 const std::vector<std::string>& PsfMapMetrics();
 
-// Writes everything above into `dir`. False with a reason when a file cannot be written.
+// The fitted effects' parameters as the fit names them ("serial_cti.trail_fraction", ...),
+// in catalogue order: psf_map's effect columns.
+std::vector<std::string> EffectParameterNames(const std::vector<fit::FitEffect>& effects);
+
+// Writes everything above into `dir`; `effects` are the effects every spot's fit holds. False
+// with a reason when a file cannot be written.
 bool WritePsfMap(const std::string& dir, const GridResult& result,
-                 const std::vector<SpotRelation>& relations, bool have_mcmc,
+                 const std::vector<SpotRelation>& relations,
+                 const std::vector<fit::FitEffect>& effects, bool have_mcmc,
                  const PlotOptions& plot, PsfMapOutputs* outputs, std::string* error);
 
 }  // namespace ccdpsf::grid
