@@ -15,6 +15,15 @@ std::string UnitOfName(const std::string& name) {
     const bool index = !after.empty() && after.find_first_not_of("0123456789") == std::string::npos;
     base = index ? name.substr(0, dot) : after;
   }
+  // The bounds of a central 68 % interval (fwhm_um_lo68, fwhm_um_hi68) carry their
+  // quantity's unit.
+  for (const char* bound : {"_lo68", "_hi68"}) {
+    const std::string b = bound;
+    if (base.size() > b.size() && base.compare(base.size() - b.size(), b.size(), b) == 0) {
+      base.resize(base.size() - b.size());
+      break;
+    }
+  }
   const std::size_t last = base.find_last_of('_');
   if (last != std::string::npos && last + 1 < base.size() &&
       base.find_first_not_of("0123456789", last + 1) == std::string::npos) {

@@ -27,6 +27,10 @@ TEST(ColumnUnits, UnitFromTheNamesSuffix) {
   EXPECT_EQ(UnitOfName("brighter_fatter.slope_x_px_per_e"), "pix/electron");
   EXPECT_EQ(UnitOfName("nonlinearity.beta_per_e"), "1/electron");
   EXPECT_EQ(UnitOfName("background.pedestal_e"), "electron");
+  // An interval's bounds carry the quantity's unit.
+  EXPECT_EQ(UnitOfName("total_fwhm_um_lo68"), "um");
+  EXPECT_EQ(UnitOfName("serial_cti_trail_length_px_hi68"), "pix");
+  EXPECT_EQ(UnitOfName("ellipticity_lo68"), "");
   for (const char* dimensionless : {"ellipticity", "log_prob", "flux_ratio.2", "flux_ratio_2",
                                     "chi2_per_dof", "exposures", "focus_series", "e", "_px"}) {
     EXPECT_EQ(UnitOfName(dimensionless), "") << dimensionless;

@@ -15,7 +15,8 @@ namespace ccdpsf {
 // _px -> "pix", _px2 -> "pix2", _um -> "um", _um2 -> "um2", _nm -> "nm", _e -> "electron",
 // _s -> "s", _adu -> "adu", _adu2 -> "adu2", _arcsec2 -> "arcsec2", _e_per_adu ->
 // "electron/adu", _px_per_um -> "pix/um"; an exposure index after a dot or a final
-// underscore is ignored (x_px.3, x_px_3 -> "pix").
+// underscore is ignored (x_px.3, x_px_3 -> "pix"), and so is the suffix of an interval's
+// bound (fwhm_um_lo68, fwhm_um_hi68 -> "um").
 std::string UnitOfName(const std::string& name);
 
 // `name` with every character outside [A-Za-z0-9_] replaced by '_' (x_px.3 -> x_px_3).

@@ -155,6 +155,10 @@ def test_run_grid_reads_the_map_with_units(ccdpsf_binary, tmp_path):
     assert isinstance(grid, ccdpsf.GridResult)
     assert len(grid.psf_map) == 4 and len(grid.ok) == 4
     assert grid.psf_map["total_fwhm_um"].unit == u.um
+    # The interval's bounds carry the metric's unit, so that centre - bound is a Quantity.
+    for bound in ("total_fwhm_um_lo68", "total_fwhm_um_hi68"):
+        assert grid.psf_map[bound].unit == u.um, bound
+    assert np.all(grid.psf_map["total_fwhm_um"] - grid.psf_map["total_fwhm_um_lo68"] >= 0 * u.um)
     assert grid.psf_map["x_px"].unit == u.pix
     assert "Laplace" in grid.interval
     plain = Table.read(tmp_path / "grid" / "psf_map.csv", format="ascii.csv")
