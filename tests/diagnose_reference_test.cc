@@ -10,11 +10,13 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "gtest/gtest.h"
@@ -169,6 +171,42 @@ TEST_F(ReferenceDiagnose, NarrowPixelResponseIsNamedNotIpc) {
   // The width within 0.1 px (the profile's grid step) of the truth.
   const json& w = j["attributions"][0]["parameters"]["pixel_response.width_px"];
   EXPECT_NEAR(w["map"].get<double>(), 0.8, 0.1) << w.dump();
+
+  // final_fit.json carries the width into `ccdpsf fit`, which then measures the spot's total
+  // widths (defocus and CCD kernel, all a single focus identifies) on the truth's; the
+  // paper's full-pixel model, fitted to the same files, takes the lost edge charge for a
+  // narrower spot (by ~0.03 px, measured; a window of width w blurs with variance w^2 / 12).
+  const double w_map = w["map"].get<double>(), w_sd = w["sd"].get<double>();
+  ASSERT_TRUE(std::isfinite(w_sd) && w_sd > 0) << w.dump();
+  std::string files;
+  for (const std::string& f : set.files) files += " " + f;
+  const auto fit_total_sigmas = [&](const std::string& out, const std::string& config) {
+    std::string fit_output;
+    const int code = testing_support::RunCcdpsf(
+        "fit --joint --flux=shared --nomcmc --out=" + set.dir + "/" + out + config + files,
+        &fit_output);
+    EXPECT_EQ(code, 0) << fit_output;
+    const json f = ReadJson(set.dir + "/" + out + "/fit.json");
+    return std::make_pair(
+        f, std::array<double, 2>{f["derived"]["total_sigma_x_px"]["map"].get<double>(),
+                                 f["derived"]["total_sigma_y_px"]["map"].get<double>()});
+  };
+  const auto [with_width, with_sigmas] =
+      fit_total_sigmas("fit_final", " --config=" + set.dir + "/diagnose/final_fit.json");
+  EXPECT_DOUBLE_EQ(with_width["model"]["pixel_response_width"].get<double>(), w_map);
+  const auto [full_pixel, full_sigmas] = fit_total_sigmas("fit_full_pixel", "");
+  const json& optics = set.truth["config"]["optics"];
+  const double defocus = optics["defocus"]["sigma_px"].get<double>();
+  const double truth[2] = {std::hypot(defocus, optics["ccd_sigma_x_px"].get<double>()),
+                           std::hypot(defocus, optics["ccd_sigma_y_px"].get<double>())};
+  for (int axis = 0; axis < 2; ++axis) {
+    // The total width's uncertainty is mostly the held width's: d sigma / d w = w / (12 sigma)
+    // from sigma^2 = s^2 + w^2 / 12 (the fit's own sd, ~7e-4 px, adds in quadrature: 0.001).
+    const double sd = std::hypot(w_map * w_sd / (12.0 * truth[axis]), 1e-3);
+    EXPECT_NEAR(with_sigmas[axis], truth[axis], 3.0 * sd) << "axis " << axis << ", sd " << sd;
+    EXPECT_GT(std::abs(full_sigmas[axis] - truth[axis]), 3.0 * sd)
+        << "axis " << axis << ": the full-pixel model should miss the widths";
+  }
 }
 
 // Brighter-fatter made by sensor physics (the diffusion of each electron grows with the

@@ -632,11 +632,33 @@ TEST(FitConfig, ParsesOverridesAndRejectsUnknownKeys) {
        {R"({"priors": {"airy_radius": [0.2, 1.0]}})",
         R"({"priors": {"airy_radius_px": [1.0, 0.2]}})", R"({"likelihood": "cauchy"})",
         R"({"mcmc": {"walkers": -2}})", R"({"calibration": {"gain_e_per_adu": 0}})",
-        R"({"flags": [1, 2]})", "{oops"}) {
+        R"({"flags": [1, 2]})", R"({"pixel_response_width": 0})",
+        R"({"pixel_response_width": 1.2})", R"({"pixel_response_width": "0.8"})", "{oops"}) {
     FitConfig d;
     EXPECT_FALSE(ParseFitConfig(bad, &d, &error)) << bad;
     EXPECT_FALSE(error.empty());
   }
+}
+
+// A pixel response narrower than the pixel: read, written back (a run's config.json), and
+// refused with the 2015 discretisation, which has no collecting window.
+TEST(FitConfig, PixelResponseWidthRoundTripsAndNeedsIntegratedSampling) {
+  FitConfig c;
+  std::string error;
+  ASSERT_TRUE(ParseFitConfig(R"({"pixel_response_width": 0.8})", &c, &error)) << error;
+  EXPECT_EQ(c.model.model.pixel_response_width, 0.8);
+  FitConfig again;
+  ASSERT_TRUE(ParseFitConfig(FitConfigJson(c).dump(), &again, &error)) << error;
+  EXPECT_EQ(again.model.model.pixel_response_width, 0.8);
+  EXPECT_EQ(FitConfigJson(FitConfig())["pixel_response_width"], 1.0);
+
+  FitModelOptions o = c.model;
+  o.model.sampling = model::Sampling::kPixelCentre;
+  const std::vector<Stamp> stamps =
+      SimulateStamps(PaperConfig(model::Sampling::kPixelCentre, 1, 17), 18);
+  EXPECT_EQ(FitModel::Create(stamps, o, &error), nullptr);
+  EXPECT_NE(error.find("pixel_response_width"), std::string::npos) << error;
+  EXPECT_EQ(error.find('\n'), std::string::npos);
 }
 
 }  // namespace

@@ -1,5 +1,6 @@
 // ccdpsf diagnose: find the effect the model is missing (diagnose/diagnose.h).
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <sstream>
 
@@ -55,8 +56,8 @@ bool ParseKinds(const std::string& text, std::vector<model::EffectKind>* kinds,
 
 // The fit configuration of the diagnosis's final model: `config` with the final round's
 // fittable effects (catalogue priors), its flux mode, a joint fit, and a pillbox defocus if
-// that alternative was adopted. What a fit cannot hold (jitter, defocus_offset, a pixel
-// response) is left out and said in `notes`.
+// that alternative was adopted, the measured width of a narrower pixel response (held fixed).
+// What a fit cannot hold (jitter, defocus_offset) is left out and said in `notes`.
 fit::FitConfig FinalFitConfig(const fit::FitConfig& config, const diagnose::DiagnoseResult& result,
                               std::vector<std::string>* notes) {
   fit::FitConfig final_config = config;
@@ -69,7 +70,8 @@ fit::FitConfig FinalFitConfig(const fit::FitConfig& config, const diagnose::Diag
   const diagnose::ModelSpec& spec = result.rounds.back().spec;
   std::vector<std::string> left_out;
   for (model::EffectKind kind : model::AllEffectKinds()) {
-    if (!spec.Has(kind)) continue;
+    // The defocus is the fit model's own component, always fitted (from 0 up).
+    if (kind == model::EffectKind::kDefocus || !spec.Has(kind)) continue;
     std::string why;
     if (fit::IsFittableEffect(kind, &why)) {
       final_config.model.effects.push_back({kind, {}});
@@ -80,8 +82,20 @@ fit::FitConfig FinalFitConfig(const fit::FitConfig& config, const diagnose::Diag
   for (const diagnose::RoundResult& round : result.rounds) {
     if (round.adopted == diagnose::ToString(diagnose::AlternativeKind::kPillboxDefocus)) {
       final_config.model.model.defocus = model::DefocusKind::kPillbox;
-    } else if (round.adopted == diagnose::ToString(diagnose::AlternativeKind::kPixelResponse)) {
-      left_out.push_back("pixel_response (a fit has no pixel-response component)");
+    }
+  }
+  // A narrower pixel response: its measured width, held fixed by the fit (its uncertainty
+  // is diagnose's, from the likelihood profile).
+  for (const diagnose::Attribution& a : result.attributions) {
+    if (a.name != diagnose::ToString(diagnose::AlternativeKind::kPixelResponse)) continue;
+    for (const diagnose::ParameterEstimate& e : a.parameters) {
+      if (e.name == "pixel_response.width_px" && std::isfinite(e.map)) {
+        final_config.model.model.pixel_response_width = e.map;
+        char width[32];
+        std::snprintf(width, sizeof(width), "%.4g", e.map);
+        notes->push_back("final_fit.json holds the pixel response width at diagnose's measured " +
+                         std::string("value (") + width + " px; a fit does not refit it)");
+      }
     }
   }
   for (const std::string& what : left_out) {

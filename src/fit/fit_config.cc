@@ -153,6 +153,13 @@ bool ParseFitConfig(const std::string& text, FitConfig* c, std::string* error) {
       r.Fail("'defocus' must be \"gaussian\" or \"pillbox\"");
     }
   }
+  if (r.Has("pixel_response_width")) {
+    double& w = c->model.model.pixel_response_width;
+    r.Number("pixel_response_width", &w);
+    if (r.ok() && !(w > 0.0 && w <= 1.0)) {
+      r.Fail("'pixel_response_width' must be in (0, 1] px (1: the whole pixel collects)");
+    }
+  }
   if (r.Has("likelihood")) {
     r.String("likelihood", &s);
     if (r.ok() && !ParseLikelihoodKind(s, &c->model.likelihood)) {
@@ -367,6 +374,7 @@ json FitConfigJson(const FitConfig& c) {
   const PriorRanges& p = c.model.priors;
   return {{"sampling", model::ToString(c.model.model.sampling)},
           {"defocus", model::ToString(c.model.model.defocus)},
+          {"pixel_response_width", c.model.model.pixel_response_width},
           {"likelihood", ToString(c.model.likelihood)},
           {"joint", c.joint},
           {"through_focus", c.model.through_focus},

@@ -285,6 +285,14 @@ bool FitExposures(const std::vector<Exposure>& exposures, const Quality& set_qua
   } else if (stamps.size() > 1) {
     out->notes.push_back("flux: " + ToString(model_options.flux) + " (given)");
   }
+  if (model_options.model.pixel_response_width != 1.0) {
+    char w[32];
+    std::snprintf(w, sizeof(w), "%.4g", model_options.model.pixel_response_width);
+    out->notes.push_back("pixel response: each pixel collects from its central " + std::string(w) +
+                         " px x " + w +
+                         " px (pixel_response_width, held fixed: the intervals are "
+                         "conditional on it)");
+  }
   std::unique_ptr<FitModel> model = FitModel::Create(stamps, model_options, error);
   if (!model || !EffectsIdentifiable(*model, error)) return false;
   MapResult map;

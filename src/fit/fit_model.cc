@@ -106,6 +106,12 @@ std::unique_ptr<FitModel> FitModel::Create(std::vector<Stamp> stamps,
     *error = "pixel_centre sampling has only the Gaussian defocus of the 2015 code";
     return nullptr;
   }
+  if (options.model.pixel_response_width != 1.0 &&
+      options.model.sampling != model::Sampling::kIntegrated) {
+    *error =
+        "pixel_response_width < 1 (a window narrower than the pixel) needs integrated sampling";
+    return nullptr;
+  }
   if (options.through_focus &&
       (options.model.sampling != model::Sampling::kIntegrated ||
        options.model.defocus != model::DefocusKind::kGaussian)) {

@@ -99,6 +99,7 @@ json FitJson(const ExposuresFit& fit) {
   j["quality"] = fit.quality.ToJson();
   j["model"] = {{"sampling", model::ToString(model.options().model.sampling)},
                 {"defocus", model::ToString(model.options().model.defocus)},
+                {"pixel_response_width", model.options().model.pixel_response_width},
                 {"likelihood", ToString(model.options().likelihood)},
                 {"joint", model.num_exposures() > 1},
                 {"through_focus", model.through_focus()},

@@ -1,6 +1,7 @@
 // FIT.json: the fit's options as a file (command-line flags override it).
 //
-//   {"sampling": "integrated", "defocus": "gaussian", "likelihood": "gaussian",
+//   {"sampling": "integrated", "defocus": "gaussian", "pixel_response_width": 1.0,
+//    "likelihood": "gaussian",
 //    "joint": false, "through_focus": false, "flux": "auto",
 //    "effects": {"serial_cti": {"trail_fraction": [0, 0.01], "trail_length_px": [0.2, 10]},
 //                "brighter_fatter": {}},
@@ -32,6 +33,11 @@
 // "effects" names the catalogue's effects fitted with the spot (fit_model.h, Effects), each
 // with optional flat prior ranges by parameter name (absent: the catalogue's, `ccdpsf
 // effects`); jitter and defocus_offset cannot be fitted (IsFittableEffect says why).
+//
+// "pixel_response_width" (integrated sampling only) is the width [px] of each pixel's
+// collecting window (model::ModelOptions::pixel_response_width), held fixed: 1, the whole
+// pixel, is the paper's model; `ccdpsf diagnose` writes its measured value when it names a
+// narrower pixel response.
 //
 // Every key is optional; unknown keys are errors. "through_focus" fits a joint set as a
 // through-focus series (fit_model.h); `ccdpsf fit --joint` switches it on by itself when it
