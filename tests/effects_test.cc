@@ -109,13 +109,12 @@ TEST(Effects, CatalogueDefaultsPriorsAndDomainsAgree) {
       }
     }
     EXPECT_FALSE(info.search_starts.empty()) << info.name;
-    // The catalogue is indexed by kind; exactly the kinds a shared fit component cannot be
-    // say why.
+    // The catalogue is indexed by kind; exactly the kinds a fit cannot hold say why (jitter
+    // is fitted per exposure).
     EXPECT_EQ(&DescribeEffect(info.kind), &info);
-    const bool shared_component = info.kind != EffectKind::kDefocus &&
-                                  info.kind != EffectKind::kJitter &&
-                                  info.kind != EffectKind::kDefocusOffset;
-    EXPECT_EQ(info.not_fittable.empty(), shared_component) << info.name;
+    const bool fittable =
+        info.kind != EffectKind::kDefocus && info.kind != EffectKind::kDefocusOffset;
+    EXPECT_EQ(info.not_fittable.empty(), fittable) << info.name;
     if (info.kind == EffectKind::kDefocus) {
       EXPECT_EQ(info.parameters[0].default_value, DefocusEffectParams().sigma_px);
       continue;

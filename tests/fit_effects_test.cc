@@ -256,14 +256,152 @@ TEST(FitEffects, TheBackgroundCarriesNoShotNoise) {
   EXPECT_GT(std::fabs(with_shot_noise - expected), 1e4 * 1e-10 * std::fabs(expected));
 }
 
+// Jitter, fitted per exposure (fit_model.h): three exposures with their own Gaussian jitter.
+// The simulator draws exposure k with CCD widths hypot(sigma, s_k); the fit with the
+// reference's widths hypot(sigma, s_ref) and the excess variances v_k = s_k^2 - s_ref^2.
+SimulationConfig JitterConfig(const std::vector<double>& sigmas, uint64_t seed) {
+  SimulationConfig c =
+      PaperConfig(model::Sampling::kIntegrated, static_cast<int>(sigmas.size()), seed);
+  for (size_t k = 0; k < sigmas.size(); ++k) {
+    c.exposures[k].jitter = model::JitterParams{sigmas[k], sigmas[k], 0.0, 0.0};
+  }
+  return c;
+}
+std::vector<double> JitterTheta(const FitModel& m, const SimulationConfig& c,
+                                const std::vector<double>& sigmas) {
+  std::vector<double> theta = TruthTheta(m, c, c.exposures[0].flux_e, {});
+  const double ref = sigmas[m.JitterReference()];
+  theta[kCcdSigmaXPx] = std::hypot(c.ccd_sigma_x_px, ref);
+  theta[kCcdSigmaYPx] = std::hypot(c.ccd_sigma_y_px, ref);
+  for (int k = 0; k < m.num_exposures(); ++k) {
+    if (m.JitterIndex(k) < 0) continue;
+    theta[m.JitterIndex(k)] = theta[m.JitterIndex(k) + 1] = sigmas[k] * sigmas[k] - ref * ref;
+  }
+  return theta;
+}
+
+// The fit's image of every exposure is the simulator's expectation (simulate.h), whichever
+// exposure is the reference, with serial CTI beside it, and with the brighter-fatter growth
+// (exact when the reference has no jitter of its own: fit_model.h): the same terms in other
+// orders, and widths through two square roots instead of one (1e-12 of the peak).
+TEST(FitEffects, JitterImagesAreTheSimulatorsExpectation) {
+  // The reference is the least jittered exposure (the others' excess variances are >= 0).
+  struct Case {
+    int reference;
+    std::vector<double> sigmas;
+    bool brighter_fatter;
+  };
+  const Case cases[] = {
+      {0, {0.1, 0.22, 0.15}, false}, {2, {0.22, 0.15, 0.1}, false}, {1, {0.15, 0.0, 0.22}, true}};
+  for (const auto& [reference, sigmas, brighter_fatter] : cases) {
+    SimulationConfig c = JitterConfig(sigmas, 13);
+    std::string error;
+    ASSERT_TRUE(model::SetEffectParameters(EffectKind::kSerialCti, {4e-3, 1.7}, &c.effects, &error))
+        << error;
+    FitModelOptions options = WithEffects({{EffectKind::kSerialCti, {}}});
+    if (brighter_fatter) {
+      ASSERT_TRUE(
+          model::SetEffectParameters(EffectKind::kBrighterFatter, {6e-7, 3e-7}, &c.effects, &error))
+          << error;
+      options.effects.push_back({EffectKind::kBrighterFatter, {}});
+    }
+    options.effects.push_back({EffectKind::kJitter, {}});
+    options.jitter_reference = reference;
+    auto m = MustCreate(SimulateStamps(c, 14), options);
+    ASSERT_TRUE(m);
+    ASSERT_EQ(m->JitterReference(), reference);
+    EXPECT_EQ(m->EffectSize(EffectKind::kJitter), 4);
+    std::vector<double> theta = JitterTheta(*m, c, sigmas);
+    theta[m->EffectIndex(EffectKind::kSerialCti)] = 4e-3;
+    theta[m->EffectIndex(EffectKind::kSerialCti) + 1] = 1.7;
+    if (brighter_fatter) {
+      theta[m->EffectIndex(EffectKind::kBrighterFatter)] = 6e-7;
+      theta[m->EffectIndex(EffectKind::kBrighterFatter) + 1] = 3e-7;
+    }
+    auto ev = m->NewEvaluator();
+    for (int k = 0; k < 3; ++k) {
+      const Image expected = ExpectedElectrons(c, c.exposures[k]);
+      std::vector<double> image;
+      ASSERT_TRUE(ev->ModelImage(theta.data(), k, &image, nullptr));
+      double peak = 0.0, worst = 0.0;
+      for (size_t q = 0; q < image.size(); ++q) {
+        peak = std::max(peak, expected.data[q]);
+        worst = std::max(worst, std::fabs(image[q] - expected.data[q]));
+      }
+      EXPECT_LT(worst, 1e-12 * peak) << "exposure " << k << ", reference " << reference;
+    }
+  }
+}
+
+// The residual block of a jittered exposure, its jitter variances in the effects' block beside
+// serial CTI and the brighter-fatter growth (whose signal is drawn with the jitter), against
+// central differences (as ExposureCostJacobianIsTheDerivative).
+TEST(FitEffects, JitterCostJacobianIsTheDerivative) {
+  const std::vector<double> sigmas = {0.1, 0.22, 0.15};
+  const SimulationConfig c = JitterConfig(sigmas, 15);
+  FitModelOptions options =
+      WithEffects({{EffectKind::kSerialCti, {}}, {EffectKind::kBrighterFatter, {}}});
+  options.effects.push_back({EffectKind::kJitter, {}});
+  options.jitter_reference = 0;
+  auto m = MustCreate(SimulateStamps(c, 16), options);
+  ASSERT_TRUE(m);
+  std::vector<double> theta = JitterTheta(*m, c, sigmas);
+  theta[m->EffectIndex(EffectKind::kSerialCti)] = 4e-3;
+  theta[m->EffectIndex(EffectKind::kSerialCti) + 1] = 1.7;
+  theta[m->EffectIndex(EffectKind::kBrighterFatter)] = 6e-7;
+  theta[m->EffectIndex(EffectKind::kBrighterFatter) + 1] = 3e-7;
+  for (int k : {1, 2}) {
+    std::unique_ptr<ceres::CostFunction> cost(NewExposureCost(*m, k));
+    ASSERT_EQ(cost->parameter_block_sizes().size(), 3u);  // shared, position, effects
+    const std::vector<double> effects(theta.begin() + m->EffectsFirstIndex(), theta.end());
+    const double error =
+        WorstJacobianError(*cost, {{4.0e5, 0.5, 0.38, 0.3, 0.33},
+                                   {c.exposures[k].x_px + 0.02, c.exposures[k].y_px - 0.03},
+                                   effects});
+    EXPECT_LT(error, 1e-6) << "exposure " << k;
+  }
+}
+
+// Recovery with known truth: five exposures jittered by 0, 0.1, ... 0.25 px; the sharpest is
+// the reference, and every other exposure's excess variances come back within 4 Laplace sd
+// (measured pulls: see the assertion's message).
+TEST(FitEffects, JitterVariancesAreRecoveredPerExposure) {
+  const std::vector<double> sigmas = {0.0, 0.1, 0.15, 0.2, 0.25};
+  const SimulationConfig c = JitterConfig(sigmas, 17);
+  FitModelOptions options;
+  options.effects = {{EffectKind::kJitter, {}}};
+  auto m = MustCreate(SimulateStamps(c, 18), options);
+  ASSERT_TRUE(m);
+  EXPECT_EQ(m->JitterReference(), 0);
+  FitResult r;
+  std::string error;
+  ASSERT_TRUE(RunFit(*m, testing_support::NoMcmc(), &r, &error)) << error;
+  for (int k = 1; k < 5; ++k) {
+    for (int axis = 0; axis < 2; ++axis) {
+      const int i = m->JitterIndex(k) + axis;
+      const double truth = sigmas[k] * sigmas[k], sd = r.laplace.sd[i];
+      ASSERT_TRUE(std::isfinite(sd) && sd > 0) << r.names[i];
+      EXPECT_LT(std::fabs(r.map.theta[i] - truth), 4.0 * sd)
+          << r.names[i] << ": " << r.map.theta[i] << " against " << truth << ", pull "
+          << (r.map.theta[i] - truth) / sd;
+    }
+  }
+}
+
 TEST(FitEffects, BadEffectsAreReported) {
   const SimulationConfig c = PaperConfig(model::Sampling::kIntegrated, 1, 11);
   const std::vector<Stamp> stamps = SimulateStamps(c, 12);
   std::string error;
   FitModelOptions options;
-  options.effects = {{EffectKind::kJitter, {}}};
+  options.effects = {{EffectKind::kJitter, {}}};  // one exposure
   EXPECT_EQ(FitModel::Create(stamps, options, &error), nullptr);
-  EXPECT_NE(error.find("jitter"), std::string::npos) << error;
+  EXPECT_NE(error.find("jitter needs two or more exposures"), std::string::npos) << error;
+  const std::vector<Stamp> pair =
+      SimulateStamps(PaperConfig(model::Sampling::kIntegrated, 2, 11), 12);
+  options.jitter_reference = 2;
+  EXPECT_EQ(FitModel::Create(pair, options, &error), nullptr);
+  EXPECT_NE(error.find("out of range"), std::string::npos) << error;
+  options.jitter_reference = -1;
   options.effects = {{EffectKind::kIpc, {}}, {EffectKind::kIpc, {}}};
   EXPECT_EQ(FitModel::Create(stamps, options, &error), nullptr);
   EXPECT_NE(error.find("twice"), std::string::npos) << error;
@@ -302,7 +440,7 @@ TEST(FitEffects, ConfigParsesWritesAndRefuses) {
   EXPECT_EQ(FitConfigJson(again)["effects"], written);
   const std::pair<const char*, const char*> bad[] = {
       {R"({"effects": {"glow": {}}})", "unknown effect 'effects.glow'"},
-      {R"({"effects": {"jitter": {}}})", "'effects.jitter' cannot be fitted"},
+      {R"({"effects": {"defocus_offset": {}}})", "'effects.defocus_offset' cannot be fitted"},
       {R"({"effects": {"ipc": {"beta": [0, 1]}}})", "effects.ipc.beta"},
       {R"({"effects": {"ipc": {"alpha": [0, 0.5]}}})", "effects.ipc.alpha"},
       {R"({"effects": {"ipc": {"alpha": [0.1, 0.05]}}})", "lower < upper"},

@@ -237,6 +237,9 @@ int RunFit(const std::vector<std::string>& files) {
   set_options.compression_modelled = fit::SignalDependenceModelled(config.model);
   if (!LoadExposureSet(inputs, set_options, &set, &error)) return Fail(error);
   std::vector<Exposure>& exposures = set.exposures;
+  if (config.model.HasEffect(model::EffectKind::kJitter) && !joint) {
+    return Fail("jitter is fitted per exposure in a joint fit of two or more files: add --joint");
+  }
   if (config.model.through_focus && !config.joint && inputs.size() > 1) {
     return Fail("through_focus fits a series jointly: add --joint");
   }

@@ -833,7 +833,7 @@ bool RunDiagnosis(const fit::FitModel& base, const DiagnoseOptions& options,
     result->notes.push_back("the exposures span several intensities but one flux is shared: "
                             "brighter_fatter is tested, the flux misfit will show");
   }
-  result->jitter_reference = n > 1 ? SharpestExposure(base) : 0;
+  result->jitter_reference = n > 1 ? fit::SharpestExposure(base) : 0;
   ModelSpec spec;
   spec.defocus = options.baseline_defocus;
   spec.effects = options.baseline_effects;

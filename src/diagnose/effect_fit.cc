@@ -142,13 +142,11 @@ class ExposureCost : public ceres::CostFunction {
         }
       }
       for (int c = 0; c < nc; ++c) {
-        model_.TwinToP(columns_[c], k_, p_.data(), &p_targets_);
-        for (const auto& [i, factor] : p_targets_) {
-          for (size_t b = 0; b < blocks_.size(); ++b) {
-            const EffectModel::Block& block = model_.blocks()[blocks_[b]];
-            if (jacobians[b] != nullptr && i >= block.begin && i < block.begin + block.size) {
-              where.push_back({c, static_cast<int>(b), i - block.begin, factor});
-            }
+        const int i = model_.TwinToP(columns_[c], k_);
+        for (size_t b = 0; i >= 0 && b < blocks_.size(); ++b) {
+          const EffectModel::Block& block = model_.blocks()[blocks_[b]];
+          if (jacobians[b] != nullptr && i >= block.begin && i < block.begin + block.size) {
+            where.push_back({c, static_cast<int>(b), i - block.begin});
           }
         }
       }
@@ -166,9 +164,9 @@ class ExposureCost : public ceres::CostFunction {
         const int size = model_.blocks()[blocks_[t.block]].size;
         const bool is_pedestal = columns_[t.column] == pedestal_index;
         jacobians[t.block][r * size + t.offset] +=
-            t.factor * v.ResidualDerivative(0, g[t.column], is_pedestal);
+            v.ResidualDerivative(0, g[t.column], is_pedestal);
         jacobians[t.block][(n + r) * size + t.offset] +=
-            t.factor * v.ResidualDerivative(1, g[t.column], is_pedestal);
+            v.ResidualDerivative(1, g[t.column], is_pedestal);
       }
     }
     return true;
@@ -200,14 +198,11 @@ class ExposureCost : public ceres::CostFunction {
   std::unique_ptr<fit::FitEvaluator> twin_evaluator_;
   mutable std::vector<double> theta_, jacobian_;
   mutable std::vector<int> columns_;
-  // Where each twin column goes, with its chain-rule factor: none for a parameter held at 0,
-  // two for a CCD width with jitter.
+  // Where each twin column goes (nowhere for a parameter held at 0).
   struct Target {
     int column, block, offset;
-    double factor;
   };
   mutable std::vector<Target> targets_;
-  mutable std::vector<std::pair<int, double>> p_targets_;
 };
 
 }  // namespace
@@ -346,21 +341,16 @@ std::unique_ptr<EffectModel> EffectModel::Create(const fit::FitModel& base, cons
       return nullptr;
     }
   }
-  // The fit twin: the same stamps and effects in the fit's model, for analytic derivatives.
-  // The per-exposure jitter variances are CCD widths of their own per exposure,
-  // sqrt(sigma^2 + v_k); with brighter_fatter the growth applies before the jitter, which the
-  // fit's model cannot express, so that spec keeps numeric derivatives.
-  const bool twin_possible =
-      base.options().model.sampling == model::Sampling::kIntegrated &&
-      !spec.Has(EffectKind::kDefocusOffset) &&
-      !(spec.Has(EffectKind::kJitter) && spec.Has(EffectKind::kBrighterFatter));
+  // The fit twin: the same stamps and effects in the fit's model, for analytic derivatives
+  // (jitter too, per exposure with the same reference).
+  const bool twin_possible = base.options().model.sampling == model::Sampling::kIntegrated &&
+                             !spec.Has(EffectKind::kDefocusOffset);
   if (twin_possible) {
     fit::FitModelOptions twin_options = base.options();
     twin_options.flux = fit::FluxMode::kShared;  // exposure k's flux goes into flux_e
     twin_options.effects.clear();
-    for (EffectKind kind : spec.effects) {
-      if (kind != EffectKind::kJitter) twin_options.effects.push_back({kind, {}});
-    }
+    for (EffectKind kind : spec.effects) twin_options.effects.push_back({kind, {}});
+    twin_options.jitter_reference = spec.Has(EffectKind::kJitter) ? spec.jitter_reference : -1;
     // The fit accepts every such spec on stamps it already holds; should it refuse one, the
     // numeric path below is the model itself, so nothing is lost but speed.
     std::string why;
@@ -374,6 +364,13 @@ std::unique_ptr<EffectModel> EffectModel::Create(const fit::FitModel& base, cons
           m->twin_effect_to_p_[m->twin_->EffectIndex(kind) + j - first] = begin + j;
         }
       }
+      for (int k = 0; k < n; ++k) {
+        const int v = m->twin_->JitterIndex(k);
+        if (v < 0) continue;
+        CHECK_GE(m->jitter_index_[k], 0) << "the twin's jitter reference differs";
+        m->twin_effect_to_p_[v - first] = m->jitter_index_[k];
+        m->twin_effect_to_p_[v + 1 - first] = m->jitter_index_[k] + 1;
+      }
     }
   }
   return m;
@@ -386,34 +383,13 @@ void EffectModel::TwinTheta(const double* p, int k, double* theta) const {
     const int j = ShapeIndex(i);
     theta[i] = j >= 0 ? p[j] : 0.0;  // no defocus component: held at 0
   }
-  const int v = jitter_index_[k];
-  if (v >= 0) {
-    // Jitter: the variance added to the CCD kernel's on each axis (as model::AdjustSpotParams).
-    theta[fit::kCcdSigmaXPx] =
-        std::sqrt(theta[fit::kCcdSigmaXPx] * theta[fit::kCcdSigmaXPx] + std::max(p[v], 0.0));
-    theta[fit::kCcdSigmaYPx] =
-        std::sqrt(theta[fit::kCcdSigmaYPx] * theta[fit::kCcdSigmaYPx] + std::max(p[v + 1], 0.0));
-  }
   theta[fit::FitModel::XIndex(k)] = p[XIndex(k)];
   theta[fit::FitModel::YIndex(k)] = p[YIndex(k)];
   const int first = twin_->EffectsFirstIndex();
   for (size_t e = 0; e < twin_effect_to_p_.size(); ++e) theta[first + e] = p[twin_effect_to_p_[e]];
 }
 
-void EffectModel::TwinToP(int theta_index, int k, const double* p,
-                          std::vector<std::pair<int, double>>* targets) const {
-  targets->clear();
-  const int v = jitter_index_[k];
-  if (v >= 0 && (theta_index == fit::kCcdSigmaXPx || theta_index == fit::kCcdSigmaYPx)) {
-    // s' = sqrt(s^2 + v): ds'/ds = s / s', ds'/dv = 1 / (2 s') (from above at v = 0, the
-    // prior's bound; 0 below it, where v is clamped).
-    const int axis = theta_index - fit::kCcdSigmaXPx;
-    const double sigma = p[ShapeIndex(theta_index)], variance = p[v + axis];
-    const double total = std::sqrt(sigma * sigma + std::max(variance, 0.0));
-    targets->push_back({ShapeIndex(theta_index), sigma / total});
-    if (variance >= 0.0) targets->push_back({v + axis, 0.5 / total});
-    return;
-  }
+int EffectModel::TwinToP(int theta_index, int k) const {
   int i = -1;
   if (theta_index == fit::kFluxE) {
     i = FluxIndex(k);
@@ -429,7 +405,7 @@ void EffectModel::TwinToP(int theta_index, int k, const double* p,
         << "exposure " << k << " does not depend on theta[" << theta_index << "]";
     i = twin_effect_to_p_[theta_index - first];
   }
-  if (i >= 0) targets->push_back({i, 1.0});
+  return i;
 }
 
 int EffectModel::FluxIndex(int k) const {
@@ -850,11 +826,6 @@ std::vector<Image> SimulateData(const EffectModel& model, const std::vector<doub
     out.push_back(std::move(d));
   }
   return out;
-}
-
-int SharpestExposure(const fit::FitModel& base) {
-  const std::vector<double> v = base.MomentGaussianVariances(0.5);
-  return static_cast<int>(std::min_element(v.begin(), v.end()) - v.begin());
 }
 
 std::vector<double> PeakSignals(const std::vector<Stamp>& stamps) {

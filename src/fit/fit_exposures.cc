@@ -295,6 +295,14 @@ bool FitExposures(const std::vector<Exposure>& exposures, const Quality& set_qua
   }
   std::unique_ptr<FitModel> model = FitModel::Create(stamps, model_options, error);
   if (!model || !EffectsIdentifiable(*model, error)) return false;
+  if (model->JitterReference() >= 0) {
+    model_options.jitter_reference = model->JitterReference();  // kept by remade models
+    out->notes.push_back(
+        "jitter: jitter.var_*_px2.K is exposure K's jitter variance in excess "
+        "of exposure " +
+        std::to_string(model->JitterReference()) +
+        "'s (the sharpest), whose own jitter is part of the CCD widths");
+  }
   MapResult map;
   if (!FindMap(*model, options.config.fit.map, &map, error)) return false;
 

@@ -68,6 +68,16 @@ std::string SignalDependenceModelled(const FitModelOptions& options) {
   return names.empty() ? "" : "the model fits " + names;
 }
 
+FitModelOptions SingleExposureOptions(const FitModelOptions& options) {
+  FitModelOptions single = options;
+  single.effects.erase(
+      std::remove_if(single.effects.begin(), single.effects.end(),
+                     [](const FitEffect& e) { return e.kind == model::EffectKind::kJitter; }),
+      single.effects.end());
+  single.jitter_reference = -1;
+  return single;
+}
+
 bool CcdSplitUnidentified(const FitModelOptions& options) {
   return options.model.sampling == model::Sampling::kIntegrated &&
          options.model.defocus == model::DefocusKind::kGaussian && !options.through_focus;
@@ -291,12 +301,57 @@ std::unique_ptr<FitModel> FitModel::Create(std::vector<Stamp> stamps,
       return nullptr;
     }
   }
+  if (options.HasEffect(model::EffectKind::kJitter)) {
+    if (m->num_exposures() < 2) {
+      *error =
+          "jitter needs two or more exposures: one exposure's jitter is exactly a change of "
+          "its CCD widths";
+      return nullptr;
+    }
+    if (options.jitter_reference >= m->num_exposures()) {
+      *error = "jitter reference exposure " + std::to_string(options.jitter_reference) +
+               " is out of range";
+      return nullptr;
+    }
+    m->jitter_reference_ =
+        options.jitter_reference >= 0 ? options.jitter_reference : SharpestExposure(*m);
+    m->jitter_index_.assign(m->num_exposures(), -1);
+  }
   for (model::EffectKind kind : model::AllEffectKinds()) {
     const auto it = std::find_if(options.effects.begin(), options.effects.end(),
                                  [&](const FitEffect& e) { return e.kind == kind; });
     if (it == options.effects.end()) continue;
     const model::EffectInfo& info = model::DescribeEffect(kind);
     m->effect_index_[static_cast<int>(kind)] = m->dim();
+    if (kind == model::EffectKind::kJitter) {
+      // Per exposure but the reference: the variances of the Gaussian part (sigma_x_px,
+      // sigma_y_px; motion is not fitted), on the sigmas' prior ranges squared, starting at the
+      // catalogue's start squared.
+      double lo[2], hi[2], start[2];
+      for (int axis = 0; axis < 2; ++axis) {
+        const model::EffectParameterInfo& pi = info.parameters[axis];
+        lo[axis] = it->priors.empty() ? pi.prior_lower : it->priors[axis][0];
+        hi[axis] = it->priors.empty() ? pi.prior_upper : it->priors[axis][1];
+        for (const double v : {lo[axis], hi[axis]}) {
+          if (!model::CheckEffectParameter(kind, axis, v, "prior of jitter." + pi.name, error)) {
+            return nullptr;
+          }
+        }
+        start[axis] = std::clamp(pi.start, lo[axis], hi[axis]);
+      }
+      for (int k = 0; k < m->num_exposures(); ++k) {
+        if (k == m->jitter_reference_) continue;
+        m->jitter_index_[k] = m->dim();
+        for (int axis = 0; axis < 2; ++axis) {
+          m->names_.push_back(std::string("jitter.var_") + (axis == 0 ? "x" : "y") + "_px2." +
+                              std::to_string(k));
+          m->lower_.push_back(lo[axis] * lo[axis]);
+          m->upper_.push_back(hi[axis] * hi[axis]);
+          m->effect_start_.push_back(start[axis] * start[axis]);
+        }
+      }
+      continue;
+    }
     for (size_t p = 0; p < info.parameters.size(); ++p) {
       const model::EffectParameterInfo& pi = info.parameters[p];
       const double lo = it->priors.empty() ? pi.prior_lower : it->priors[p][0];
@@ -357,9 +412,22 @@ bool EffectsIdentifiable(const FitModel& model, std::string* why) {
   return false;
 }
 
+int FitModel::EffectSize(model::EffectKind kind) const {
+  if (EffectIndex(kind) < 0) return 0;
+  if (kind == model::EffectKind::kJitter) return 2 * (num_exposures() - 1);
+  return static_cast<int>(model::DescribeEffect(kind).parameters.size());
+}
+
+int SharpestExposure(const FitModel& model) {
+  const std::vector<double> v = model.MomentGaussianVariances(0.5);
+  return static_cast<int>(std::min_element(v.begin(), v.end()) - v.begin());
+}
+
 bool FitModel::EffectsAt(const double* theta, model::ExposureEffects* effects) const {
   *effects = model::ExposureEffects();
   for (const FitEffect& e : options_.effects) {
+    // Jitter differs per exposure: ModelImageColumns draws it into the CCD widths.
+    if (e.kind == model::EffectKind::kJitter) continue;
     const int first = EffectIndex(e.kind);
     const std::vector<model::EffectParameterInfo>& parameters =
         model::DescribeEffect(e.kind).parameters;
@@ -526,7 +594,13 @@ bool FitEvaluator::KernelWidths(const double* theta, int k, double* sigma_x_px,
   model::ExposureEffects effects;
   if (fm.HasEffects() && !fm.EffectsAt(theta, &effects)) return false;
   if (!effects.brighter_fatter) return true;
-  const int peak = RenderWithoutGrowth(spot, fm.GridFor(k), false);
+  model::SpotParams plain = spot;  // drawn with exposure k's jitter, as ModelImageColumns
+  const int jitter = fm.JitterIndex(k);
+  for (int axis = 0; jitter >= 0 && axis < 2; ++axis) {
+    const int sp = axis == 0 ? model::kCcdSigmaX : model::kCcdSigmaY;
+    plain[sp] = std::sqrt(plain[sp] * plain[sp] + std::max(theta[jitter + axis], 0.0));
+  }
+  const int peak = RenderWithoutGrowth(plain, fm.GridFor(k), false);
   if (peak < 0) return false;
   *sigma_x_px += effects.brighter_fatter->slope_x_px_per_e * plain_[peak];
   *sigma_y_px += effects.brighter_fatter->slope_y_px_per_e * plain_[peak];
@@ -556,8 +630,13 @@ bool FitEvaluator::ModelImageColumns(const double* theta, int k, std::vector<dou
   const int focus = fm.FocusIndex(), ratio = fm.RatioIndex(k);
   if (focus >= 0) columns->push_back(focus);
   if (ratio >= 0) columns->push_back(ratio);
+  const int jitter = fm.JitterIndex(k);
   for (const FitEffect& e : fm.options().effects) {
-    const int np = static_cast<int>(model::DescribeEffect(e.kind).parameters.size());
+    if (e.kind == model::EffectKind::kJitter) {
+      if (jitter >= 0) columns->insert(columns->end(), {jitter, jitter + 1});
+      continue;
+    }
+    const int np = fm.EffectSize(e.kind);
     for (int p = 0; p < np; ++p) columns->push_back(fm.EffectIndex(e.kind) + p);
   }
   const int nc = static_cast<int>(columns->size());
@@ -585,11 +664,33 @@ bool FitEvaluator::ModelImageColumns(const double* theta, int k, std::vector<dou
 
   if (want) spot_jacobian_.resize(static_cast<size_t>(n) * model::kNumSpotParams);
   std::string why;
+  // Exposure k's jitter variance v adds to the kernel's (as model::AdjustSpotParams, after
+  // the brighter-fatter growth): s' = sqrt(s^2 + v), ds'/ds = s / s', ds'/dv = 1 / (2 s')
+  // (v >= 0 inside the prior); applied to a spot and its chain.
+  auto add_jitter = [&](model::SpotParams* s, std::vector<double>* rows) {
+    for (int axis = 0; axis < 2; ++axis) {
+      const int sp = axis == 0 ? model::kCcdSigmaX : model::kCcdSigmaY;
+      const double w = (*s)[sp], v = std::max(theta[jitter + axis], 0.0);
+      const double total = std::sqrt(w * w + v);
+      if (!(total > 0.0)) return false;
+      for (int c = 0; c < nc; ++c) (*rows)[static_cast<size_t>(sp) * nc + c] *= w / total;
+      (*rows)[static_cast<size_t>(sp) * nc + column_of(jitter + axis)] += 0.5 / total;
+      (*s)[sp] = total;
+    }
+    return true;
+  };
   if (effects.brighter_fatter) {
-    // The widths grow with the peak pixel I of the spot drawn without the growth
-    // (model/effects.h); I depends on theta through that render's own derivatives at its
-    // brightest pixel.
-    const int peak = RenderWithoutGrowth(spot, grid, want);
+    // The widths grow with the peak pixel I of the spot drawn without the growth but with
+    // the jitter (model/effects.h, BrighterFatterSignal); I depends on theta through that
+    // render's own derivatives at its brightest pixel.
+    model::SpotParams plain_spot = spot;
+    const std::vector<double>* plain_chain = &chain;
+    if (jitter >= 0) {
+      plain_chain_ = chain;
+      if (!add_jitter(&plain_spot, &plain_chain_)) return false;
+      plain_chain = &plain_chain_;
+    }
+    const int peak = RenderWithoutGrowth(plain_spot, grid, want);
     if (peak < 0) return false;
     const double signal = plain_[peak];
     const model::BrighterFatterParams& bf = *effects.brighter_fatter;
@@ -597,7 +698,9 @@ bool FitEvaluator::ModelImageColumns(const double* theta, int k, std::vector<dou
       std::vector<double> d_signal(nc, 0.0);
       const double* g = &spot_jacobian_[static_cast<size_t>(peak) * model::kNumSpotParams];
       for (int p = 0; p < model::kNumSpotParams; ++p) {
-        for (int c = 0; c < nc; ++c) d_signal[c] += g[p] * chain[static_cast<size_t>(p) * nc + c];
+        for (int c = 0; c < nc; ++c) {
+          d_signal[c] += g[p] * (*plain_chain)[static_cast<size_t>(p) * nc + c];
+        }
       }
       for (int c = 0; c < nc; ++c) {
         chain[static_cast<size_t>(model::kCcdSigmaX) * nc + c] += bf.slope_x_px_per_e * d_signal[c];
@@ -610,6 +713,7 @@ bool FitEvaluator::ModelImageColumns(const double* theta, int k, std::vector<dou
     spot[model::kCcdSigmaX] += bf.slope_x_px_per_e * signal;
     spot[model::kCcdSigmaY] += bf.slope_y_px_per_e * signal;
   }
+  if (jitter >= 0 && !add_jitter(&spot, &chain)) return false;
   if (!model::ValidSpotParams(renderer_.options(), spot, &why)) return false;
   renderer_.Render(spot, grid, model->data(), want ? spot_jacobian_.data() : nullptr);
 
@@ -659,7 +763,8 @@ bool FitEvaluator::ModelImageColumns(const double* theta, int k, std::vector<dou
     };
     reference_d = {row_of(model::kFlux), row_of(model::kCentreX), row_of(model::kCentreY)};
     for (const FitEffect& e : fm.options().effects) {
-      const int np = static_cast<int>(model::DescribeEffect(e.kind).parameters.size());
+      if (e.kind == model::EffectKind::kJitter) continue;  // a kernel effect, drawn above
+      const int np = fm.EffectSize(e.kind);
       for (int p = 0; p < np; ++p) {
         channels.Set(e.kind, p, 1 + column_of(fm.EffectIndex(e.kind) + p));
       }

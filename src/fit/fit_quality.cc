@@ -96,8 +96,13 @@ bool EffectConsistentWithZero(const FitModel& model, const FitResult& r, int i) 
   if (first < 0 || i < first) return false;
   for (const FitEffect& e : model.options().effects) {
     const int start = model.EffectIndex(e.kind);
-    const int size = static_cast<int>(model::DescribeEffect(e.kind).parameters.size());
+    const int size = model.EffectSize(e.kind);
     if (i < start || i >= start + size) continue;
+    if (e.kind == model::EffectKind::kJitter) {
+      // Each exposure's variance is its own strength.
+      return r.map.theta[i] <= 0.0 || !std::isfinite(r.laplace.sd[i]) ||
+             r.map.theta[i] < 2.0 * r.laplace.sd[i];
+    }
     if (model.lower()[start] != 0.0) return false;
     const double strength = r.map.theta[start], sd = r.laplace.sd[start];
     return strength <= 0.0 || !(std::isfinite(sd)) || strength < 2.0 * sd;

@@ -21,7 +21,7 @@ std::vector<FocusPoint> FitEachFocusPosition(const FitModel& model, const MapOpt
   std::vector<FocusPoint> points;
   if (!model.through_focus()) return points;
   // The joint model's options with the law dropped: a free Gaussian defocus, one flux.
-  FitModelOptions single = model.options();
+  FitModelOptions single = SingleExposureOptions(model.options());
   single.through_focus = false;
   single.flux = FluxMode::kShared;
   FitOptions options;

@@ -422,7 +422,7 @@ std::vector<std::vector<double>> FocusStarts(const FitModel& model, const MapOpt
   double radius = 0.5, tx2 = NAN, ty2 = NAN;
   std::vector<double> single_theta;
   {
-    FitModelOptions single_options = model.options();
+    FitModelOptions single_options = SingleExposureOptions(model.options());
     single_options.through_focus = false;
     single_options.flux = FluxMode::kShared;
     std::string error;
@@ -574,7 +574,8 @@ bool FindMap(const FitModel& model, const MapOptions& options, MapResult* result
     // 12 exposures), and its PSF seeds the joint solve; positions start at the centroids.
     // The moment start with the single fit's radius is kept as a fallback seed.
     std::string single_error;
-    auto single = FitModel::Create({model.stamps()[0]}, model.options(), &single_error);
+    auto single = FitModel::Create({model.stamps()[0]}, SingleExposureOptions(model.options()),
+                                   &single_error);
     MapResult single_map;
     if (single && FindMap(*single, options, &single_map, &single_error)) {
       const double r = single_map.theta[kAiryRadiusPx];

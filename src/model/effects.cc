@@ -166,9 +166,8 @@ std::vector<EffectInfo> MakeCatalogue() {
               false, "direction of the motion, from +x towards +y", 0.0, false)},
        {{std::sqrt(0.0025), std::sqrt(0.0025), 0.0, 0.0},
         {std::sqrt(0.02), std::sqrt(0.02), 0.0, 0.0}},
-       "jitter shared by every exposure is one more Gaussian convolved with the CCD kernel "
-       "(the widths add in quadrature) and cannot be told apart from it; diagnose fits it per "
-       "exposure",
+       // Fittable per exposure (fit_model.h): shared, it would be the CCD widths.
+       "",
        [](const ExposureEffects& e) { return e.jitter.has_value(); },
        [](const ExposureEffects& e) {
          return std::vector<double>{e.jitter->sigma_x_px, e.jitter->sigma_y_px,

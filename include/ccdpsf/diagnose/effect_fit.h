@@ -32,7 +32,7 @@
 //                               where d model / d sigma vanishes). A jitter common to every
 //                               exposure is exactly a change of the CCD widths, so only the
 //                               excess over the reference exposure (the sharpest, see
-//                               SharpestExposure) is identified; its own jitter is absorbed in
+//                               fit::SharpestExposure) is identified; its own jitter is absorbed in
 //                               the CCD widths. The Gaussian part only: motion blur is not
 //                               fitted.
 // Priors: flat. Baseline ranges from fit::PriorRanges (via the fit::FitModel this is built
@@ -40,11 +40,10 @@
 // [0, prior_upper^2]). Bounds are Ceres parameter bounds.
 //
 // Derivatives: where the spec is a model the fit holds (integrated sampling, no
-// defocus_offset, not jitter together with brighter_fatter), the image and its analytic derivatives
-// come from the fit's own model (fit::FitEvaluator::ModelImageColumns on a fit::FitModel with the
-// same effects: the "fit twin"; exposure k's jitter variances enter as its CCD widths sqrt(sigma^2
-// + v_k)), so that diagnose and fit draw and differentiate one model. Otherwise (jitter with
-// brighter_fatter, the 2015 discretisation) they are numeric: central
+// defocus_offset), the image and its analytic derivatives come from the fit's own model
+// (fit::FitEvaluator::ModelImageColumns on a fit::FitModel with the same effects and jitter
+// reference: the "fit twin"), so that diagnose and fit draw and differentiate one model.
+// Otherwise (defocus_offset, the 2015 discretisation) they are numeric: central
 // differences of step 1e-5 x max(|p_i|, 1e-2 x prior width), one-sided where a central step
 // would leave the prior box (several effects are not defined, or not meaningful, below their
 // lower bound).
@@ -140,14 +139,12 @@ class EffectModel {
   std::unique_ptr<EffectEvaluator> NewEvaluator() const;
 
   // The fit's model of this spec, when it has one (see the top of this file), else null;
-  // theta for exposure k at p in its layout (shared flux: exposure k's own flux; CCD widths
-  // sqrt(sigma^2 + v_k) with exposure k's jitter variances), and for a theta index exposure
-  // k depends on, the p indices it moves with d theta / d p_i at p (none: held at 0, the
-  // defocus of a spec without it; two: a CCD width with jitter).
+  // theta for exposure k at p in its layout (shared flux: exposure k's own flux; the jitter
+  // variances with the same reference exposure), and for a theta index exposure k depends on,
+  // the p index equal to it (-1: held at 0, the defocus of a spec without it).
   const fit::FitModel* fit_twin() const { return twin_.get(); }
   void TwinTheta(const double* p, int k, double* theta) const;
-  void TwinToP(int theta_index, int k, const double* p,
-               std::vector<std::pair<int, double>>* targets) const;
+  int TwinToP(int theta_index, int k) const;
 
  private:
   EffectModel(const fit::FitModel& base, const ModelSpec& spec) : base_(base), spec_(spec) {}
@@ -249,10 +246,6 @@ std::vector<double> InformationMatrix(const EffectModel& model, const std::vecto
 // stamp's gain and clipping at the stamp's saturation), in bias-subtracted electrons.
 std::vector<Image> SimulateData(const EffectModel& model, const std::vector<double>& p,
                                 std::mt19937_64& engine);
-
-// The exposure whose stamp has the smallest second-moment width (the sharpest): the jitter
-// reference.
-int SharpestExposure(const fit::FitModel& base);
 
 // The exposures' peak-pixel signals [e-] (largest valid data pixel), and whether they span
 // several intensities: their summed signals (over the pixels valid in every stamp, which do

@@ -32,7 +32,8 @@
 //
 // "effects" names the catalogue's effects fitted with the spot (fit_model.h, Effects), each
 // with optional flat prior ranges by parameter name (absent: the catalogue's, `ccdpsf
-// effects`); jitter and defocus_offset cannot be fitted (IsFittableEffect says why).
+// effects`); defocus_offset cannot be fitted (IsFittableEffect says why); jitter is fitted per
+// exposure in a joint fit (fit_model.h).
 //
 // "pixel_response_width" (integrated sampling only) is the width [px] of each pixel's
 // collecting window (model::ModelOptions::pixel_response_width), held fixed: 1, the whole

@@ -19,6 +19,20 @@
 // brighter-fatter widths (CCD widths + slope x the peak pixel of the spot rendered without
 // them), through the image effects of effects.h in their order. Integrated sampling only.
 //
+// Jitter is the one effect fitted per exposure: a Gaussian blur shared by every exposure is
+// exactly a change of the CCD widths, but one that differs between exposures is not. Its
+// place among the effect parameters holds the jitter VARIANCES of every exposure K but the
+// reference (the sharpest, JitterReference(); its own jitter is part of the CCD widths):
+//   jitter.var_x_px2.K, jitter.var_y_px2.K   [px^2], flat priors [lo^2, hi^2] from the
+//                                            sigma_x_px / sigma_y_px ranges,
+// and exposure K is drawn with CCD widths sqrt(sigma^2 + v_K) (as model::AdjustSpotParams
+// adds jitter). The variance, not the sigma, is the parameter: the model is regular at v = 0,
+// where d model / d sigma_jitter vanishes. With brighter_fatter the growth applies first,
+// sqrt((sigma + b I)^2 + v_K), I the peak of the spot drawn with the jitter but without the
+// growth, as the simulator draws them (exact when the reference has no jitter of its own: its
+// jitter then sits inside sigma, before the growth). Needs two or more exposures. Motion blur
+// is not fitted.
+//
 // Through-focus mode (FitModelOptions::through_focus): a series of exposures taken at stage
 // positions z_k [um] (FITS keyword FOCUSPOS, Stamp::info.focus_position_um), where the
 // geometric defocus grows linearly with the distance from best focus z0 while the CCD kernel
@@ -101,9 +115,8 @@ struct FitEffect {
 };
 
 // Whether `kind` can be a fit component, with the catalogue's one-line reason when not
-// (EffectInfo::not_fittable): defocus is the model's own component; jitter shared by every exposure
-// is one more Gaussian convolved with the CCD kernel (its widths add in quadrature: not separable);
-// defocus_offset in integrated sampling is exactly a shift of the position.
+// (EffectInfo::not_fittable): defocus is the model's own component; defocus_offset in integrated
+// sampling is exactly a shift of the position. (Jitter is fitted per exposure: see the top.)
 bool IsFittableEffect(model::EffectKind kind, std::string* why);
 
 // For the compression check of a set (exposure_set.h): "the model fits brighter_fatter"
@@ -121,8 +134,16 @@ struct FitModelOptions {
   FluxMode flux = FluxMode::kShared;
   // Effects fitted with the spot, in any order given; theta holds them in catalogue order.
   std::vector<FitEffect> effects;
+  // With jitter: the reference exposure, whose jitter is held at 0; -1 chooses the sharpest
+  // (SharpestExposure). Models remade from one another (after outlier masking) keep theirs,
+  // so that their theta layouts agree.
+  int jitter_reference = -1;
   bool HasEffect(model::EffectKind kind) const;
 };
+
+// The options for one exposure of a joint model's set (the seeds and per-exposure points of
+// a joint fit): the same, without jitter, which needs two or more exposures.
+FitModelOptions SingleExposureOptions(const FitModelOptions& options);
 
 // Whether a model identifies only the total widths, not the CCD widths themselves: integrated
 // sampling with a Gaussian defocus at one focus, where the defocus and the CCD kernel
@@ -191,6 +212,13 @@ class FitModel {
   // lies outside its physical domain).
   int EffectIndex(model::EffectKind kind) const { return effect_index_[static_cast<int>(kind)]; }
   bool HasEffects() const { return !options_.effects.empty(); }
+  // The number of theta parameters of a fitted effect: its catalogue parameters, or for
+  // jitter two per exposure but the reference.
+  int EffectSize(model::EffectKind kind) const;
+  // Jitter: the exposure whose jitter is held at 0 (-1 without jitter), and the index of
+  // exposure k's jitter.var_x_px2.k (var_y follows it; -1 for the reference or without).
+  int JitterReference() const { return jitter_reference_; }
+  int JitterIndex(int k) const { return jitter_index_.empty() ? -1 : jitter_index_[k]; }
   // The index of the first effect parameter (they run to the end of theta), -1 without.
   int EffectsFirstIndex() const {
     return HasEffects() ? dim() - static_cast<int>(effect_start_.size()) : -1;
@@ -257,8 +285,14 @@ class FitModel {
   std::vector<double> fixed_flux_scale_;         // FixedFluxScale
   std::array<int, model::kNumEffectKinds> effect_index_;  // EffectIndex
   std::vector<double> effect_start_;             // theta's effect parameters at a start (no effect)
+  int jitter_reference_ = -1;                    // JitterReference
+  std::vector<int> jitter_index_;                // JitterIndex, per exposure (empty without)
   double signal_e_ = 0.0;                        // mean summed signal per stamp
 };
+
+// The exposure whose stamp has the smallest second-moment width (the sharpest; moments as
+// MomentGaussianVariances with a 0.5 px Airy radius): the jitter reference.
+int SharpestExposure(const FitModel& model);
 
 class FitEvaluator {
  public:
@@ -332,7 +366,7 @@ class FitEvaluator {
     int spot_param, column;
     double value;
   };
-  std::vector<double> chain_;
+  std::vector<double> chain_, plain_chain_;  // plain_chain_: the brighter-fatter signal's
   std::vector<Link> links_;
   std::vector<double> plain_;                     // the brighter-fatter signal's render
   model::DualImage dual_;                         // image effects with derivatives
