@@ -36,7 +36,9 @@ int RunEffects(const std::vector<std::string>& args) {
     std::string why;
     if (fit::IsFittableEffect(kind, &why)) std::printf(" %s", model::ToString(kind).c_str());
   }
-  std::printf("\n");
+  std::printf(
+      "\n(jitter per exposure in a joint fit, its Gaussian part: the excess variance over the "
+      "sharpest exposure)\n");
   return 0;
 }
 
