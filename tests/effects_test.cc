@@ -110,10 +110,9 @@ TEST(Effects, CatalogueDefaultsPriorsAndDomainsAgree) {
     }
     EXPECT_FALSE(info.search_starts.empty()) << info.name;
     // The catalogue is indexed by kind; exactly the kinds a fit cannot hold say why (jitter
-    // is fitted per exposure).
+    // is fitted per exposure, defocus_offset in pixel_centre sampling: FitModel::Create).
     EXPECT_EQ(&DescribeEffect(info.kind), &info);
-    const bool fittable =
-        info.kind != EffectKind::kDefocus && info.kind != EffectKind::kDefocusOffset;
+    const bool fittable = info.kind != EffectKind::kDefocus;
     EXPECT_EQ(info.not_fittable.empty(), fittable) << info.name;
     if (info.kind == EffectKind::kDefocus) {
       EXPECT_EQ(info.parameters[0].default_value, DefocusEffectParams().sigma_px);

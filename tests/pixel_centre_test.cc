@@ -245,5 +245,44 @@ TEST(PixelCentreSampling, DefocusOffsetJacobianMatchesDifferences) {
   }
 }
 
+// The derivatives with respect to the offset itself (F's centre alone in pixel_centre, the
+// whole spot in integrated sampling), against central differences in dx and dy (step 1e-6 px;
+// truncation ~h^2 x third derivative, far below 1e-6 of the largest derivative), and the
+// spot parameters' columns unchanged by asking for them.
+TEST(PixelCentreSampling, DefocusOffsetDerivativesMatchDifferences) {
+  for (const Sampling sampling : {Sampling::kPixelCentre, Sampling::kIntegrated}) {
+    ModelOptions options;
+    options.sampling = sampling;
+    SpotRenderer renderer(options);
+    PixelGrid grid;
+    grid.nx = grid.ny = 11;
+    const SpotParams p = {1.5e5, 5.07, 4.96, 0.47, 0.41, 0.291, 0.335};
+    const double dx = 0.15, dy = -0.1;
+    const int n = grid.size();
+    std::vector<double> model(n), jacobian(n * kNumSpotParams), offset(2 * n);
+    std::vector<double> model0(n), jacobian0(n * kNumSpotParams);
+    renderer.RenderWithDefocusOffset(p, dx, dy, grid, model.data(), jacobian.data(), offset.data());
+    renderer.RenderWithDefocusOffset(p, dx, dy, grid, model0.data(), jacobian0.data());
+    EXPECT_EQ(model, model0) << ToString(sampling);
+    EXPECT_EQ(jacobian, jacobian0) << ToString(sampling);
+    for (int axis = 0; axis < 2; ++axis) {
+      const double h = 1e-6;
+      std::vector<double> ma(n), mb(n);
+      renderer.RenderWithDefocusOffset(p, dx + (axis == 0 ? h : 0), dy + (axis == 1 ? h : 0), grid,
+                                       ma.data(), nullptr);
+      renderer.RenderWithDefocusOffset(p, dx - (axis == 0 ? h : 0), dy - (axis == 1 ? h : 0), grid,
+                                       mb.data(), nullptr);
+      double scale = 0.0, worst = 0.0;
+      for (int q = 0; q < n; ++q) {
+        const double numeric = (ma[q] - mb[q]) / (2 * h);
+        scale = std::max(scale, std::abs(numeric));
+        worst = std::max(worst, std::abs(numeric - offset[2 * q + axis]));
+      }
+      EXPECT_GT(scale, 0.0);
+      EXPECT_LE(worst, 1e-6 * scale) << ToString(sampling) << " axis " << axis;
+    }
+  }
+}
+
 }  // namespace
 }  // namespace ccdpsf::model

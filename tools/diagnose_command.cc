@@ -57,7 +57,8 @@ bool ParseKinds(const std::string& text, std::vector<model::EffectKind>* kinds,
 // The fit configuration of the diagnosis's final model: `config` with the final round's
 // fittable effects (catalogue priors), its flux mode, a joint fit, and a pillbox defocus if
 // that alternative was adopted, the measured width of a narrower pixel response (held fixed).
-// What a fit cannot hold (defocus_offset) is left out and said in `notes`.
+// An effect a fit cannot hold is left out and said in `notes` (since defocus_offset is fitted
+// in pixel_centre sampling, every effect diagnose names carries over).
 fit::FitConfig FinalFitConfig(const fit::FitConfig& config, const diagnose::DiagnoseResult& result,
                               std::vector<std::string>* notes) {
   fit::FitConfig final_config = config;

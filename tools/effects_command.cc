@@ -38,7 +38,8 @@ int RunEffects(const std::vector<std::string>& args) {
   }
   std::printf(
       "\n(jitter per exposure in a joint fit, its Gaussian part: the excess variance over the "
-      "sharpest exposure)\n");
+      "sharpest exposure; defocus_offset in pixel_centre sampling only, in integrated sampling "
+      "it is a shift of the position)\n");
   return 0;
 }
 

@@ -119,7 +119,7 @@ bool ResolveFitConfig(fit::FitConfig* c, std::string* error) {
     *error = "pixel_centre sampling has only the Gaussian defocus of the 2015 code";
     return false;
   }
-  return true;
+  return fit::EffectsFitInSampling(c->model, error);
 }
 
 namespace {

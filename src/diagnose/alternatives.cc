@@ -106,8 +106,7 @@ bool FitPillbox(const EffectModel& current, const EffectFitResult& current_fit,
   const int r = out->model->ShapeIndex(fit::kDefocusPx);
   // Scored at the solver's optimum. Only where the pillbox could be adopted (delta BIC below
   // kNonNestedDeltaBic) a few iterations of the EffectModel's own solve follow (the point is
-  // already the optimum of the same likelihood), for its Laplace approximation: with numeric
-  // derivatives of 17 ms renders they take seconds.
+  // already the optimum of the same likelihood), for its Laplace approximation.
   EffectEvaluator evaluator(*out->model);
   const double log_l = evaluator.LogLikelihood(q.data());
   if (!std::isfinite(log_l)) {

@@ -36,12 +36,14 @@ void EvaluateStampPixel(const Stamp& s, const fit::PixelNoise& noise, size_t q, 
 }
 
 // The residual block of exposure k: r1 and r2 per valid pixel (see the header), with the fit
-// twin's analytic derivatives when the model has a twin, else numeric derivatives that stay
-// inside the prior box.
+// twin's analytic derivatives.
 class ExposureCost : public ceres::CostFunction {
  public:
   ExposureCost(const EffectModel& model, int k, const Image* data)
-      : model_(model), k_(k), evaluator_(model), blocks_(model.BlocksOf(k)) {
+      : model_(model),
+        k_(k),
+        blocks_(model.BlocksOf(k)),
+        twin_evaluator_(model.fit_twin().NewEvaluator()) {
     const Stamp& s = model.base().stamps()[k];
     data_ = data != nullptr ? data->data.data() : s.electrons.data.data();
     for (size_t q = 0; q < s.valid.size(); ++q) {
@@ -50,72 +52,21 @@ class ExposureCost : public ceres::CostFunction {
     noise_ = fit::StampNoise(s);
     for (int b : blocks_) mutable_parameter_block_sizes()->push_back(model.blocks()[b].size);
     set_num_residuals(2 * static_cast<int>(pixels_.size()));
-    if (model.fit_twin() != nullptr) twin_evaluator_ = model.fit_twin()->NewEvaluator();
     p_.assign(model.dim(), 0.0);
     // Parameters of other exposures are never read for exposure k; give them valid values.
     for (int i = 0; i < model.dim(); ++i) p_[i] = 0.5 * (model.lower()[i] + model.upper()[i]);
   }
 
+  // Residuals and their derivatives from the fit twin's image and analytic Jacobian (the
+  // fit's residual block, map_fit.cc, does the same on theta): dr/dm times d model/d p, and
+  // for the pedestal -dr/dd (it shifts the datum's expectation without shot noise).
   bool Evaluate(double const* const* parameters, double* residuals,
                 double** jacobians) const override {
     for (size_t b = 0; b < blocks_.size(); ++b) {
       const EffectModel::Block& block = model_.blocks()[blocks_[b]];
       std::copy(parameters[b], parameters[b] + block.size, p_.begin() + block.begin);
     }
-    if (twin_evaluator_ != nullptr) return AnalyticEvaluate(residuals, jacobians);
-    if (!Residuals(p_.data(), residuals)) return false;
-    if (jacobians == nullptr) return true;
-    const int nr = num_residuals();
-    plus_.resize(nr);
-    minus_.resize(nr);
-    for (size_t b = 0; b < blocks_.size(); ++b) {
-      if (jacobians[b] == nullptr) continue;
-      const EffectModel::Block& block = model_.blocks()[blocks_[b]];
-      for (int j = 0; j < block.size; ++j) {
-        const int i = block.begin + j;
-        const double x = p_[i];
-        const double lo = model_.lower()[i], hi = model_.upper()[i];
-        const double h = 1e-5 * std::max(std::fabs(x), 1e-2 * (hi - lo));
-        const bool up = x + h <= hi, down = x - h >= lo;
-        double x_plus = x, x_minus = x;
-        if (up && down) {
-          x_plus = x + h;
-          x_minus = x - h;
-        } else if (up) {
-          x_plus = x + h;
-        } else {
-          x_minus = x - h;
-        }
-        bool ok = true;
-        if (x_plus != x) {
-          p_[i] = x_plus;
-          ok &= Residuals(p_.data(), plus_.data());
-        } else {
-          std::copy(residuals, residuals + nr, plus_.begin());
-        }
-        if (ok && x_minus != x) {
-          p_[i] = x_minus;
-          ok &= Residuals(p_.data(), minus_.data());
-        } else if (ok) {
-          std::copy(residuals, residuals + nr, minus_.begin());
-        }
-        p_[i] = x;
-        if (!ok) return false;
-        const double inv = 1.0 / (x_plus - x_minus);
-        for (int r = 0; r < nr; ++r) {
-          jacobians[b][r * block.size + j] = (plus_[r] - minus_[r]) * inv;
-        }
-      }
-    }
-    return true;
-  }
-
- private:
-  // Residuals and their derivatives from the fit twin's image and analytic Jacobian (the
-  // fit's residual block, map_fit.cc, does the same on theta): dr/dm times d model/d p, and
-  // for the pedestal -dr/dd (it shifts the datum's expectation without shot noise).
-  bool AnalyticEvaluate(double* residuals, double** jacobians) const {
-    const fit::FitModel& twin = *model_.fit_twin();
+    const fit::FitModel& twin = model_.fit_twin();
     theta_.resize(twin.dim());
     model_.TwinTheta(p_.data(), k_, theta_.data());
     std::string why;
@@ -172,30 +123,15 @@ class ExposureCost : public ceres::CostFunction {
     return true;
   }
 
-  bool Residuals(const double* p, double* residuals) const {
-    if (!evaluator_.Render(p, k_, &model_e_, &charge_e_)) return false;
-    const Stamp& s = model_.base().stamps()[k_];
-    const int n = static_cast<int>(pixels_.size());
-    fit::PixelValue v;
-    for (int i = 0; i < n; ++i) {
-      const int q = pixels_[i];
-      EvaluateStampPixel(s, noise_, q, data_[q], model_e_[q], charge_e_[q], true, &v);
-      residuals[i] = v.r[0];
-      residuals[n + i] = v.r[1];
-    }
-    return true;
-  }
-
+ private:
   const EffectModel& model_;
   const int k_;
-  mutable EffectEvaluator evaluator_;
   const std::vector<int> blocks_;
+  std::unique_ptr<fit::FitEvaluator> twin_evaluator_;
   const double* data_;
   std::vector<int> pixels_;
   fit::PixelNoise noise_;
-  mutable std::vector<double> p_, model_e_, charge_e_, plus_, minus_;
-  // The analytic path (EffectModel::fit_twin()).
-  std::unique_ptr<fit::FitEvaluator> twin_evaluator_;
+  mutable std::vector<double> p_, model_e_;
   mutable std::vector<double> theta_, jacobian_;
   mutable std::vector<int> columns_;
   // Where each twin column goes (nowhere for a parameter held at 0).
@@ -341,36 +277,30 @@ std::unique_ptr<EffectModel> EffectModel::Create(const fit::FitModel& base, cons
       return nullptr;
     }
   }
-  // The fit twin: the same stamps and effects in the fit's model, for analytic derivatives
-  // (jitter too, per exposure with the same reference).
-  const bool twin_possible = base.options().model.sampling == model::Sampling::kIntegrated &&
-                             !spec.Has(EffectKind::kDefocusOffset);
-  if (twin_possible) {
-    fit::FitModelOptions twin_options = base.options();
-    twin_options.flux = fit::FluxMode::kShared;  // exposure k's flux goes into flux_e
-    twin_options.effects.clear();
-    for (EffectKind kind : spec.effects) twin_options.effects.push_back({kind, {}});
-    twin_options.jitter_reference = spec.Has(EffectKind::kJitter) ? spec.jitter_reference : -1;
-    // The fit accepts every such spec on stamps it already holds; should it refuse one, the
-    // numeric path below is the model itself, so nothing is lost but speed.
-    std::string why;
-    m->twin_ = fit::FitModel::Create(base.stamps(), twin_options, &why);
-    const int first = m->twin_ != nullptr ? m->twin_->EffectsFirstIndex() : -1;
-    if (first >= 0) {
-      m->twin_effect_to_p_.assign(m->twin_->dim() - first, -1);
-      for (const auto& [kind, begin] : m->effect_begin_) {
-        const int np = static_cast<int>(model::DescribeEffect(kind).parameters.size());
-        for (int j = 0; j < np; ++j) {
-          m->twin_effect_to_p_[m->twin_->EffectIndex(kind) + j - first] = begin + j;
-        }
+  // The fit twin: the same stamps and effects in the fit's model, which draws the images and
+  // their analytic derivatives (jitter per exposure with the same reference).
+  fit::FitModelOptions twin_options = base.options();
+  twin_options.flux = fit::FluxMode::kShared;  // exposure k's flux goes into flux_e
+  twin_options.effects.clear();
+  for (EffectKind kind : spec.effects) twin_options.effects.push_back({kind, {}});
+  twin_options.jitter_reference = spec.Has(EffectKind::kJitter) ? spec.jitter_reference : -1;
+  m->twin_ = fit::FitModel::Create(base.stamps(), twin_options, error);
+  if (m->twin_ == nullptr) return nullptr;
+  const int first = m->twin_->EffectsFirstIndex();
+  if (first >= 0) {
+    m->twin_effect_to_p_.assign(m->twin_->dim() - first, -1);
+    for (const auto& [kind, begin] : m->effect_begin_) {
+      const int np = static_cast<int>(model::DescribeEffect(kind).parameters.size());
+      for (int j = 0; j < np; ++j) {
+        m->twin_effect_to_p_[m->twin_->EffectIndex(kind) + j - first] = begin + j;
       }
-      for (int k = 0; k < n; ++k) {
-        const int v = m->twin_->JitterIndex(k);
-        if (v < 0) continue;
-        CHECK_GE(m->jitter_index_[k], 0) << "the twin's jitter reference differs";
-        m->twin_effect_to_p_[v - first] = m->jitter_index_[k];
-        m->twin_effect_to_p_[v + 1 - first] = m->jitter_index_[k] + 1;
-      }
+    }
+    for (int k = 0; k < n; ++k) {
+      const int v = m->twin_->JitterIndex(k);
+      if (v < 0) continue;
+      CHECK_GE(m->jitter_index_[k], 0) << "the twin's jitter reference differs";
+      m->twin_effect_to_p_[v - first] = m->jitter_index_[k];
+      m->twin_effect_to_p_[v + 1 - first] = m->jitter_index_[k] + 1;
     }
   }
   return m;
@@ -512,25 +442,6 @@ model::SpotParams EffectModel::SpotFor(const double* p, int k) const {
   return base_.SpotFor(theta.data(), k);
 }
 
-model::ExposureEffects EffectModel::EffectsFor(const double* p, int k) const {
-  model::ExposureEffects e;
-  // Unchecked: the fit stays inside the prior box, which lies inside the domain, but numeric
-  // differences and Ceres' line searches need plain arithmetic at its edges.
-  for (const auto& [kind, begin] : effect_begin_) {
-    model::SetEffectParametersUnchecked(kind, p + begin, &e);
-  }
-  if (spec_.Has(EffectKind::kJitter)) {
-    model::JitterParams j{0.0, 0.0, 0.0, 0.0};
-    const int i = jitter_index_[k];
-    if (i >= 0) {
-      j.sigma_x_px = std::sqrt(std::max(p[i], 0.0));
-      j.sigma_y_px = std::sqrt(std::max(p[i + 1], 0.0));
-    }
-    e.jitter = j;
-  }
-  return e;
-}
-
 bool EffectModel::InsideBounds(const double* p) const {
   for (int i = 0; i < dim(); ++i) {
     if (!(p[i] >= lower_[i] && p[i] <= upper_[i])) return false;
@@ -543,61 +454,29 @@ std::unique_ptr<EffectEvaluator> EffectModel::NewEvaluator() const {
 }
 
 EffectEvaluator::EffectEvaluator(const EffectModel& model)
-    : model_(model), renderer_(model.base().options().model) {
-  if (model.fit_twin() != nullptr) twin_evaluator_ = model.fit_twin()->NewEvaluator();
-}
+    : model_(model), twin_evaluator_(model.fit_twin().NewEvaluator()) {}
 
 bool EffectEvaluator::Render(const double* p, int k, std::vector<double>* model_e,
                              std::vector<double>* charge_e) {
-  if (twin_evaluator_ != nullptr) {
-    // The fit's own model image (the residual blocks' too): one drawing of the model.
-    const fit::FitModel& twin = *model_.fit_twin();
-    theta_.resize(twin.dim());
-    model_.TwinTheta(p, k, theta_.data());
-    std::string why;
-    if (!model::ValidSpotParams(renderer_.options(), twin.SpotFor(theta_.data(), k), &why) ||
-        !twin_evaluator_->ModelImage(theta_.data(), k, &twin_image_, nullptr)) {
-      return false;
-    }
-    for (double v : twin_image_) {
-      if (!std::isfinite(v)) return false;
-    }
-    const double pedestal = twin.PedestalAt(theta_.data());
-    if (charge_e != nullptr) {
-      charge_e->resize(twin_image_.size());
-      for (size_t q = 0; q < twin_image_.size(); ++q) (*charge_e)[q] = twin_image_[q] - pedestal;
-    }
-    if (model_e != nullptr) *model_e = twin_image_;
-    return true;
-  }
-  const model::SpotParams sp = model_.SpotFor(p, k);
+  // The fit's own model image (the residual blocks' too): one drawing of the model.
+  const fit::FitModel& twin = model_.fit_twin();
+  theta_.resize(twin.dim());
+  model_.TwinTheta(p, k, theta_.data());
   std::string why;
-  if (!model::ValidSpotParams(renderer_.options(), sp, &why)) return false;
-  const model::ExposureEffects effects = model_.EffectsFor(p, k);
-  const model::PixelGrid grid = model_.base().GridFor(k);
-  charge_buf_.resize(grid.size());
-  const double peak =
-      effects.brighter_fatter ? model::BrighterFatterSignal(renderer_, effects, sp, grid) : 0.0;
-  model::RenderSpotWithKernelEffects(renderer_, effects, sp, grid, peak, charge_buf_.data());
-  double pedestal = 0.0;
-  if (effects.HasImageEffects()) {
-    model::SpotReference spot{sp[model::kFlux], sp[model::kCentreX], sp[model::kCentreY]};
-    if (renderer_.options().sampling == model::Sampling::kPixelCentre) {
-      // m is not a flux: the halo takes its share of the stamp's electrons (as simulate.cc).
-      spot.flux_e = 0.0;
-      for (double v : charge_buf_) spot.flux_e += v;
-    }
-    model::ApplyChargeEffects(effects, grid, spot, charge_buf_.data());
-    if (effects.background) pedestal = effects.background->pedestal_e;
+  if (!model::ValidSpotParams(twin_evaluator_->renderer_options(), twin.SpotFor(theta_.data(), k),
+                              &why) ||
+      !twin_evaluator_->ModelImage(theta_.data(), k, &image_, nullptr)) {
+    return false;
   }
-  for (double v : charge_buf_) {
+  for (double v : image_) {
     if (!std::isfinite(v)) return false;
   }
-  if (model_e != nullptr) {
-    model_e->resize(grid.size());
-    for (int q = 0; q < grid.size(); ++q) (*model_e)[q] = charge_buf_[q] + pedestal;
+  const double pedestal = twin.PedestalAt(theta_.data());
+  if (charge_e != nullptr) {
+    charge_e->resize(image_.size());
+    for (size_t q = 0; q < image_.size(); ++q) (*charge_e)[q] = image_[q] - pedestal;
   }
-  if (charge_e != nullptr) *charge_e = charge_buf_;
+  if (model_e != nullptr) *model_e = image_;
   return true;
 }
 

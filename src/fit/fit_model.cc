@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <numeric>
 #include <sstream>
 
 #include "glog/logging.h"
@@ -49,6 +50,18 @@ std::string ToString(FluxMode mode) {
 bool IsFittableEffect(model::EffectKind kind, std::string* why) {
   *why = model::DescribeEffect(kind).not_fittable;
   return why->empty();
+}
+
+bool EffectsFitInSampling(const FitModelOptions& options, std::string* error) {
+  if (options.HasEffect(model::EffectKind::kDefocusOffset) &&
+      options.model.sampling != model::Sampling::kPixelCentre) {
+    *error = "effect 'defocus_offset' cannot be fitted in " +
+             model::ToString(options.model.sampling) +
+             " sampling: there it is exactly a shift of the spot (the positions absorb it); it "
+             "is a component of the 2015 pixel_centre model only";
+    return false;
+  }
+  return true;
 }
 
 bool FitModelOptions::HasEffect(model::EffectKind kind) const {
@@ -279,10 +292,7 @@ std::unique_ptr<FitModel> FitModel::Create(std::vector<Stamp> stamps,
     }
   }
   m->effect_index_.fill(-1);
-  if (!options.effects.empty() && options.model.sampling != model::Sampling::kIntegrated) {
-    *error = "effects are fitted only with integrated sampling";
-    return nullptr;
-  }
+  if (!EffectsFitInSampling(options, error)) return nullptr;
   for (const FitEffect& e : options.effects) {
     std::string why;
     if (!IsFittableEffect(e.kind, &why)) {
@@ -576,12 +586,19 @@ FitEvaluator::FitEvaluator(const FitModel& model)
     : fit_model_(model), renderer_(model.options().model) {}
 
 int FitEvaluator::RenderWithoutGrowth(const model::SpotParams& spot, const model::PixelGrid& grid,
-                                      bool want) {
+                                      const model::ExposureEffects& effects, bool want) {
   std::string why;
   if (!model::ValidSpotParams(renderer_.options(), spot, &why)) return -1;
   plain_.resize(grid.size());
   if (want) spot_jacobian_.resize(static_cast<size_t>(grid.size()) * model::kNumSpotParams);
-  renderer_.Render(spot, grid, plain_.data(), want ? spot_jacobian_.data() : nullptr);
+  if (effects.defocus_offset) {
+    if (want) plain_offset_jacobian_.resize(2 * static_cast<size_t>(grid.size()));
+    renderer_.RenderWithDefocusOffset(
+        spot, effects.defocus_offset->dx_px, effects.defocus_offset->dy_px, grid, plain_.data(),
+        want ? spot_jacobian_.data() : nullptr, want ? plain_offset_jacobian_.data() : nullptr);
+  } else {
+    renderer_.Render(spot, grid, plain_.data(), want ? spot_jacobian_.data() : nullptr);
+  }
   return static_cast<int>(std::max_element(plain_.begin(), plain_.end()) - plain_.begin());
 }
 
@@ -600,7 +617,7 @@ bool FitEvaluator::KernelWidths(const double* theta, int k, double* sigma_x_px,
     const int sp = axis == 0 ? model::kCcdSigmaX : model::kCcdSigmaY;
     plain[sp] = std::sqrt(plain[sp] * plain[sp] + std::max(theta[jitter + axis], 0.0));
   }
-  const int peak = RenderWithoutGrowth(plain, fm.GridFor(k), false);
+  const int peak = RenderWithoutGrowth(plain, fm.GridFor(k), effects, false);
   if (peak < 0) return false;
   *sigma_x_px += effects.brighter_fatter->slope_x_px_per_e * plain_[peak];
   *sigma_y_px += effects.brighter_fatter->slope_y_px_per_e * plain_[peak];
@@ -631,6 +648,7 @@ bool FitEvaluator::ModelImageColumns(const double* theta, int k, std::vector<dou
   if (focus >= 0) columns->push_back(focus);
   if (ratio >= 0) columns->push_back(ratio);
   const int jitter = fm.JitterIndex(k);
+  const int offset = fm.EffectIndex(model::EffectKind::kDefocusOffset);  // pixel_centre only
   for (const FitEffect& e : fm.options().effects) {
     if (e.kind == model::EffectKind::kJitter) {
       if (jitter >= 0) columns->insert(columns->end(), {jitter, jitter + 1});
@@ -690,7 +708,7 @@ bool FitEvaluator::ModelImageColumns(const double* theta, int k, std::vector<dou
       if (!add_jitter(&plain_spot, &plain_chain_)) return false;
       plain_chain = &plain_chain_;
     }
-    const int peak = RenderWithoutGrowth(plain_spot, grid, want);
+    const int peak = RenderWithoutGrowth(plain_spot, grid, effects, want);
     if (peak < 0) return false;
     const double signal = plain_[peak];
     const model::BrighterFatterParams& bf = *effects.brighter_fatter;
@@ -701,6 +719,11 @@ bool FitEvaluator::ModelImageColumns(const double* theta, int k, std::vector<dou
         for (int c = 0; c < nc; ++c) {
           d_signal[c] += g[p] * (*plain_chain)[static_cast<size_t>(p) * nc + c];
         }
+      }
+      if (offset >= 0) {
+        d_signal[column_of(offset)] += plain_offset_jacobian_[2 * static_cast<size_t>(peak)];
+        d_signal[column_of(offset + 1)] +=
+            plain_offset_jacobian_[2 * static_cast<size_t>(peak) + 1];
       }
       for (int c = 0; c < nc; ++c) {
         chain[static_cast<size_t>(model::kCcdSigmaX) * nc + c] += bf.slope_x_px_per_e * d_signal[c];
@@ -715,7 +738,14 @@ bool FitEvaluator::ModelImageColumns(const double* theta, int k, std::vector<dou
   }
   if (jitter >= 0 && !add_jitter(&spot, &chain)) return false;
   if (!model::ValidSpotParams(renderer_.options(), spot, &why)) return false;
-  renderer_.Render(spot, grid, model->data(), want ? spot_jacobian_.data() : nullptr);
+  if (offset >= 0) {
+    offset_jacobian_.resize(2 * static_cast<size_t>(n));
+    renderer_.RenderWithDefocusOffset(
+        spot, effects.defocus_offset->dx_px, effects.defocus_offset->dy_px, grid, model->data(),
+        want ? spot_jacobian_.data() : nullptr, want ? offset_jacobian_.data() : nullptr);
+  } else {
+    renderer_.Render(spot, grid, model->data(), want ? spot_jacobian_.data() : nullptr);
+  }
 
   // d image / d theta_column = sum_p d image / d spot_p x chain[p][column]; written into
   // the derivative channels of the image effects' dual image, or straight into the
@@ -749,11 +779,23 @@ bool FitEvaluator::ModelImageColumns(const double* theta, int k, std::vector<dou
       double* row = out + static_cast<size_t>(q) * stride;
       for (const Link& l : links_) row[l.column] += g[l.spot_param] * l.value;
     }
+    if (offset >= 0) {  // the offset is no renderer parameter: its own columns
+      const int cx = column_of(offset), cy = column_of(offset + 1);
+      for (int q = 0; q < n; ++q) {
+        double* row = out + static_cast<size_t>(q) * stride;
+        row[cx] += offset_jacobian_[2 * static_cast<size_t>(q)];
+        row[cy] += offset_jacobian_[2 * static_cast<size_t>(q) + 1];
+      }
+    }
   }
   if (!image_effects) return true;
 
-  // The halo's reference: the spot's flux and centre, with their derivatives.
+  // The halo's reference: the spot's flux and centre, with their derivatives. In
+  // pixel_centre sampling the flux parameter is the 2015 peak meta-parameter m, not a flux:
+  // the reference is the stamp's summed charge (as the simulator takes it).
+  const bool peak_flux = renderer_.options().sampling == model::Sampling::kPixelCentre;
   model::SpotReference reference{spot[model::kFlux], spot[model::kCentreX], spot[model::kCentreY]};
+  if (peak_flux) reference.flux_e = std::accumulate(model->begin(), model->end(), 0.0);
   model::SpotReferenceDerivatives reference_d;
   model::EffectChannels channels;
   if (want) {
@@ -762,6 +804,13 @@ bool FitEvaluator::ModelImageColumns(const double* theta, int k, std::vector<dou
                                  chain.begin() + static_cast<size_t>(p + 1) * nc);
     };
     reference_d = {row_of(model::kFlux), row_of(model::kCentreX), row_of(model::kCentreY)};
+    if (peak_flux) {
+      std::fill(reference_d.flux_e.begin(), reference_d.flux_e.end(), 0.0);
+      for (int q = 0; q < n; ++q) {
+        const double* row = out + static_cast<size_t>(q) * stride;
+        for (int c = 0; c < nc; ++c) reference_d.flux_e[c] += row[c];
+      }
+    }
     for (const FitEffect& e : fm.options().effects) {
       if (e.kind == model::EffectKind::kJitter) continue;  // a kernel effect, drawn above
       const int np = fm.EffectSize(e.kind);

@@ -134,7 +134,7 @@ void ConvolveColumnsSame(const std::vector<T>& in, const std::vector<T>& kernel,
 }
 
 template <typename T>
-void RenderTemplated(const T* p, double defocus_dx, double defocus_dy, int nx, int ny,
+void RenderTemplated(const T* p, const T& defocus_dx, const T& defocus_dy, int nx, int ny,
                      std::vector<T>* model) {
   const T& m = p[kFlux];
   const T& x = p[kCentreX];
@@ -183,13 +183,40 @@ void RenderTemplated(const T* p, double defocus_dx, double defocus_dy, int nx, i
   ConvolveColumnsSame(tmp, gy, nx, ny, model);
 }
 
+// The render with derivatives: N = kNumSpotParams, or kNumSpotParams + 2 with the defocus
+// offset's (slots kNumSpotParams and kNumSpotParams + 1). Either output may be null.
+template <int N>
+void RenderWithJets(const model::SpotParams& params, double defocus_dx_px, double defocus_dy_px,
+                    const model::PixelGrid& grid, double* model_out, double* jacobian,
+                    double* offset_jacobian) {
+  using Jet = ceres::Jet<double, N>;
+  Jet p[kNumSpotParams];
+  for (int k = 0; k < kNumSpotParams; ++k) p[k] = Jet(params[k], k);
+  Jet dx(defocus_dx_px), dy(defocus_dy_px);
+  if constexpr (N > kNumSpotParams) {
+    dx = Jet(defocus_dx_px, kNumSpotParams);
+    dy = Jet(defocus_dy_px, kNumSpotParams + 1);
+  }
+  std::vector<Jet> out;
+  RenderTemplated(p, dx, dy, grid.nx, grid.ny, &out);
+  for (int q = 0; q < grid.size(); ++q) {
+    model_out[q] = out[q].a;
+    for (int k = 0; jacobian != nullptr && k < kNumSpotParams; ++k) {
+      jacobian[q * kNumSpotParams + k] = out[q].v[k];
+    }
+    if constexpr (N > kNumSpotParams) {
+      offset_jacobian[2 * q] = out[q].v[kNumSpotParams];
+      offset_jacobian[2 * q + 1] = out[q].v[kNumSpotParams + 1];
+    }
+  }
+}
+
 }  // namespace
 
 void RenderPixelCentre(const model::SpotParams& params, const model::PixelGrid& grid,
                        double* model_out, double* jacobian, double defocus_dx_px,
-                       double defocus_dy_px) {
+                       double defocus_dy_px, double* offset_jacobian) {
   CHECK(grid.x0 == 0.0 && grid.y0 == 0.0) << "pixel_centre sampling works on stamp indices";
-  const int npix = grid.size();
   {
     // The Airy table must reach the farthest pixel: v = pi d / (r / Rz).
     const double x = params[kCentreX], y = params[kCentreY];
@@ -197,20 +224,19 @@ void RenderPixelCentre(const model::SpotParams& params, const model::PixelGrid& 
     const double dy = std::max(std::fabs(y), std::fabs(grid.ny - 1 - y));
     model::EnsureAiryTable(M_PI * std::hypot(dx, dy) * model::kAiryRz / params[kAiryRadius]);
   }
-  if (jacobian == nullptr) {
+  if (jacobian == nullptr && offset_jacobian == nullptr) {
     std::vector<double> out;
     RenderTemplated(params.data(), defocus_dx_px, defocus_dy_px, grid.nx, grid.ny, &out);
     std::copy(out.begin(), out.end(), model_out);
     return;
   }
-  using Jet = ceres::Jet<double, kNumSpotParams>;
-  Jet p[kNumSpotParams];
-  for (int k = 0; k < kNumSpotParams; ++k) p[k] = Jet(params[k], k);
-  std::vector<Jet> out;
-  RenderTemplated(p, defocus_dx_px, defocus_dy_px, grid.nx, grid.ny, &out);
-  for (int q = 0; q < npix; ++q) {
-    model_out[q] = out[q].a;
-    for (int k = 0; k < kNumSpotParams; ++k) jacobian[q * kNumSpotParams + k] = out[q].v[k];
+  if (offset_jacobian == nullptr) {
+    RenderWithJets<kNumSpotParams>(params, defocus_dx_px, defocus_dy_px, grid, model_out, jacobian,
+                                   nullptr);
+  } else {
+    // Two more derivative slots: the defocus offset's (F's centre alone).
+    RenderWithJets<kNumSpotParams + 2>(params, defocus_dx_px, defocus_dy_px, grid, model_out,
+                                       jacobian, offset_jacobian);
   }
 }
 

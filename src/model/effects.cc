@@ -230,7 +230,7 @@ std::vector<EffectInfo> MakeCatalogue() {
                 Param("dy_px", "px", offset.dy_px, -0.5, 0.5, -5.0, false, 5.0, false,
                       "defocus-kernel centre minus Airy centre along y", 0.0, false)},
                {{0.0, 0.0}, {0.1, 0.1}, {-0.1, -0.1}},
-               "defocus_offset in integrated sampling is exactly a shift of the spot's position",
+               "",
                [](const ExposureEffects& e) { return e.defocus_offset.has_value(); },
                [](const ExposureEffects& e) {
                  return std::vector<double>{e.defocus_offset->dx_px, e.defocus_offset->dy_px};

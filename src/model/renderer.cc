@@ -1,6 +1,7 @@
 #include "ccdpsf/model/renderer.h"
 
 #include <string>
+#include <vector>
 
 #include "glog/logging.h"
 #include "internal/integrated_renderer.h"
@@ -36,20 +37,30 @@ void SpotRenderer::Render(const SpotParams& params, const PixelGrid& grid, doubl
 }
 
 void SpotRenderer::RenderWithDefocusOffset(const SpotParams& params, double dx_px, double dy_px,
-                                           const PixelGrid& grid, double* model,
-                                           double* jacobian) const {
+                                           const PixelGrid& grid, double* model, double* jacobian,
+                                           double* offset_jacobian) const {
   if (options_.sampling == Sampling::kPixelCentre) {
     std::string error;
     CHECK(ValidSpotParams(options_, params, &error)) << error;
     CHECK_GT(grid.nx, 0);
     CHECK_GT(grid.ny, 0);
-    internal::RenderPixelCentre(params, grid, model, jacobian, dx_px, dy_px);
+    internal::RenderPixelCentre(params, grid, model, jacobian, dx_px, dy_px, offset_jacobian);
     return;
   }
   SpotParams shifted = params;
   shifted[kCentreX] += dx_px;
   shifted[kCentreY] += dy_px;
+  std::vector<double> own;
+  if (offset_jacobian != nullptr && jacobian == nullptr) {
+    own.resize(static_cast<size_t>(grid.size()) * kNumSpotParams);
+    jacobian = own.data();
+  }
   Render(shifted, grid, model, jacobian);
+  // The offset moves the whole (shifted) spot: its derivatives are the centre's.
+  for (int q = 0; offset_jacobian != nullptr && q < grid.size(); ++q) {
+    offset_jacobian[2 * q] = jacobian[static_cast<size_t>(q) * kNumSpotParams + kCentreX];
+    offset_jacobian[2 * q + 1] = jacobian[static_cast<size_t>(q) * kNumSpotParams + kCentreY];
+  }
 }
 
 }  // namespace ccdpsf::model

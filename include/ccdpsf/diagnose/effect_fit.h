@@ -39,14 +39,11 @@
 // on), effect ranges from the catalogue's prior_lower / prior_upper (jitter variance:
 // [0, prior_upper^2]). Bounds are Ceres parameter bounds.
 //
-// Derivatives: where the spec is a model the fit holds (integrated sampling, no
-// defocus_offset), the image and its analytic derivatives come from the fit's own model
-// (fit::FitEvaluator::ModelImageColumns on a fit::FitModel with the same effects and jitter
-// reference: the "fit twin"), so that diagnose and fit draw and differentiate one model.
-// Otherwise (defocus_offset, the 2015 discretisation) they are numeric: central
-// differences of step 1e-5 x max(|p_i|, 1e-2 x prior width), one-sided where a central step
-// would leave the prior box (several effects are not defined, or not meaningful, below their
-// lower bound).
+// Images and derivatives: the fit's own model draws every image and its analytic
+// derivatives (fit::FitEvaluator::ModelImageColumns on a fit::FitModel with the same stamps,
+// sampling, effects and jitter reference: the "fit twin"), in both samplings, so that
+// diagnose and fit draw and differentiate one model. This file holds diagnose's layout of
+// the parameters (a spec without the defocus, per-exposure fluxes) and its multi-start solve.
 #ifndef CCDPSF_DIAGNOSE_EFFECT_FIT_H_
 #define CCDPSF_DIAGNOSE_EFFECT_FIT_H_
 
@@ -131,18 +128,17 @@ class EffectModel {
   // variances, its sigmas squared).
   std::vector<double> DefaultStart(model::EffectKind kind) const;
 
-  // The spot parameters and effects of exposure k at p (effects' jitter from the variances).
+  // The renderer's spot parameters of exposure k at p (before any kernel effect).
   model::SpotParams SpotFor(const double* p, int k) const;
-  model::ExposureEffects EffectsFor(const double* p, int k) const;
   bool InsideBounds(const double* p) const;
 
   std::unique_ptr<EffectEvaluator> NewEvaluator() const;
 
-  // The fit's model of this spec, when it has one (see the top of this file), else null;
-  // theta for exposure k at p in its layout (shared flux: exposure k's own flux; the jitter
-  // variances with the same reference exposure), and for a theta index exposure k depends on,
-  // the p index equal to it (-1: held at 0, the defocus of a spec without it).
-  const fit::FitModel* fit_twin() const { return twin_.get(); }
+  // The fit's model of this spec (see the top of this file); theta for exposure k at p in its
+  // layout (shared flux: exposure k's own flux; the jitter variances with the same reference
+  // exposure), and for a theta index exposure k depends on, the p index equal to it (-1: held
+  // at 0, the defocus of a spec without it).
+  const fit::FitModel& fit_twin() const { return *twin_; }
   void TwinTheta(const double* p, int k, double* theta) const;
   int TwinToP(int theta_index, int k) const;
 
@@ -175,8 +171,8 @@ class EffectEvaluator {
 
   // Expected electrons of exposure k (stamp-sized, row-major) and the charge part of it
   // (the same without the background pedestal; the shot noise follows it). Either may be
-  // null. False (nothing written) if p is outside the renderer's domain. With a fit twin
-  // these are its images (fit::FitEvaluator::ModelImage), else the simulator's functions'.
+  // null. False (nothing written) if p is outside the renderer's domain. The fit twin's
+  // images (fit::FitEvaluator::ModelImage).
   bool Render(const double* p, int k, std::vector<double>* model_e,
               std::vector<double>* charge_e);
 
@@ -188,10 +184,8 @@ class EffectEvaluator {
 
  private:
   const EffectModel& model_;
-  model::SpotRenderer renderer_;
-  std::vector<double> model_buf_, charge_buf_;
-  std::unique_ptr<fit::FitEvaluator> twin_evaluator_;  // with a fit twin: its images
-  std::vector<double> theta_, twin_image_;
+  std::unique_ptr<fit::FitEvaluator> twin_evaluator_;
+  std::vector<double> model_buf_, theta_, image_;
 };
 
 struct EffectFitOptions {
@@ -236,7 +230,7 @@ bool AddLaplace(const EffectModel& model, EffectFitResult* result, std::string* 
                 const std::vector<Image>* data_e = nullptr);
 
 // The Gauss-Newton information matrix (dim x dim, row-major) at p: J^T J of the whitened
-// residuals (r1 and r2), with the residual blocks' derivatives (see the top of this file). Empty
+// residuals (r1 and r2), with the residual blocks' analytic derivatives. Empty
 // when an exposure's residuals cannot be evaluated at p.
 std::vector<double> InformationMatrix(const EffectModel& model, const std::vector<double>& p,
                                       const std::vector<Image>* data_e = nullptr);

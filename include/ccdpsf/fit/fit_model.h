@@ -17,7 +17,11 @@
 // and the flux ratios), named "<effect>.<parameter>" (e.g. "serial_cti.trail_fraction"),
 // in catalogue order. The expected image of exposure k is then the spot rendered with the
 // brighter-fatter widths (CCD widths + slope x the peak pixel of the spot rendered without
-// them), through the image effects of effects.h in their order. Integrated sampling only.
+// them), through the image effects of effects.h in their order. In pixel_centre sampling
+// (the 2015 model, whose flux_e is the peak meta-parameter m) the halo's share is of the
+// stamp's summed charge, as the simulator takes it, and defocus_offset (there not a shift)
+// centres the 2015 F kernel away from the Airy centre, with its derivatives from the
+// renderer (SpotRenderer::RenderWithDefocusOffset).
 //
 // Jitter is the one effect fitted per exposure: a Gaussian blur shared by every exposure is
 // exactly a change of the CCD widths, but one that differs between exposures is not. Its
@@ -115,14 +119,20 @@ struct FitEffect {
 };
 
 // Whether `kind` can be a fit component, with the catalogue's one-line reason when not
-// (EffectInfo::not_fittable): defocus is the model's own component; defocus_offset in integrated
-// sampling is exactly a shift of the position. (Jitter is fitted per exposure: see the top.)
+// (EffectInfo::not_fittable): defocus is the model's own component. (Jitter is fitted per
+// exposure: see the top; defocus_offset only in pixel_centre sampling, as FitModel::Create
+// says: in integrated sampling it is exactly a shift of the position.)
 bool IsFittableEffect(model::EffectKind kind, std::string* why);
+
+struct FitModelOptions;
+// Whether the options' effects can be fitted in their sampling, with a one-line reason when
+// not: defocus_offset only in pixel_centre (FitModel::Create checks it too; the commands
+// check it before any output).
+bool EffectsFitInSampling(const FitModelOptions& options, std::string* error);
 
 // For the compression check of a set (exposure_set.h): "the model fits brighter_fatter"
 // (and/or nonlinearity) when the options fit an effect that changes the core with the
 // signal, else "".
-struct FitModelOptions;
 std::string SignalDependenceModelled(const FitModelOptions& options);
 
 struct FitModelOptions {
@@ -353,9 +363,11 @@ class FitEvaluator {
   // flux. False where a model image cannot be drawn.
   template <typename Visit>
   bool ForEachValidPixel(const double* theta, int first, int last, Visit visit);
-  // Renders the spot without the brighter-fatter growth into plain_ (with its Jacobian in
-  // spot_jacobian_ if want) and returns its brightest pixel's index; -1 if it cannot be drawn.
-  int RenderWithoutGrowth(const model::SpotParams& spot, const model::PixelGrid& grid, bool want);
+  // Renders the spot without the brighter-fatter growth (with effects' defocus offset) into
+  // plain_ (with its Jacobian in spot_jacobian_, and the offset's in plain_offset_jacobian_,
+  // if want) and returns its brightest pixel's index; -1 if it cannot be drawn.
+  int RenderWithoutGrowth(const model::SpotParams& spot, const model::PixelGrid& grid,
+                          const model::ExposureEffects& effects, bool want);
 
   const FitModel& fit_model_;
   model::SpotRenderer renderer_;
@@ -369,6 +381,8 @@ class FitEvaluator {
   std::vector<double> chain_, plain_chain_;  // plain_chain_: the brighter-fatter signal's
   std::vector<Link> links_;
   std::vector<double> plain_;                     // the brighter-fatter signal's render
+  // d image / d (defocus_offset dx, dy), pixels x 2: the image's and plain_'s.
+  std::vector<double> offset_jacobian_, plain_offset_jacobian_;
   model::DualImage dual_;                         // image effects with derivatives
   std::vector<std::vector<double>> unit_models_;  // BestFluxLogLikelihood's renders
 };

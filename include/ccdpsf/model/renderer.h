@@ -38,9 +38,11 @@ class SpotRenderer {
   // (x + dx_px, y + dy_px) (a convolution with a shifted kernel is the shifted convolution),
   // so the Jacobian's centre columns are the derivatives with respect to the shifted centre.
   // pixel_centre: the 2015 F kernel centred there (pixel_centre_renderer.h). Zero offsets give
-  // exactly Render's output.
+  // exactly Render's output. offset_jacobian (may be null) receives d model / d (dx_px, dy_px),
+  // pixels x 2 row-major (integrated: the centre's columns).
   void RenderWithDefocusOffset(const SpotParams& params, double dx_px, double dy_px,
-                               const PixelGrid& grid, double* model, double* jacobian) const;
+                               const PixelGrid& grid, double* model, double* jacobian,
+                               double* offset_jacobian = nullptr) const;
 
  private:
   struct Workspace;
