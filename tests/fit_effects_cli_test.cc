@@ -212,10 +212,11 @@ TEST(FitEffectsCli, DiagnosedJitterIsMeasuredPerExposureByTheFit) {
 // The 2015 (pixel_centre) model with its defocus kernel centred 0.1 px from the Airy centre,
 // on five exposures simulated in that model: diagnose names defocus_offset, its
 // final_fit.json carries it (with the sampling), and `fit --config=` measures the offset
-// with the fit's own model: each of the offset's components and the CCD widths within 4
-// Laplace sd of its truth (measured: dx 0.0977 +- 0.0058, dy -0.0097 +- 0.0060, sigma_x
-// 0.2894 +- 0.0049, sigma_y 0.3351 +- 0.0022), chi^2/dof within its range. (MAP and
-// Laplace: the MCMC mixes slowly here, the offset being tied to every position; docs/trust.md.)
+// with the fit's own model and MCMC: converged, chi^2/dof within its range, and each of the
+// offset's components and the CCD widths inside its 99.7 % interval (four quantities: a 1 %
+// chance of a false failure if the intervals are right; measured: dx 0.098 in [0.079,
+// 0.114], dy -0.010 in [-0.027, 0.008], sigma_x 0.289 in [0.270, 0.301], sigma_y 0.335 in
+// [0.328, 0.341]).
 TEST(FitEffectsCli, DiagnosedDefocusOffsetIsMeasuredByThePixelCentreFit) {
   CCDPSF_RELEASE_ONLY();
   json exposures = json::array();

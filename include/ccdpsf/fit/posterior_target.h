@@ -40,7 +40,8 @@ namespace ccdpsf::fit {
 struct PosteriorTargetOptions {
   // Integrate the defocus out where the model allows it (see above).
   bool marginal_defocus = true;
-  // Update the positions by conditional moves instead of stretch moves (joint fits only).
+  // Update the positions by conditional moves instead of stretch moves (joint fits without
+  // defocus_offset, which is tied to every position: PosteriorTarget's constructor).
   bool positions_by_conditional = true;
   // Width of the positions' proposal relative to the Laplace conditional: a little wider
   // than the target keeps the independence sampler robust to tails the Gaussian misses.
