@@ -373,13 +373,14 @@ TEST(Diagnose, EffectModelScoresPixelsAsTheFitDoes) {
   EXPECT_LT(plain_base->NewEvaluator()->LogLikelihood(theta.data()), fit_ll - 100.0);
 }
 
-// diagnose's residual blocks take their image and analytic derivatives from the fit's model
-// (EffectModel::fit_twin). Their Gauss-Newton information J^T J must equal that of central
-// differences of the residuals written out here from EffectEvaluator::Render (the simulator's
-// forward model) and the fit's pixel likelihood: the twin draws the same image and maps
-// every derivative to the right parameter (per-exposure fluxes, effects in the spec's order,
-// the pedestal's -dr/dd, jitter variances through the CCD widths; one of them at its bound
-// 0), with and without the defocus component. Steps of 1e-6 of each
+// diagnose's residual blocks and information take their image and analytic derivatives from
+// the fit's model (EffectModel::fit_twin). The information (the fit's: expected for measured
+// pixels, Gauss-Newton for censored and interval ones) must equal that of central differences
+// of the expectations, variances and residuals written out here from EffectEvaluator::Render
+// (the simulator's forward model) and the fit's noise model: the twin draws the same image and
+// maps every derivative to the right parameter (per-exposure fluxes, effects in the spec's
+// order, the pedestal's mean without its variance, jitter variances through the CCD widths;
+// one of them at its bound 0), with and without the defocus component. Steps of 1e-6 of each
 // parameter's scale leave truncation ~1e-12 and rounding ~1e-10 of an entry; 1e-6 of
 // sqrt(I_aa I_bb) is the tolerance.
 TEST(Diagnose, EffectModelDerivativesAreTheFitsAnalyticOnes) {
@@ -419,10 +420,15 @@ TEST(Diagnose, EffectModelDerivativesAreTheFitsAnalyticOnes) {
       ASSERT_EQ(at.size(), v.size());
       for (size_t j = 0; j < v.size(); ++j) p[at[j]] = v[j];
     }
-    // The residuals of every exposure at q, as the fit's pixel likelihood gives them.
-    auto residuals = [&](const std::vector<double>& q) {
+    // What the information is made of at q, every exposure's valid pixels: for a measured
+    // pixel its expectation m and variance (the CCD noise of its charge), whose derivatives
+    // give the expected information dm dm^T / var + dvar dvar^T / (2 var^2); for a censored
+    // or interval pixel its two residuals, whose derivatives give the observed (Gauss-Newton)
+    // information. Laid out as [m..., var..., r...].
+    int num_measured = 0;
+    auto parts = [&](const std::vector<double>& q) {
       auto ev = model->NewEvaluator();
-      std::vector<double> r, m, charge;
+      std::vector<double> mean, var, r, m, charge;
       for (int k = 0; k < model->num_exposures(); ++k) {
         EXPECT_TRUE(ev->Render(q.data(), k, &m, &charge));
         const Stamp& s = stamps[k];
@@ -430,16 +436,25 @@ TEST(Diagnose, EffectModelDerivativesAreTheFitsAnalyticOnes) {
         fit::PixelValue v;
         for (size_t i = 0; i < s.valid.size(); ++i) {
           if (!s.valid[i]) continue;
+          if (s.CensorAt(i) == Censor::kNone && !noise.interval) {
+            mean.push_back(m[i]);
+            var.push_back(noise.ccd.VarianceE2(charge[i]));
+            continue;
+          }
           fit::EvaluatePixelWithPedestal(fit::LikelihoodKind::kGaussian, s.electrons.data[i],
                                          s.CensorAt(i), m[i], m[i] - charge[i], noise, true, &v);
           r.push_back(v.r[0]);
           r.push_back(v.r[1]);
         }
       }
-      return r;
+      num_measured = static_cast<int>(mean.size());
+      mean.insert(mean.end(), var.begin(), var.end());
+      mean.insert(mean.end(), r.begin(), r.end());
+      return mean;
     };
     const int dim = model->dim();
-    const std::vector<double> r0 = residuals(p);
+    const std::vector<double> r0 = parts(p);
+    std::vector<double> variance(r0.begin() + num_measured, r0.begin() + 2 * num_measured);
     std::vector<std::vector<double>> columns(dim);
     for (int i = 0; i < dim; ++i) {
       const double h =
@@ -449,7 +464,7 @@ TEST(Diagnose, EffectModelDerivativesAreTheFitsAnalyticOnes) {
       if (p[i] - h >= model->lower()[i]) {  // central
         a[i] += h;
         b[i] -= h;
-        const std::vector<double> ra = residuals(a), rb = residuals(b);
+        const std::vector<double> ra = parts(a), rb = parts(b);
         for (size_t j = 0; j < r0.size(); ++j) columns[i][j] = (ra[j] - rb[j]) / (2.0 * h);
       } else {
         // At the bound: the one-sided second-order formula, its step 100 times longer (its
@@ -458,7 +473,7 @@ TEST(Diagnose, EffectModelDerivativesAreTheFitsAnalyticOnes) {
         const double h1 = 100.0 * h;
         a[i] += h1;
         b[i] += 2.0 * h1;
-        const std::vector<double> ra = residuals(a), rb = residuals(b);
+        const std::vector<double> ra = parts(a), rb = parts(b);
         for (size_t j = 0; j < r0.size(); ++j) {
           columns[i][j] = (-3.0 * r0[j] + 4.0 * ra[j] - rb[j]) / (2.0 * h1);
         }
@@ -470,7 +485,14 @@ TEST(Diagnose, EffectModelDerivativesAreTheFitsAnalyticOnes) {
     for (int a = 0; a < dim; ++a) {
       for (int b = 0; b < dim; ++b) {
         double numeric = 0.0;
-        for (size_t j = 0; j < columns[a].size(); ++j) numeric += columns[a][j] * columns[b][j];
+        for (size_t j = 0; j < columns[a].size(); ++j) {
+          const int n = num_measured;
+          const double weight = j < static_cast<size_t>(n) ? 1.0 / variance[j]
+                                : j < static_cast<size_t>(2 * n)
+                                    ? 0.5 / std::pow(variance[j - n], 2)
+                                    : 1.0;
+          numeric += weight * columns[a][j] * columns[b][j];
+        }
         const double scale = std::sqrt(info[a * dim + a] * info[b * dim + b]);
         worst = std::max(worst, std::fabs(info[a * dim + b] - numeric) / scale);
       }

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <limits>
 
+#include "ccdpsf/fit/map_fit.h"
 #include "ccdpsf/fit/pixel_likelihood.h"
 #include "ccdpsf/random.h"
 #include "ceres/ceres.h"
@@ -24,122 +25,35 @@ double StampSum(const Stamp& s) {
   return sum;
 }
 
-// Pixel q of stamp s under the fit's pixel likelihood (fit/pixel_likelihood.h: the CCD noise
-// model, censored pixels as bounds, coarse ADC steps as intervals), so that diagnose and fit
-// score a pixel alike: the expectation is charge + pedestal, and the shot noise the charge's
-// (the pedestal is a bias residual).
-void EvaluateStampPixel(const Stamp& s, const fit::PixelNoise& noise, size_t q, double data_e,
-                        double model_e, double charge_e, bool want_residuals,
-                        fit::PixelValue* out) {
-  fit::EvaluatePixelWithPedestal(fit::LikelihoodKind::kGaussian, data_e, s.CensorAt(q), model_e,
-                                 model_e - charge_e, noise, want_residuals, out);
+// The twin's theta indices exposure k depends on: the shared ones, its position, the effects.
+std::vector<int> TwinIndicesOf(const fit::FitModel& twin, int k) {
+  std::vector<int> indices = {fit::FitModel::XIndex(k), fit::FitModel::YIndex(k)};
+  for (int t = 0; t < fit::kNumShared; ++t) indices.push_back(t);
+  const int effects = twin.EffectsFirstIndex();  // -1 without effects
+  for (int t = effects; t >= 0 && t < twin.dim(); ++t) indices.push_back(t);
+  return indices;
 }
 
-// The residual block of exposure k: r1 and r2 per valid pixel (see the header), with the fit
-// twin's analytic derivatives.
-class ExposureCost : public ceres::CostFunction {
- public:
-  ExposureCost(const EffectModel& model, int k, const Image* data)
-      : model_(model),
-        k_(k),
-        blocks_(model.BlocksOf(k)),
-        twin_evaluator_(model.fit_twin().NewEvaluator()) {
-    const Stamp& s = model.base().stamps()[k];
-    data_ = data != nullptr ? data->data.data() : s.electrons.data.data();
-    for (size_t q = 0; q < s.valid.size(); ++q) {
-      if (s.valid[q]) pixels_.push_back(static_cast<int>(q));
+// Where exposure k's residual block (the fit's own, fit/map_fit.h, on the fit twin) reads
+// its parameters in p: each twin theta index the exposure depends on sits at the p index
+// TwinToP gives, in the model's blocks (BlocksOf(k)); the defocus of a spec without it is
+// held at 0.
+fit::ExposureCostLayout ExposureLayout(const EffectModel& model, int k) {
+  const fit::FitModel& twin = model.fit_twin();
+  const std::vector<int> blocks = model.BlocksOf(k);
+  fit::ExposureCostLayout layout;
+  for (int b : blocks) layout.blocks.push_back({model.blocks()[b].begin, model.blocks()[b].size});
+  for (int t : TwinIndicesOf(twin, k)) {
+    const int i = model.TwinToP(t, k);
+    for (size_t b = 0; i >= 0 && b < layout.blocks.size(); ++b) {
+      const int first = layout.blocks[b].first;
+      if (i >= first && i < first + layout.blocks[b].size) {
+        layout.place[t] = {static_cast<int>(b), i - first};
+      }
     }
-    noise_ = fit::StampNoise(s);
-    for (int b : blocks_) mutable_parameter_block_sizes()->push_back(model.blocks()[b].size);
-    set_num_residuals(2 * static_cast<int>(pixels_.size()));
-    p_.assign(model.dim(), 0.0);
-    // Parameters of other exposures are never read for exposure k; give them valid values.
-    for (int i = 0; i < model.dim(); ++i) p_[i] = 0.5 * (model.lower()[i] + model.upper()[i]);
   }
-
-  // Residuals and their derivatives from the fit twin's image and analytic Jacobian (the
-  // fit's residual block, map_fit.cc, does the same on theta): dr/dm times d model/d p, and
-  // for the pedestal -dr/dd (it shifts the datum's expectation without shot noise).
-  bool Evaluate(double const* const* parameters, double* residuals,
-                double** jacobians) const override {
-    for (size_t b = 0; b < blocks_.size(); ++b) {
-      const EffectModel::Block& block = model_.blocks()[blocks_[b]];
-      std::copy(parameters[b], parameters[b] + block.size, p_.begin() + block.begin);
-    }
-    const fit::FitModel& twin = model_.fit_twin();
-    theta_.resize(twin.dim());
-    model_.TwinTheta(p_.data(), k_, theta_.data());
-    std::string why;
-    if (!model::ValidSpotParams(twin_evaluator_->renderer_options(),
-                                twin.SpotFor(theta_.data(), k_), &why)) {
-      return false;
-    }
-    const bool want = jacobians != nullptr;
-    if (!twin_evaluator_->ModelImageColumns(theta_.data(), k_, &model_e_,
-                                            want ? &jacobian_ : nullptr, &columns_)) {
-      return false;
-    }
-    const Stamp& s = model_.base().stamps()[k_];
-    const int n = static_cast<int>(pixels_.size());
-    const int nc = static_cast<int>(columns_.size());
-    const double pedestal = twin.PedestalAt(theta_.data());
-    const int pedestal_index = twin.EffectIndex(EffectKind::kBackground);
-    std::vector<Target>& where = targets_;
-    where.clear();
-    if (want) {
-      for (size_t b = 0; b < blocks_.size(); ++b) {
-        if (jacobians[b] != nullptr) {
-          std::fill_n(jacobians[b], 2 * n * model_.blocks()[blocks_[b]].size, 0.0);
-        }
-      }
-      for (int c = 0; c < nc; ++c) {
-        const int i = model_.TwinToP(columns_[c], k_);
-        for (size_t b = 0; i >= 0 && b < blocks_.size(); ++b) {
-          const EffectModel::Block& block = model_.blocks()[blocks_[b]];
-          if (jacobians[b] != nullptr && i >= block.begin && i < block.begin + block.size) {
-            where.push_back({c, static_cast<int>(b), i - block.begin});
-          }
-        }
-      }
-    }
-    fit::PixelValue v;
-    for (int r = 0; r < n; ++r) {
-      const int q = pixels_[r];
-      fit::EvaluatePixelWithPedestal(fit::LikelihoodKind::kGaussian, data_[q], s.CensorAt(q),
-                                     model_e_[q], pedestal, noise_, true, &v);
-      residuals[r] = v.r[0];
-      residuals[n + r] = v.r[1];
-      if (!want) continue;
-      const double* g = &jacobian_[static_cast<size_t>(q) * nc];
-      for (const Target& t : where) {
-        const int size = model_.blocks()[blocks_[t.block]].size;
-        const bool is_pedestal = columns_[t.column] == pedestal_index;
-        jacobians[t.block][r * size + t.offset] +=
-            v.ResidualDerivative(0, g[t.column], is_pedestal);
-        jacobians[t.block][(n + r) * size + t.offset] +=
-            v.ResidualDerivative(1, g[t.column], is_pedestal);
-      }
-    }
-    return true;
-  }
-
- private:
-  const EffectModel& model_;
-  const int k_;
-  const std::vector<int> blocks_;
-  std::unique_ptr<fit::FitEvaluator> twin_evaluator_;
-  const double* data_;
-  std::vector<int> pixels_;
-  fit::PixelNoise noise_;
-  mutable std::vector<double> p_, model_e_;
-  mutable std::vector<double> theta_, jacobian_;
-  mutable std::vector<int> columns_;
-  // Where each twin column goes (nowhere for a parameter held at 0).
-  struct Target {
-    int column, block, offset;
-  };
-  mutable std::vector<Target> targets_;
-};
+  return layout;
+}
 
 }  // namespace
 
@@ -480,117 +394,59 @@ bool EffectEvaluator::Render(const double* p, int k, std::vector<double>* model_
   return true;
 }
 
-double EffectEvaluator::ExposureLogLikelihood(const double* p, int k) {
-  std::vector<double> charge;
-  if (!Render(p, k, &model_buf_, &charge)) return -INFINITY;
-  const Stamp& s = model_.base().stamps()[k];
-  const fit::PixelNoise noise = fit::StampNoise(s);
-  double ll = 0.0;
-  fit::PixelValue v;
-  for (size_t q = 0; q < s.valid.size(); ++q) {
-    if (!s.valid[q]) continue;
-    EvaluateStampPixel(s, noise, q, s.electrons.data[q], model_buf_[q], charge[q], false, &v);
-    ll += v.log_p;
+bool EffectEvaluator::Score(const double* p, const std::vector<Image>* data_e,
+                            double* log_likelihood, double* chi2) {
+  *log_likelihood = 0.0;
+  *chi2 = 0.0;
+  theta_.resize(model_.fit_twin().dim());
+  for (int k = 0; k < model_.num_exposures(); ++k) {
+    model_.TwinTheta(p, k, theta_.data());
+    double l, c;
+    if (!twin_evaluator_->ExposureScore(theta_.data(), k,
+                                        data_e != nullptr ? &(*data_e)[k] : nullptr, &l, &c)) {
+      *log_likelihood = -INFINITY;
+      *chi2 = INFINITY;
+      return false;
+    }
+    *log_likelihood += l;
+    *chi2 += c;
   }
-  return ll;
+  return true;
 }
 
 double EffectEvaluator::LogLikelihood(const double* p) {
-  double ll = 0.0;
-  for (int k = 0; k < model_.num_exposures(); ++k) ll += ExposureLogLikelihood(p, k);
-  return ll;
+  double log_likelihood, chi2;
+  Score(p, nullptr, &log_likelihood, &chi2);
+  return log_likelihood;
 }
 
 double EffectEvaluator::ChiSquare(const double* p) {
-  double chi2 = 0.0;
-  std::vector<double> charge;
-  fit::PixelValue v;
-  for (int k = 0; k < model_.num_exposures(); ++k) {
-    if (!Render(p, k, &model_buf_, &charge)) return INFINITY;
-    const Stamp& s = model_.base().stamps()[k];
-    const fit::PixelNoise noise = fit::StampNoise(s);
-    for (size_t q = 0; q < s.valid.size(); ++q) {
-      if (!s.valid[q]) continue;
-      EvaluateStampPixel(s, noise, q, s.electrons.data[q], model_buf_[q], charge[q], false, &v);
-      chi2 += v.chi2;
-    }
-  }
+  double log_likelihood, chi2;
+  Score(p, nullptr, &log_likelihood, &chi2);
   return chi2;
 }
 
-namespace {
-
-// log L and chi^2 against `data_e` (or the stamps).
-void Score(const EffectModel& model, const std::vector<double>& p,
-           const std::vector<Image>* data_e, double* log_likelihood, double* chi2) {
-  EffectEvaluator ev(model);
-  std::vector<double> m, c;
-  *log_likelihood = 0.0;
-  *chi2 = 0.0;
-  for (int k = 0; k < model.num_exposures(); ++k) {
-    if (!ev.Render(p.data(), k, &m, &c)) {
-      *log_likelihood = -INFINITY;
-      *chi2 = INFINITY;
-      return;
-    }
-    const Stamp& s = model.base().stamps()[k];
-    const std::vector<double>& d = data_e != nullptr ? (*data_e)[k].data : s.electrons.data;
-    const fit::PixelNoise noise = fit::StampNoise(s);
-    fit::PixelValue v;
-    for (size_t q = 0; q < s.valid.size(); ++q) {
-      if (!s.valid[q]) continue;
-      EvaluateStampPixel(s, noise, q, d[q], m[q], c[q], false, &v);
-      *chi2 += v.chi2;
-      *log_likelihood += v.log_p;
-    }
-  }
-}
-
-}  // namespace
-
+// The twin's Fisher information (fit::FitEvaluator::AddExposureFisherInformation, the fit's
+// own), exposure by exposure at its theta, carried onto p by TwinToP. Empty if an exposure
+// cannot be drawn (one left out would make the Laplace sds silently too wide).
 std::vector<double> InformationMatrix(const EffectModel& model, const std::vector<double>& p,
                                       const std::vector<Image>* data_e) {
-  const int dim = model.dim();
-  std::vector<double> info(static_cast<size_t>(dim) * dim, 0.0);
+  const fit::FitModel& twin = model.fit_twin();
+  const int dim = model.dim(), twin_dim = twin.dim();
+  std::vector<double> info(static_cast<size_t>(dim) * dim, 0.0), theta(twin_dim), fisher;
+  std::unique_ptr<fit::FitEvaluator> ev = twin.NewEvaluator();
   for (int k = 0; k < model.num_exposures(); ++k) {
-    ExposureCost cost(model, k, data_e != nullptr ? &(*data_e)[k] : nullptr);
-    const std::vector<int> blocks = model.BlocksOf(k);
-    std::vector<const double*> params;
-    std::vector<std::vector<double>> jac(blocks.size());
-    std::vector<double*> jac_ptrs;
-    const int nr = cost.num_residuals();
-    for (size_t b = 0; b < blocks.size(); ++b) {
-      const auto& block = model.blocks()[blocks[b]];
-      params.push_back(p.data() + block.begin);
-      jac[b].resize(static_cast<size_t>(nr) * block.size);
-      jac_ptrs.push_back(jac[b].data());
+    model.TwinTheta(p.data(), k, theta.data());
+    fisher.assign(static_cast<size_t>(twin_dim) * twin_dim, 0.0);
+    if (!ev->AddExposureFisherInformation(theta.data(), k,
+                                          data_e != nullptr ? &(*data_e)[k] : nullptr, &fisher)) {
+      return {};
     }
-    std::vector<double> residuals(nr);
-    // An exposure left out would make the Laplace sds silently too wide.
-    if (!cost.Evaluate(params.data(), residuals.data(), jac_ptrs.data())) return {};
-    // Global column index of each local column.
-    std::vector<int> column;
-    std::vector<std::pair<int, int>> local;  // (block, j)
-    for (size_t b = 0; b < blocks.size(); ++b) {
-      const auto& block = model.blocks()[blocks[b]];
-      for (int j = 0; j < block.size; ++j) {
-        column.push_back(block.begin + j);
-        local.push_back({static_cast<int>(b), j});
-      }
-    }
-    const int nc = static_cast<int>(column.size());
-    for (int a = 0; a < nc; ++a) {
-      const auto [ba, ja] = local[a];
-      const int sa = model.blocks()[blocks[ba]].size;
-      for (int c = a; c < nc; ++c) {
-        const auto [bc, jc] = local[c];
-        const int sc = model.blocks()[blocks[bc]].size;
-        double sum = 0.0;
-        for (int r = 0; r < nr; ++r) {
-          sum += jac[ba][static_cast<size_t>(r) * sa + ja] * jac[bc][static_cast<size_t>(r) * sc + jc];
-        }
-        info[static_cast<size_t>(column[a]) * dim + column[c]] += sum;
-        if (column[a] != column[c]) info[static_cast<size_t>(column[c]) * dim + column[a]] += sum;
+    const std::vector<int> indices = TwinIndicesOf(twin, k);
+    for (int a : indices) {
+      for (int b : indices) {
+        const int i = model.TwinToP(a, k), j = model.TwinToP(b, k);
+        if (i >= 0 && j >= 0) info[static_cast<size_t>(i) * dim + j] += fisher[a * twin_dim + b];
       }
     }
   }
@@ -610,42 +466,26 @@ bool FitEffectModel(const EffectModel& model, const std::vector<std::vector<doub
     CHECK_EQ(static_cast<int>(start.size()), model.dim());
     std::vector<double> p = start;
     for (int i = 0; i < model.dim(); ++i) p[i] = std::clamp(p[i], model.lower()[i], model.upper()[i]);
-    ceres::Problem::Options problem_options;
-    problem_options.cost_function_ownership = ceres::TAKE_OWNERSHIP;
-    ceres::Problem problem(problem_options);
-    for (int k = 0; k < model.num_exposures(); ++k) {
-      std::vector<double*> blocks;
-      for (int b : model.BlocksOf(k)) blocks.push_back(p.data() + model.blocks()[b].begin);
-      problem.AddResidualBlock(
-          new ExposureCost(model, k, data_e != nullptr ? &(*data_e)[k] : nullptr), nullptr,
-          blocks);
-    }
-    for (const auto& block : model.blocks()) {
-      for (int j = 0; j < block.size; ++j) {
-        problem.SetParameterLowerBound(p.data() + block.begin, j, model.lower()[block.begin + j]);
-        problem.SetParameterUpperBound(p.data() + block.begin, j, model.upper()[block.begin + j]);
-      }
-    }
-    ceres::Solver::Options solver;
-    solver.linear_solver_type = ceres::DENSE_QR;
-    solver.max_num_iterations = options.max_iterations;
-    solver.function_tolerance = options.function_tolerance;
-    solver.gradient_tolerance = 1e-10;
-    solver.parameter_tolerance = 1e-9;
-    solver.num_threads = options.num_threads;
-    solver.logging_type = ceres::SILENT;
-    ceres::Solver::Summary summary;
-    ceres::Solve(solver, &problem, &summary);
+    std::vector<fit::ExposureCostLayout> layouts;
+    for (int k = 0; k < model.num_exposures(); ++k) layouts.push_back(ExposureLayout(model, k));
+    fit::SolveSettings settings;
+    settings.max_iterations = options.max_iterations;
+    settings.function_tolerance = options.function_tolerance;
+    settings.gradient_tolerance = 1e-10;
+    settings.parameter_tolerance = 1e-9;
+    settings.threads = options.num_threads;
+    const fit::SolveOutcome o = fit::SolveResidualBlocks(model.fit_twin(), layouts, model.lower(),
+                                                         model.upper(), settings, data_e, &p);
     ++result->num_starts;
-    last_message = summary.message;
+    last_message = o.message;
     // A run stopped by the iteration limit still has a usable point: the evidence compares
     // likelihoods, and a better point can only help the model being tested.
-    if (!summary.IsSolutionUsable() || !std::isfinite(summary.final_cost)) continue;
-    if (summary.final_cost < best_cost) {
-      best_cost = summary.final_cost;
+    if (!o.usable) continue;
+    if (o.cost < best_cost) {
+      best_cost = o.cost;
       best = p;
-      best_message = summary.message;
-      best_iterations = static_cast<int>(summary.iterations.size());
+      best_message = o.message;
+      best_iterations = o.iterations;
     }
   }
   if (best.empty()) {
@@ -657,7 +497,7 @@ bool FitEffectModel(const EffectModel& model, const std::vector<std::vector<doub
   result->usable = true;
   result->iterations = best_iterations;
   result->termination = best_message;
-  Score(model, best, data_e, &result->log_likelihood, &result->chi2);
+  EffectEvaluator(model).Score(best.data(), data_e, &result->log_likelihood, &result->chi2);
   // Censored pixels are bounds: they add no chi^2 and no degree of freedom (as in a fit).
   result->num_pixels = model.base().NumMeasuredPixels();
   result->dof = result->num_pixels - model.dim();

@@ -976,15 +976,37 @@ double FitEvaluator::LeastSquaresFlux(const double* theta) {
 }
 
 double FitEvaluator::ChiSquare(const double* theta) {
-  double chi2 = 0.0;
+  double chi2 = 0.0, log_likelihood, exposure_chi2;
+  for (int k = 0; k < fit_model_.num_exposures(); ++k) {
+    if (!ExposureScore(theta, k, nullptr, &log_likelihood, &exposure_chi2)) return NAN;
+    chi2 += exposure_chi2;
+  }
+  return chi2;
+}
+
+bool FitEvaluator::ExposureScore(const double* theta, int k, const Image* data_e,
+                                 double* log_likelihood, double* chi2) {
+  *log_likelihood = 0.0;
+  *chi2 = 0.0;
+  std::string why;
+  if (!model::ValidSpotParams(renderer_options(), fit_model_.SpotFor(theta, k), &why) ||
+      !ModelImage(theta, k, &pixels_, nullptr)) {
+    return false;
+  }
+  const Stamp& s = fit_model_.stamps()[k];
+  const std::vector<double>& data = data_e != nullptr ? data_e->data : s.electrons.data;
+  const PixelNoise noise = StampNoise(s);
+  const double pedestal = fit_model_.PedestalAt(theta);
   PixelValue v;
-  const bool drawn = ForEachValidPixel(
-      theta, 0, fit_model_.num_exposures(),
-      [&](double data_e, Censor censor, double model_e, const PixelNoise& noise) {
-        EvaluatePixel(LikelihoodKind::kGaussian, data_e, censor, model_e, noise, false, &v);
-        chi2 += v.chi2;
-      });
-  return drawn ? chi2 : NAN;
+  for (size_t q = 0; q < pixels_.size(); ++q) {
+    if (!std::isfinite(pixels_[q])) return false;
+    if (!s.valid[q]) continue;
+    EvaluatePixelWithPedestal(LikelihoodKind::kGaussian, data[q], s.CensorAt(q), pixels_[q],
+                              pedestal, noise, false, &v);
+    *log_likelihood += v.log_p;
+    *chi2 += v.chi2;
+  }
+  return true;
 }
 
 int FitEvaluator::CensoredViolations(const double* theta, double sd, double* worst_sd) {
@@ -1005,6 +1027,17 @@ int FitEvaluator::CensoredViolations(const double* theta, double sd, double* wor
 std::vector<double> FitEvaluator::FisherInformation(const double* theta) {
   const int dim = fit_model_.dim();
   std::vector<double> fisher(static_cast<size_t>(dim) * dim, 0.0);
+  for (int k = 0; k < fit_model_.num_exposures(); ++k) {
+    if (!AddExposureFisherInformation(theta, k, nullptr, &fisher)) {
+      return std::vector<double>(static_cast<size_t>(dim) * dim, NAN);
+    }
+  }
+  return fisher;
+}
+
+bool FitEvaluator::AddExposureFisherInformation(const double* theta, int k, const Image* data_e,
+                                                std::vector<double>* fisher) {
+  const int dim = fit_model_.dim();
   std::vector<double> jac, mean_d(dim), var_d(dim), r0_d(dim), r1_d(dim);
   PixelValue v;
   // The pedestal moves the mean but not the variance (it has no shot noise).
@@ -1013,46 +1046,43 @@ std::vector<double> FitEvaluator::FisherInformation(const double* theta) {
   auto add_outer = [&](const std::vector<double>& u, const std::vector<double>& w, double scale) {
     for (int a = 0; a < dim; ++a) {
       if (u[a] == 0.0) continue;
-      for (int b = 0; b < dim; ++b) fisher[a * dim + b] += scale * u[a] * w[b];
+      for (int b = 0; b < dim; ++b) (*fisher)[a * dim + b] += scale * u[a] * w[b];
     }
   };
-  for (int k = 0; k < fit_model_.num_exposures(); ++k) {
-    const Stamp& s = fit_model_.stamps()[k];
-    const PixelNoise noise = StampNoise(s);
-    if (!ModelImage(theta, k, &pixels_, &jac)) {
-      return std::vector<double>(static_cast<size_t>(dim) * dim, NAN);
-    }
-    for (size_t q = 0; q < pixels_.size(); ++q) {
-      if (!s.valid[q]) continue;
-      const double* g = &jac[q * dim];
-      const double charge = pixels_[q] - pedestal;
-      if (s.CensorAt(q) == Censor::kNone && !noise.interval) {
-        const double var = noise.ccd.VarianceE2(charge);
-        // g = dm/dtheta; dvar/dtheta = d charge/dtheta where the charge is positive
-        // (VarianceE2 clamps at 0).
-        for (int a = 0; a < dim; ++a) {
-          mean_d[a] = g[a];
-          var_d[a] = charge > 0 ? g[a] - (a == pedestal_index ? 1.0 : 0.0) : 0.0;
-        }
-        add_outer(mean_d, mean_d, 1.0 / var);
-        add_outer(var_d, var_d, 0.5 / (var * var));
-      } else {
-        // Interval and censored pixels: the Gauss-Newton information of their residuals
-        // (observed, not expected: a censored pixel informs only where the model nears
-        // its level), dr/dtheta = dr/dm d charge/dtheta - dr/dd d pedestal/dtheta.
-        EvaluatePixelWithPedestal(LikelihoodKind::kGaussian, s.electrons.data[q], s.CensorAt(q),
-                                  pixels_[q], pedestal, noise, true, &v);
-        for (int a = 0; a < dim; ++a) {
-          const double e = a == pedestal_index ? 1.0 : 0.0;
-          r0_d[a] = v.dr_dm[0] * (g[a] - e) - v.dr_dd[0] * e;
-          r1_d[a] = v.dr_dm[1] * (g[a] - e) - v.dr_dd[1] * e;
-        }
-        add_outer(r0_d, r0_d, 1.0);
-        add_outer(r1_d, r1_d, 1.0);
+  const Stamp& s = fit_model_.stamps()[k];
+  const std::vector<double>& data = data_e != nullptr ? data_e->data : s.electrons.data;
+  const PixelNoise noise = StampNoise(s);
+  if (!ModelImage(theta, k, &pixels_, &jac)) return false;
+  for (size_t q = 0; q < pixels_.size(); ++q) {
+    if (!s.valid[q]) continue;
+    const double* g = &jac[q * dim];
+    const double charge = pixels_[q] - pedestal;
+    if (s.CensorAt(q) == Censor::kNone && !noise.interval) {
+      const double var = noise.ccd.VarianceE2(charge);
+      // g = dm/dtheta; dvar/dtheta = d charge/dtheta where the charge is positive
+      // (VarianceE2 clamps at 0).
+      for (int a = 0; a < dim; ++a) {
+        mean_d[a] = g[a];
+        var_d[a] = charge > 0 ? g[a] - (a == pedestal_index ? 1.0 : 0.0) : 0.0;
       }
+      add_outer(mean_d, mean_d, 1.0 / var);
+      add_outer(var_d, var_d, 0.5 / (var * var));
+    } else {
+      // Interval and censored pixels: the Gauss-Newton information of their residuals
+      // (observed, not expected: a censored pixel informs only where the model nears its
+      // level), dr/dtheta = dr/dm d charge/dtheta - dr/dd d pedestal/dtheta.
+      EvaluatePixelWithPedestal(LikelihoodKind::kGaussian, data[q], s.CensorAt(q), pixels_[q],
+                                pedestal, noise, true, &v);
+      for (int a = 0; a < dim; ++a) {
+        const double e = a == pedestal_index ? 1.0 : 0.0;
+        r0_d[a] = v.dr_dm[0] * (g[a] - e) - v.dr_dd[0] * e;
+        r1_d[a] = v.dr_dm[1] * (g[a] - e) - v.dr_dd[1] * e;
+      }
+      add_outer(r0_d, r0_d, 1.0);
+      add_outer(r1_d, r1_d, 1.0);
     }
   }
-  return fisher;
+  return true;
 }
 
 }  // namespace ccdpsf::fit

@@ -15,37 +15,29 @@ namespace ccdpsf::fit {
 namespace {
 
 // The residuals of exposure k (pixel_likelihood.h: two per valid pixel) against the parameter
-// blocks it depends on: the 5 shared, its position, then (when present) best focus, its flux
-// ratio and the effects' parameters (one block, in theta order). The model image and its
-// derivatives come from FitEvaluator::ModelImageColumns, the one place a model is drawn.
+// blocks of a layout (ExposureCostLayout). The model image and its derivatives come from
+// FitEvaluator::ModelImageColumns, the one place a model is drawn.
 class ExposureCost : public ceres::CostFunction {
  public:
-  ExposureCost(const FitModel& model, int k)
-      : model_(model), k_(k), evaluator_(model.NewEvaluator()) {
+  ExposureCost(const FitModel& model, int k, ExposureCostLayout layout, const Image* data_e)
+      : model_(model), k_(k), layout_(std::move(layout)), evaluator_(model.NewEvaluator()) {
     const Stamp& s = model.stamps()[k];
+    data_ = data_e != nullptr ? data_e->data.data() : s.electrons.data.data();
     for (size_t q = 0; q < s.valid.size(); ++q) {
       if (s.valid[q]) pixels_.push_back(static_cast<int>(q));
     }
     noise_ = StampNoise(s);
-    // Block and offset of each theta index this exposure depends on.
-    auto add_block = [&](int first, int size) {
-      const int block = static_cast<int>(parameter_block_sizes().size());
-      mutable_parameter_block_sizes()->push_back(size);
-      for (int i = 0; i < size; ++i) place_[first + i] = {block, i, size};
-    };
-    add_block(0, kNumShared);
-    add_block(FitModel::XIndex(k), 2);
-    if (model.through_focus()) add_block(model.FocusIndex(), 1);
-    if (model.RatioIndex(k) >= 0) add_block(model.RatioIndex(k), 1);
-    const int effects = model.EffectsFirstIndex();
-    if (effects >= 0) add_block(effects, model.dim() - effects);
+    for (const auto& block : layout_.blocks) mutable_parameter_block_sizes()->push_back(block.size);
     set_num_residuals(2 * static_cast<int>(pixels_.size()));
   }
 
   bool Evaluate(double const* const* parameters, double* residuals,
                 double** jacobians) const override {
-    std::vector<double> theta(model_.dim(), 0.0);
-    for (const auto& [index, where] : place_) theta[index] = parameters[where.block][where.offset];
+    std::vector<double>& theta = theta_;
+    theta.assign(model_.dim(), 0.0);
+    for (const auto& [index, where] : layout_.place) {
+      theta[index] = parameters[where.block][where.offset];
+    }
     const bool want_jacobian = jacobians != nullptr;
     // Ceres may probe outside the bounds during a line search; a point the renderer cannot
     // draw is reported as a failed evaluation, never a crash.
@@ -66,8 +58,12 @@ class ExposureCost : public ceres::CostFunction {
         }
       }
     }
-    std::vector<Place> column_place(nc);
-    for (int c = 0; c < nc; ++c) column_place[c] = place_.at(columns_[c]);
+    // Each column's place (block -1: a theta index held fixed, whose derivative goes nowhere).
+    std::vector<ExposureCostLayout::Place> column_place(nc, {-1, 0});
+    for (int c = 0; c < nc; ++c) {
+      const auto it = layout_.place.find(columns_[c]);
+      if (it != layout_.place.end()) column_place[c] = it->second;
+    }
     // The pedestal has no shot noise (pixel_likelihood.h, EvaluatePixelWithPedestal): its
     // column is -dr/dd, the others dr/dm times the derivative of the charge (the model less
     // the pedestal, which depends on no other parameter).
@@ -76,35 +72,34 @@ class ExposureCost : public ceres::CostFunction {
     PixelValue v;
     for (int i = 0; i < n; ++i) {
       const int q = pixels_[i];
-      EvaluatePixelWithPedestal(LikelihoodKind::kGaussian, s.electrons.data[q], s.CensorAt(q),
+      EvaluatePixelWithPedestal(LikelihoodKind::kGaussian, data_[q], s.CensorAt(q),
                                 model_pixels_[q], pedestal, noise_, true, &v);
       residuals[i] = v.r[0];
       residuals[n + i] = v.r[1];
       if (!want_jacobian) continue;
       const double* g = &jacobian_[static_cast<size_t>(q) * nc];
       for (int c = 0; c < nc; ++c) {
-        const Place& where = column_place[c];
+        const ExposureCostLayout::Place& where = column_place[c];
+        if (where.block < 0 || jacobians[where.block] == nullptr) continue;
         double* block = jacobians[where.block];
-        if (block == nullptr) continue;
+        const int size = layout_.blocks[where.block].size;
         const bool is_pedestal = columns_[c] == pedestal_index;
-        block[i * where.size + where.offset] = v.ResidualDerivative(0, g[c], is_pedestal);
-        block[(n + i) * where.size + where.offset] = v.ResidualDerivative(1, g[c], is_pedestal);
+        block[i * size + where.offset] = v.ResidualDerivative(0, g[c], is_pedestal);
+        block[(n + i) * size + where.offset] = v.ResidualDerivative(1, g[c], is_pedestal);
       }
     }
     return true;
   }
 
  private:
-  struct Place {
-    int block, offset, size;
-  };
   const FitModel& model_;
   const int k_;
+  ExposureCostLayout layout_;
   std::unique_ptr<FitEvaluator> evaluator_;
+  const double* data_;
   PixelNoise noise_;
-  std::map<int, Place> place_;  // theta index -> its parameter block
-  std::vector<int> pixels_;     // valid pixel indices
-  mutable std::vector<double> model_pixels_, jacobian_;
+  std::vector<int> pixels_;  // valid pixel indices
+  mutable std::vector<double> theta_, model_pixels_, jacobian_;
   mutable std::vector<int> columns_;
 };
 
@@ -117,57 +112,21 @@ struct StartOutcome {
 };
 
 StartOutcome Solve(const FitModel& model, std::vector<double> theta, const MapOptions& options) {
-  ceres::Problem::Options problem_options;
-  problem_options.cost_function_ownership = ceres::TAKE_OWNERSHIP;
-  ceres::Problem problem(problem_options);
-  double* shared = theta.data();
-  const int f = model.FocusIndex();
-  double* focus = f >= 0 ? theta.data() + f : nullptr;
-  for (int k = 0; k < model.num_exposures(); ++k) {
-    std::vector<double*> blocks = {shared, theta.data() + FitModel::XIndex(k)};
-    if (focus != nullptr) blocks.push_back(focus);
-    if (model.RatioIndex(k) >= 0) blocks.push_back(theta.data() + model.RatioIndex(k));
-    if (model.EffectsFirstIndex() >= 0) blocks.push_back(theta.data() + model.EffectsFirstIndex());
-    problem.AddResidualBlock(NewExposureCost(model, k), nullptr, blocks);
-  }
-  for (int i = 0; i < kNumShared; ++i) {
-    problem.SetParameterLowerBound(shared, i, model.lower()[i]);
-    problem.SetParameterUpperBound(shared, i, model.upper()[i]);
-  }
-  // The single-value blocks (best focus and the flux ratios) and the effects' block.
-  const int effects = model.EffectsFirstIndex();
-  for (int i = kNumShared + 2 * model.num_exposures(); i < model.dim(); ++i) {
-    double* block = effects >= 0 && i >= effects ? theta.data() + effects : theta.data() + i;
-    const int offset = effects >= 0 && i >= effects ? i - effects : 0;
-    problem.SetParameterLowerBound(block, offset, model.lower()[i]);
-    problem.SetParameterUpperBound(block, offset, model.upper()[i]);
-  }
-  for (int k = 0; k < model.num_exposures(); ++k) {
-    double* position = theta.data() + FitModel::XIndex(k);
-    for (int j = 0; j < 2; ++j) {
-      problem.SetParameterLowerBound(position, j, model.lower()[FitModel::XIndex(k) + j]);
-      problem.SetParameterUpperBound(position, j, model.upper()[FitModel::XIndex(k) + j]);
-    }
-  }
-  ceres::Solver::Options solver;
-  solver.linear_solver_type = ceres::DENSE_QR;
-  solver.max_num_iterations = options.max_iterations;
-  solver.function_tolerance = 1e-12;
-  solver.gradient_tolerance = 1e-12;
-  solver.parameter_tolerance = 1e-10;
-  solver.num_threads = options.solver_threads;
-  solver.logging_type = ceres::SILENT;
-  ceres::Solver::Summary summary;
-  ceres::Solve(solver, &problem, &summary);
+  std::vector<ExposureCostLayout> layouts;
+  for (int k = 0; k < model.num_exposures(); ++k)
+    layouts.push_back(FitExposureCostLayout(model, k));
+  SolveSettings settings;
+  settings.max_iterations = options.max_iterations;
+  settings.threads = options.solver_threads;
+  const SolveOutcome o =
+      SolveResidualBlocks(model, layouts, model.lower(), model.upper(), settings, nullptr, &theta);
   StartOutcome out;
   out.theta = theta;
-  out.cost = summary.final_cost;
-  // Ceres calls a run that hit the iteration limit "usable"; it has not converged, so it
-  // does not count as a MAP point.
-  out.usable = summary.IsSolutionUsable() && summary.termination_type != ceres::NO_CONVERGENCE &&
-               std::isfinite(summary.final_cost);
-  out.iterations = static_cast<int>(summary.iterations.size());
-  out.message = summary.message;
+  out.cost = o.cost;
+  // A run that hit the iteration limit has not converged: it does not count as a MAP point.
+  out.usable = o.usable && o.converged;
+  out.iterations = o.iterations;
+  out.message = o.message;
   return out;
 }
 
@@ -548,8 +507,69 @@ bool RefineMap(const FitModel& model, std::vector<double> start, const MapOption
   return true;
 }
 
+ExposureCostLayout FitExposureCostLayout(const FitModel& model, int k) {
+  ExposureCostLayout layout;
+  auto add_block = [&](int first, int size) {
+    const int block = static_cast<int>(layout.blocks.size());
+    layout.blocks.push_back({first, size});
+    for (int i = 0; i < size; ++i) layout.place[first + i] = {block, i};
+  };
+  add_block(0, kNumShared);
+  add_block(FitModel::XIndex(k), 2);
+  if (model.through_focus()) add_block(model.FocusIndex(), 1);
+  if (model.RatioIndex(k) >= 0) add_block(model.RatioIndex(k), 1);
+  const int effects = model.EffectsFirstIndex();
+  if (effects >= 0) add_block(effects, model.dim() - effects);
+  return layout;
+}
+
+ceres::CostFunction* NewExposureCost(const FitModel& model, int k, ExposureCostLayout layout,
+                                     const Image* data_e) {
+  return new ExposureCost(model, k, std::move(layout), data_e);
+}
+
 ceres::CostFunction* NewExposureCost(const FitModel& model, int k) {
-  return new ExposureCost(model, k);
+  return NewExposureCost(model, k, FitExposureCostLayout(model, k));
+}
+
+SolveOutcome SolveResidualBlocks(const FitModel& model,
+                                 const std::vector<ExposureCostLayout>& layouts,
+                                 const std::vector<double>& lower, const std::vector<double>& upper,
+                                 const SolveSettings& settings, const std::vector<Image>* data_e,
+                                 std::vector<double>* x) {
+  ceres::Problem::Options problem_options;
+  problem_options.cost_function_ownership = ceres::TAKE_OWNERSHIP;
+  ceres::Problem problem(problem_options);
+  for (int k = 0; k < model.num_exposures(); ++k) {
+    std::vector<double*> blocks;
+    for (const auto& block : layouts[k].blocks) blocks.push_back(x->data() + block.first);
+    problem.AddResidualBlock(
+        NewExposureCost(model, k, layouts[k], data_e != nullptr ? &(*data_e)[k] : nullptr), nullptr,
+        blocks);
+    for (const auto& block : layouts[k].blocks) {
+      for (int j = 0; j < block.size; ++j) {
+        problem.SetParameterLowerBound(x->data() + block.first, j, lower[block.first + j]);
+        problem.SetParameterUpperBound(x->data() + block.first, j, upper[block.first + j]);
+      }
+    }
+  }
+  ceres::Solver::Options solver;
+  solver.linear_solver_type = ceres::DENSE_QR;
+  solver.max_num_iterations = settings.max_iterations;
+  solver.function_tolerance = settings.function_tolerance;
+  solver.gradient_tolerance = settings.gradient_tolerance;
+  solver.parameter_tolerance = settings.parameter_tolerance;
+  solver.num_threads = settings.threads;
+  solver.logging_type = ceres::SILENT;
+  ceres::Solver::Summary summary;
+  ceres::Solve(solver, &problem, &summary);
+  SolveOutcome out;
+  out.cost = summary.final_cost;
+  out.usable = summary.IsSolutionUsable() && std::isfinite(summary.final_cost);
+  out.converged = summary.termination_type != ceres::NO_CONVERGENCE;
+  out.iterations = static_cast<int>(summary.iterations.size());
+  out.message = summary.message;
+  return out;
 }
 
 bool FindMap(const FitModel& model, const MapOptions& options, MapResult* result,

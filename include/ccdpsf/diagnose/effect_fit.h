@@ -176,10 +176,12 @@ class EffectEvaluator {
   bool Render(const double* p, int k, std::vector<double>* model_e,
               std::vector<double>* charge_e);
 
-  // Gaussian log-likelihood of all stamps (valid pixels), -infinity outside the domain.
+  // Gaussian log-likelihood and chi^2 (valid pixels; the fit's, fit::FitEvaluator::
+  // ExposureScore) of all stamps, or of `data_e` in their place. False (-infinity, infinity)
+  // outside the renderer's domain.
+  bool Score(const double* p, const std::vector<Image>* data_e, double* log_likelihood,
+             double* chi2);
   double LogLikelihood(const double* p);
-  double ExposureLogLikelihood(const double* p, int k);
-  // Sum over valid pixels of ((D - m) / sigma)^2.
   double ChiSquare(const double* p);
 
  private:
@@ -229,9 +231,9 @@ bool FitEffectModel(const EffectModel& model, const std::vector<std::vector<doub
 bool AddLaplace(const EffectModel& model, EffectFitResult* result, std::string* error,
                 const std::vector<Image>* data_e = nullptr);
 
-// The Gauss-Newton information matrix (dim x dim, row-major) at p: J^T J of the whitened
-// residuals (r1 and r2), with the residual blocks' analytic derivatives. Empty
-// when an exposure's residuals cannot be evaluated at p.
+// The information matrix (dim x dim, row-major) at p: the fit's Fisher information
+// (fit::FitEvaluator::AddExposureFisherInformation, analytic derivatives), censored and
+// interval pixels against data_e (null: the stamps). Empty when an exposure cannot be drawn.
 std::vector<double> InformationMatrix(const EffectModel& model, const std::vector<double>& p,
                                       const std::vector<Image>* data_e = nullptr);
 

@@ -336,8 +336,14 @@ class FitEvaluator {
 
   // Fisher information of theta for the Gaussian likelihood with model-dependent variance:
   // sum over valid pixels of g g^T / var + (1/2) h h^T / var^2, g = dm/dtheta, h = dvar/dtheta
-  // (= g where m > 0). dim x dim, row-major.
+  // (= g where m > 0); censored and interval pixels give the Gauss-Newton information of
+  // their residuals (observed). dim x dim, row-major; NaN where an image cannot be drawn.
   std::vector<double> FisherInformation(const double* theta);
+  // The same for exposure k alone, its censored and interval pixels against `data_e`
+  // (stamp-sized; null: the stamp's data); added into *fisher (dim x dim). False where the
+  // image cannot be drawn.
+  bool AddExposureFisherInformation(const double* theta, int k, const Image* data_e,
+                                    std::vector<double>* fisher);
 
   // The flux that best fits the data (unweighted least squares over valid pixels, every
   // exposure) for the shape and positions in theta; theta[kFluxE] is ignored. The model is
@@ -353,6 +359,11 @@ class FitEvaluator {
   // Sum of squared normalised residuals (chi^2) over the valid measured (not censored)
   // pixels (pixel_likelihood.h).
   double ChiSquare(const double* theta);
+  // Gaussian log-likelihood and chi^2 of exposure k's valid pixels against `data_e`
+  // (stamp-sized; null: the stamp's data). False where theta is outside the renderer's domain
+  // or the image is not finite.
+  bool ExposureScore(const double* theta, int k, const Image* data_e, double* log_likelihood,
+                     double* chi2);
   // Censored pixels whose model lies more than `sd` standard deviations on the wrong side of
   // their level (a saturated pixel the model puts well below saturation), and the worst.
   int CensoredViolations(const double* theta, double sd, double* worst_sd);

@@ -19,6 +19,7 @@
 #ifndef CCDPSF_FIT_MAP_FIT_H_
 #define CCDPSF_FIT_MAP_FIT_H_
 
+#include <map>
 #include <string>
 #include <vector>
 
@@ -101,10 +102,59 @@ bool FindMap(const FitModel& model, const MapOptions& options, MapResult* result
 bool RefineMap(const FitModel& model, std::vector<double> start, const MapOptions& options,
                MapResult* result, std::string* error);
 
-// The residual block of exposure k (parameter blocks: shared[5], position[2], and in
-// through-focus mode best_focus[1]). Exposed for gradient checks; the caller owns the result
-// (or hands it to a ceres::Problem).
+// Where exposure k's residual block reads its parameters: its parameter blocks (each a
+// slice x[first, first + size) of the solver's vector x) and where each theta index the
+// exposure depends on sits in them (block, offset). Theta indices not placed are held at 0
+// and their derivatives go nowhere. The fit's x is theta; diagnose's is its own vector (a
+// baseline without the defocus holds it at 0; its per-exposure fluxes map onto flux_e).
+struct ExposureCostLayout {
+  struct Block {
+    int first, size;
+  };
+  struct Place {
+    int block, offset;
+  };
+  std::vector<Block> blocks;
+  std::map<int, Place> place;
+};
+
+// The fit's layout: shared[5], position[2], then (when present) best_focus[1], the
+// exposure's flux ratio[1] and the effects' parameters (one block, in theta order).
+ExposureCostLayout FitExposureCostLayout(const FitModel& model, int k);
+
+// The residual block of exposure k: the one residual of every fit and of diagnose, against
+// `data_e` (stamp-sized; null: the stamp's own data). The caller owns the result (or hands it
+// to a ceres::Problem).
+ceres::CostFunction* NewExposureCost(const FitModel& model, int k, ExposureCostLayout layout,
+                                     const Image* data_e = nullptr);
+// In the fit's layout, against the stamp.
 ceres::CostFunction* NewExposureCost(const FitModel& model, int k);
+
+// Ceres' stopping rules for a solve (dense QR, silent).
+struct SolveSettings {
+  int max_iterations = 200;
+  double function_tolerance = 1e-12;
+  double gradient_tolerance = 1e-12;
+  double parameter_tolerance = 1e-10;
+  int threads = 1;
+};
+
+struct SolveOutcome {
+  double cost = 0.0;       // half the sum of squared residuals at the end
+  bool usable = false;     // a finite point Ceres calls usable
+  bool converged = false;  // and it did not stop at the iteration limit
+  int iterations = 0;
+  std::string message;
+};
+
+// The one least-squares solve of fit and diagnose: the residual blocks of all exposures
+// (layouts[k], against (*data_e)[k] or the stamps) minimised over *x within [lower, upper];
+// *x holds the start and receives the end point.
+SolveOutcome SolveResidualBlocks(const FitModel& model,
+                                 const std::vector<ExposureCostLayout>& layouts,
+                                 const std::vector<double>& lower, const std::vector<double>& upper,
+                                 const SolveSettings& settings, const std::vector<Image>* data_e,
+                                 std::vector<double>* x);
 
 }  // namespace ccdpsf::fit
 
