@@ -604,10 +604,15 @@ TEST(TrendCli, BrokenGroupsAreReportedAndTheRunGoesOn) {
     if (!g["ok"].get<bool>()) {
       EXPECT_FALSE(g["failure"].get<std::string>().empty());
     }
+    // --nomcmc: no chain ran, so none is called unconverged.
+    EXPECT_FALSE(g["mcmc_ran"].get<bool>());
   }
+  EXPECT_EQ(out.find("MCMC NOT converged"), std::string::npos) << out;
+  EXPECT_NE(out.find("no MCMC (--nomcmc)"), std::string::npos) << out;
   // Each fitted group's report is linked from report.md relative to report.md's folder.
   std::ifstream md_file(dir + "/trend/report.md");
   const std::string md((std::istreambuf_iterator<char>(md_file)), std::istreambuf_iterator<char>());
+  EXPECT_EQ(md.find("MCMC not converged"), std::string::npos);
   int links = 0;
   for (size_t at = md.find("([fit]("); at != std::string::npos; at = md.find("([fit](", at + 1)) {
     const size_t begin = at + 7, end = md.find(')', begin);

@@ -174,12 +174,12 @@ int RunTrend(const std::vector<std::string>& inputs) {
   std::vector<std::string> anchor_notes;
   std::vector<trend::GroupResult> results = trend::FitCampaignGroups(
       groups, fit_options, anchor,
-      [mcmc = fit_options.config.fit.run_mcmc](const trend::GroupResult& r, int done, int total) {
+      [](const trend::GroupResult& r, int done, int total) {
         if (r.ok) {
           std::fprintf(stderr,
                        "[%d/%d] %s: %d exposures, chi2/dof %.3f, %s, verdict %s, %.1f s%s\n", done,
                        total, r.group.name.c_str(), r.exposures, r.chi2_per_dof,
-                       !mcmc         ? "no MCMC (--nomcmc)"
+                       !r.mcmc_ran   ? "no MCMC (--nomcmc)"
                        : r.converged ? "MCMC converged"
                                      : "MCMC NOT converged",
                        r.quality.Verdict().c_str(), r.seconds,

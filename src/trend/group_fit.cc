@@ -112,6 +112,7 @@ GroupResult FitOne(const CampaignGroup& group, int position, int index,
   out.quality = fitted.quality;
   out.notes.insert(out.notes.end(), fitted.notes.begin(), fitted.notes.end());
   out.chi2_per_dof = result.map.chi2 / result.map.dof;
+  out.mcmc_ran = result.have_mcmc;
   out.converged = result.have_mcmc && result.chain.converged;
   for (const Finding& f : fitted.quality.findings) {
     if (f.severity != Severity::kNote) out.warnings.push_back(ToString(f.severity) + ": " + f.message);

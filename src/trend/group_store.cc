@@ -15,7 +15,7 @@ namespace {
 
 using nlohmann::json;
 
-constexpr int kFormat = 3;
+constexpr int kFormat = 4;
 
 uint64_t Fnv1a(const std::string& text) {
   uint64_t h = 1469598103934665603ULL;
@@ -102,6 +102,7 @@ nlohmann::json GroupResultJson(const GroupResult& r) {
             {"warnings", r.warnings},
             {"notes", r.notes},
             {"exposures", r.exposures},
+            {"mcmc_ran", r.mcmc_ran},
             {"converged", r.converged},
             {"chi2_per_dof", Num(r.chi2_per_dof)},
             {"seconds", Num(r.seconds)},
@@ -138,6 +139,7 @@ bool GroupResultFromJson(const nlohmann::json& j, GroupResult* result) {
     r.warnings = j.at("warnings").get<std::vector<std::string>>();
     r.notes = j.at("notes").get<std::vector<std::string>>();
     r.exposures = j.at("exposures").get<int>();
+    r.mcmc_ran = j.at("mcmc_ran").get<bool>();
     r.converged = j.at("converged").get<bool>();
     r.report_dir = j.at("report_dir").get<std::string>();
     r.unbounded_below = j.at("unbounded_below").get<std::vector<std::string>>();

@@ -41,14 +41,14 @@ json GroupJson(const GroupResult& g, const std::string& out_dir) {
             {"warnings", g.warnings},
             {"notes", g.notes},
             {"quality", g.quality.ToJson()},
+            {"mcmc_ran", g.mcmc_ran},
             {"mcmc_converged", g.converged},
             {"chi2_per_dof", Number(g.chi2_per_dof)},
             {"seconds", g.seconds},
-            {"report", g.report_dir.empty()
-                           ? json()
-                           : json(std::filesystem::path(g.report_dir)
-                                      .lexically_relative(out_dir)
-                                      .string())}};
+            {"report",
+             g.report_dir.empty()
+                 ? json()
+                 : json(std::filesystem::path(g.report_dir).lexically_relative(out_dir).string())}};
   j["ccd_widths_identified"] = g.ok ? json(!g.ccd_split_unidentified) : json();
   if (g.group.intensity_series) {
     // intensity_series.h: the member setting of each file.
@@ -576,7 +576,7 @@ bool WriteTrendReport(const std::string& out_dir, const TrendResult& r, const js
       return s == g.summaries.end() ? std::string("n/a") : Interval(s->second);
     };
     std::string status = g.ok ? "verdict " + g.quality.Verdict() +
-                                    (g.converged ? "" : ", MCMC not converged")
+                                    (!g.mcmc_ran || g.converged ? "" : ", MCMC not converged")
                               : "FAILED: " + g.failure;
     if (!g.report_dir.empty()) {
       // Linked relative to report.md's folder, so that the link works wherever the folder is
@@ -644,7 +644,10 @@ bool WriteTrendReport(const std::string& out_dir, const TrendResult& r, const js
          << " | " << metric("ccd_sigma_x_px") << " | " << metric("ccd_sigma_y_px") << " | "
          << metric("brighter_fatter.slope_x_px_per_e") << " | "
          << metric("brighter_fatter.slope_y_px_per_e") << " | " << Fmt(g.chi2_per_dof, 3) << " | "
-         << (g.converged ? "converged" : "NOT converged") << " |\n";
+         << (!g.mcmc_ran   ? "not run"
+             : g.converged ? "converged"
+                           : "NOT converged")
+         << " |\n";
     }
   }
   bool any_warning = false;

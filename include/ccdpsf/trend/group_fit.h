@@ -59,7 +59,8 @@ struct GroupResult {
   std::vector<std::string> warnings;   // e.g. one exposure only, the verdict's reasons
   std::vector<std::string> notes;      // choices made from the data (e.g. the flux model)
   int exposures = 0;
-  bool converged = false;
+  bool mcmc_ran = false;   // false with --nomcmc: `converged` then says nothing
+  bool converged = false;  // the MCMC ran and converged
   double chi2_per_dof = NAN;
   double seconds = 0.0;
   std::string report_dir;              // the group's fit report, if written
