@@ -6,9 +6,7 @@
 #include <limits>
 
 #include "ccdpsf/fit/map_fit.h"
-#include "ccdpsf/fit/pixel_likelihood.h"
 #include "ccdpsf/random.h"
-#include "ceres/ceres.h"
 #include "glog/logging.h"
 
 namespace ccdpsf::diagnose {
@@ -354,13 +352,6 @@ model::SpotParams EffectModel::SpotFor(const double* p, int k) const {
   theta[fit::FitModel::XIndex(k)] = p[XIndex(k)];
   theta[fit::FitModel::YIndex(k)] = p[YIndex(k)];
   return base_.SpotFor(theta.data(), k);
-}
-
-bool EffectModel::InsideBounds(const double* p) const {
-  for (int i = 0; i < dim(); ++i) {
-    if (!(p[i] >= lower_[i] && p[i] <= upper_[i])) return false;
-  }
-  return true;
 }
 
 std::unique_ptr<EffectEvaluator> EffectModel::NewEvaluator() const {

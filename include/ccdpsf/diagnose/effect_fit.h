@@ -42,8 +42,11 @@
 // Images and derivatives: the fit's own model draws every image and its analytic
 // derivatives (fit::FitEvaluator::ModelImageColumns on a fit::FitModel with the same stamps,
 // sampling, effects and jitter reference: the "fit twin"), in both samplings, so that
-// diagnose and fit draw and differentiate one model. This file holds diagnose's layout of
-// the parameters (a spec without the defocus, per-exposure fluxes) and its multi-start solve.
+// diagnose and fit draw and differentiate one model. Its residual blocks, its solve
+// (fit::SolveResidualBlocks), its log-likelihood and chi^2 (fit::FitEvaluator::ExposureScore)
+// and its Laplace information (the fit's Fisher information) are the fit's too. This file
+// holds diagnose's layout of the parameters (a spec without the defocus, per-exposure
+// fluxes) and its multi-start search.
 #ifndef CCDPSF_DIAGNOSE_EFFECT_FIT_H_
 #define CCDPSF_DIAGNOSE_EFFECT_FIT_H_
 
@@ -130,7 +133,6 @@ class EffectModel {
 
   // The renderer's spot parameters of exposure k at p (before any kernel effect).
   model::SpotParams SpotFor(const double* p, int k) const;
-  bool InsideBounds(const double* p) const;
 
   std::unique_ptr<EffectEvaluator> NewEvaluator() const;
 
@@ -195,9 +197,8 @@ struct EffectFitOptions {
   int num_threads = 1;  // Ceres threads (one residual block per exposure)
   // Convergence: Ceres' function tolerance (relative change of the cost).
   double function_tolerance = 1e-10;
-  // The Laplace approximation after the solve (the information matrix J^T J of the residual
-  // blocks, about the cost of an iteration); off for refits that only need the point
-  // (predictive simulations).
+  // The Laplace approximation after the solve (InformationMatrix, about the cost of an
+  // iteration); off for refits that only need the point (predictive simulations).
   bool laplace = true;
 };
 
@@ -211,9 +212,8 @@ struct EffectFitResult {
   int iterations = 0;
   int num_starts = 0;
   std::string termination;
-  // Laplace approximation (fit::ComputeLaplace on the Gauss-Newton information J^T J of the
-  // whitened residuals, prior-scaled): sd NaN along what the data do not constrain; empty
-  // with EffectFitOptions::laplace off.
+  // Laplace approximation (fit::ComputeLaplace on InformationMatrix, prior-scaled): sd NaN
+  // along what the data do not constrain; empty with EffectFitOptions::laplace off.
   fit::LaplaceResult laplace;
   double seconds = 0.0;
 };
