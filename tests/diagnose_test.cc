@@ -37,6 +37,8 @@
 
 #include "ccdpsf/diagnose/diagnose_report.h"
 #include "ccdpsf/fit/fit_model.h"
+#include "ccdpsf/fit/map_fit.h"
+#include "ceres/ceres.h"
 #include "gtest/gtest.h"
 #include "nlohmann/json.hpp"
 #include "support/run_ccdpsf.h"
@@ -498,6 +500,73 @@ TEST(Diagnose, EffectModelDerivativesAreTheFitsAnalyticOnes) {
       }
     }
     EXPECT_LT(worst, 1e-6) << "variant " << variant;
+
+    // The residual blocks diagnose solves with (the fit's, in this model's layout): their
+    // residuals are those of the fit's pixel likelihood written out here from Render (to 1e-9
+    // of the largest: the two paths round alike but sum in another order), and each Jacobian
+    // column is the central difference of those (steps as above; 1e-5 of the column's
+    // largest entry, for the residuals' square roots near 0).
+    for (int k = 0; k < model->num_exposures(); ++k) {
+      auto written_out = [&](const std::vector<double>& q) {
+        std::vector<double> m, charge, r0, r1;
+        EXPECT_TRUE(model->NewEvaluator()->Render(q.data(), k, &m, &charge));
+        const Stamp& s = stamps[k];
+        const fit::PixelNoise noise = fit::StampNoise(s);
+        fit::PixelValue v;
+        for (size_t i = 0; i < s.valid.size(); ++i) {
+          if (!s.valid[i]) continue;
+          fit::EvaluatePixelWithPedestal(fit::LikelihoodKind::kGaussian, s.electrons.data[i],
+                                         s.CensorAt(i), m[i], m[i] - charge[i], noise, true, &v);
+          r0.push_back(v.r[0]);
+          r1.push_back(v.r[1]);
+        }
+        r0.insert(r0.end(), r1.begin(), r1.end());
+        return r0;
+      };
+      const fit::ExposureCostLayout layout = model->ExposureLayout(k);
+      std::unique_ptr<ceres::CostFunction> cost(fit::NewExposureCost(model->fit_twin(), k, layout));
+      const int nr = cost->num_residuals();
+      std::vector<const double*> blocks;
+      std::vector<std::vector<double>> jac;
+      std::vector<double*> jac_ptrs;
+      for (const auto& block : layout.blocks) {
+        blocks.push_back(p.data() + block.first);
+        jac.emplace_back(static_cast<size_t>(nr) * block.size);
+      }
+      for (auto& j : jac) jac_ptrs.push_back(j.data());
+      std::vector<double> r(nr);
+      ASSERT_TRUE(cost->Evaluate(blocks.data(), r.data(), jac_ptrs.data()));
+      const std::vector<double> expected = written_out(p);
+      ASSERT_EQ(expected.size(), r.size());
+      double largest = 0.0, value_error = 0.0;
+      for (int j = 0; j < nr; ++j) {
+        largest = std::max(largest, std::fabs(expected[j]));
+        value_error = std::max(value_error, std::fabs(r[j] - expected[j]));
+      }
+      EXPECT_LT(value_error, 1e-9 * largest) << "variant " << variant << " exposure " << k;
+      for (size_t b = 0; b < layout.blocks.size(); ++b) {
+        for (int c = 0; c < layout.blocks[b].size; ++c) {
+          const int i = layout.blocks[b].first + c;
+          const double h =
+              1e-6 * std::max(std::fabs(p[i]), 1e-3 * (model->upper()[i] - model->lower()[i]));
+          std::vector<double> plus = p, minus = p;
+          plus[i] += p[i] - h >= model->lower()[i] ? h : 2.0 * h;
+          minus[i] -= p[i] - h >= model->lower()[i] ? h : 0.0;
+          const std::vector<double> ra = written_out(plus), rb = written_out(minus);
+          const double step = plus[i] - minus[i];
+          double column_max = 0.0, error = 0.0;
+          for (int j = 0; j < nr; ++j) {
+            const double numeric = (ra[j] - rb[j]) / step;
+            column_max = std::max(column_max, std::fabs(numeric));
+            error = std::max(
+                error,
+                std::fabs(jac[b][static_cast<size_t>(j) * layout.blocks[b].size + c] - numeric));
+          }
+          EXPECT_LE(error, 1e-5 * column_max + 1e-12)
+              << model->names()[i] << " variant " << variant << " exposure " << k;
+        }
+      }
+    }
   }
 }
 

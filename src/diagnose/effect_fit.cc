@@ -32,27 +32,6 @@ std::vector<int> TwinIndicesOf(const fit::FitModel& twin, int k) {
   return indices;
 }
 
-// Where exposure k's residual block (the fit's own, fit/map_fit.h, on the fit twin) reads
-// its parameters in p: each twin theta index the exposure depends on sits at the p index
-// TwinToP gives, in the model's blocks (BlocksOf(k)); the defocus of a spec without it is
-// held at 0.
-fit::ExposureCostLayout ExposureLayout(const EffectModel& model, int k) {
-  const fit::FitModel& twin = model.fit_twin();
-  const std::vector<int> blocks = model.BlocksOf(k);
-  fit::ExposureCostLayout layout;
-  for (int b : blocks) layout.blocks.push_back({model.blocks()[b].begin, model.blocks()[b].size});
-  for (int t : TwinIndicesOf(twin, k)) {
-    const int i = model.TwinToP(t, k);
-    for (size_t b = 0; i >= 0 && b < layout.blocks.size(); ++b) {
-      const int first = layout.blocks[b].first;
-      if (i >= first && i < first + layout.blocks[b].size) {
-        layout.place[t] = {static_cast<int>(b), i - first};
-      }
-    }
-  }
-  return layout;
-}
-
 }  // namespace
 
 std::string ToString(FluxMode mode) {
@@ -248,6 +227,23 @@ int EffectModel::TwinToP(int theta_index, int k) const {
     i = twin_effect_to_p_[theta_index - first];
   }
   return i;
+}
+
+fit::ExposureCostLayout EffectModel::ExposureLayout(int k) const {
+  const fit::FitModel& twin = *twin_;
+  const std::vector<int> blocks = BlocksOf(k);
+  fit::ExposureCostLayout layout;
+  for (int b : blocks) layout.blocks.push_back({blocks_[b].begin, blocks_[b].size});
+  for (int t : TwinIndicesOf(twin, k)) {
+    const int i = TwinToP(t, k);
+    for (size_t b = 0; i >= 0 && b < layout.blocks.size(); ++b) {
+      const int first = layout.blocks[b].first;
+      if (i >= first && i < first + layout.blocks[b].size) {
+        layout.place[t] = {static_cast<int>(b), i - first};
+      }
+    }
+  }
+  return layout;
 }
 
 int EffectModel::FluxIndex(int k) const {
@@ -458,7 +454,7 @@ bool FitEffectModel(const EffectModel& model, const std::vector<std::vector<doub
     std::vector<double> p = start;
     for (int i = 0; i < model.dim(); ++i) p[i] = std::clamp(p[i], model.lower()[i], model.upper()[i]);
     std::vector<fit::ExposureCostLayout> layouts;
-    for (int k = 0; k < model.num_exposures(); ++k) layouts.push_back(ExposureLayout(model, k));
+    for (int k = 0; k < model.num_exposures(); ++k) layouts.push_back(model.ExposureLayout(k));
     fit::SolveSettings settings;
     settings.max_iterations = options.max_iterations;
     settings.function_tolerance = options.function_tolerance;

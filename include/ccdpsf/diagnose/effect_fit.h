@@ -57,6 +57,7 @@
 
 #include "ccdpsf/fit/fit_model.h"
 #include "ccdpsf/fit/laplace.h"
+#include "ccdpsf/fit/map_fit.h"
 #include "ccdpsf/image.h"
 #include "ccdpsf/model/effects.h"
 
@@ -143,6 +144,10 @@ class EffectModel {
   const fit::FitModel& fit_twin() const { return *twin_; }
   void TwinTheta(const double* p, int k, double* theta) const;
   int TwinToP(int theta_index, int k) const;
+  // Where exposure k's residual block (the fit's own, fit/map_fit.h, on the twin) reads its
+  // parameters in p: each twin theta index the exposure depends on sits at the p index
+  // TwinToP gives, in the blocks BlocksOf(k); the defocus of a spec without it is held at 0.
+  fit::ExposureCostLayout ExposureLayout(int k) const;
 
  private:
   EffectModel(const fit::FitModel& base, const ModelSpec& spec) : base_(base), spec_(spec) {}
