@@ -363,9 +363,19 @@ std::mt19937_64 ExposureEngine(const SimulationConfig& c, int index) {
   return std::mt19937_64(DeriveSeed(c.seed, static_cast<uint64_t>(index)));
 }
 
+double ObservePixelAdu(double charge_e, double pedestal_e, double gain_e_per_adu,
+                       double read_noise_e, double bias_adu, double saturation_adu,
+                       std::mt19937_64& engine) {
+  const double ceiling = std::floor(std::min(saturation_adu, 65535.0));
+  const double photo_e =
+      static_cast<double>(Poisson(std::max(charge_e, 0.0), engine)) + pedestal_e;  // step 5
+  const double read_e = read_noise_e * StandardNormal(engine);                     // step 7
+  const double value = bias_adu + (photo_e + read_e) / gain_e_per_adu;             // steps 6, 8
+  return std::clamp(std::nearbyint(value), 0.0, ceiling);                          // step 9
+}
+
 Image ObserveAdu(const SimulationConfig& c, const Image& expected_e, std::mt19937_64& engine) {
   Image adu(expected_e.nx, expected_e.ny);
-  const double ceiling = std::floor(std::min(c.saturation_adu, 65535.0));
   const double pedestal_e = c.effects.background ? c.effects.background->pedestal_e : 0.0;
   if (pedestal_e != 0.0) {
     CHECK(expected_e.nx == c.FrameNx() && expected_e.ny == c.ny)
@@ -376,11 +386,8 @@ Image ObserveAdu(const SimulationConfig& c, const Image& expected_e, std::mt1993
     const double bg =
         static_cast<int>(q % static_cast<size_t>(expected_e.nx)) >= c.prescan_x ? pedestal_e
                                                                                 : 0.0;
-    const double m = std::max(expected_e.data[q] - bg, 0.0);
-    const double photo_e = static_cast<double>(Poisson(m, engine)) + bg;      // step 5
-    const double read_e = c.read_noise_e * StandardNormal(engine);           // step 7
-    const double value = c.bias_adu + (photo_e + read_e) / c.gain_e_per_adu;  // steps 6, 8
-    adu.data[q] = std::clamp(std::nearbyint(value), 0.0, ceiling);            // step 9
+    adu.data[q] = ObservePixelAdu(expected_e.data[q] - bg, bg, c.gain_e_per_adu, c.read_noise_e,
+                                  c.bias_adu, c.saturation_adu, engine);
   }
   return adu;
 }

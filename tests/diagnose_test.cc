@@ -298,7 +298,9 @@ TEST(Diagnose, EffectModelReproducesTheSimulatorAcrossIntensities) {
   set("ccd_sigma_x_px", c.ccd_sigma_x_px);
   set("ccd_sigma_y_px", c.ccd_sigma_y_px);
   for (int k = 0; k < 3; ++k) {
-    set("flux_e." + std::to_string(k), c.exposures[k].flux_e);
+    if (k == 0) set("flux_e", c.exposures[0].flux_e);
+    if (k > 0)
+      set("flux_ratio_" + std::to_string(k), c.exposures[k].flux_e / c.exposures[0].flux_e);
     set("x_px_" + std::to_string(k), c.exposures[k].x_px);
     set("y_px_" + std::to_string(k), c.exposures[k].y_px);
   }
@@ -362,9 +364,10 @@ TEST(Diagnose, EffectModelScoresPixelsAsTheFitDoes) {
   auto fit_eval = base->NewEvaluator();
   auto effect_eval = model->NewEvaluator();
   const double fit_ll = fit_eval->LogLikelihood(theta.data());
-  const double effect_ll = effect_eval->LogLikelihood(p.data());
+  double effect_ll, effect_chi2;
+  ASSERT_TRUE(effect_eval->Score(p.data(), nullptr, &effect_ll, &effect_chi2));
   EXPECT_NEAR(effect_ll, fit_ll, 1e-9 * std::fabs(fit_ll));
-  EXPECT_NEAR(effect_eval->ChiSquare(p.data()), fit_eval->ChiSquare(theta.data()),
+  EXPECT_NEAR(effect_chi2, fit_eval->ChiSquare(theta.data()),
               1e-9 * fit_eval->ChiSquare(theta.data()));
   // The saturated peak as a measurement would cost far more: the check can fail.
   Stamp as_measured = s;
@@ -884,9 +887,14 @@ TEST(Diagnose, BadInputIsRefused) {
   ModelSpec spec;
   spec.effects = {EffectKind::kJitter};
   EXPECT_EQ(EffectModel::Create(*base, spec, &error), nullptr);
-  EXPECT_NE(error.find("two exposures"), std::string::npos);
+  EXPECT_NE(error.find("two or more exposures"), std::string::npos) << error;
   spec.effects = {EffectKind::kDefocusOffset};
   EXPECT_EQ(EffectModel::Create(*base, spec, &error), nullptr);
+  // Fluxes scaled by exposure time are the fit's option, not a diagnose model.
+  spec.effects.clear();
+  spec.flux = FluxMode::kExptimeScaled;
+  EXPECT_EQ(EffectModel::Create(*base, spec, &error), nullptr);
+  EXPECT_NE(error.find("exposure time"), std::string::npos) << error;
 }
 
 // The CLI: one line and a non-zero exit on bad input, no diagnose.json.

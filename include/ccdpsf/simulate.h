@@ -115,6 +115,12 @@ Image ExpectedElectrons(const SimulationConfig& config, const SimulatedExposure&
 // added back after it.
 Image ObserveAdu(const SimulationConfig& config, const Image& expected_e,
                  std::mt19937_64& engine);
+// The same steps for one pixel: Poisson shot noise on the charge [e-] (the pedestal [e-]
+// added without it), Gaussian read noise [e-], the gain [e-/ADU] and bias [ADU], rounded to a
+// whole ADU and clipped to [0, min(saturation, 65535)]. The stored ADU value.
+double ObservePixelAdu(double charge_e, double pedestal_e, double gain_e_per_adu,
+                       double read_noise_e, double bias_adu, double saturation_adu,
+                       std::mt19937_64& engine);
 
 // The random stream of exposure `index`: independent of the number of exposures.
 std::mt19937_64 ExposureEngine(const SimulationConfig& config, int index);

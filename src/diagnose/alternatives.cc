@@ -44,23 +44,14 @@ bool FitPillbox(const EffectModel& current, const EffectFitResult& current_fit,
   mo.defocus = model::DefocusKind::kPillbox;
   fit::FitModelOptions fo = base.options();
   fo.model = mo;
-  fo.flux = current.spec().flux == FluxMode::kShared ? fit::FluxMode::kShared
-                                                    : fit::FluxMode::kPerExposure;
+  fo.flux = current.spec().flux;
   auto solver_model = fit::FitModel::Create(base.stamps(), fo, error);
   if (!solver_model) return false;
   const std::vector<double>& p = current_fit.p;
   const Shape s = ShapeOf(current, p);
-  const int n = current.num_exposures();
-  std::vector<double> theta(solver_model->dim(), 0.0);
-  theta[fit::kFluxE] = p[current.FluxIndex(0)];
-  theta[fit::kAiryRadiusPx] = s.airy;
-  for (int k = 0; k < n; ++k) {
-    theta[fit::FitModel::XIndex(k)] = p[current.XIndex(k)];
-    theta[fit::FitModel::YIndex(k)] = p[current.YIndex(k)];
-    if (solver_model->per_exposure_flux() && k > 0) {
-      theta[solver_model->RatioIndex(k)] = p[current.FluxIndex(k)] / p[current.FluxIndex(0)];
-    }
-  }
+  // The solver's theta is the twin's without its effects, which come last in theta.
+  std::vector<double> theta = current.TwinTheta(p.data());
+  theta.resize(solver_model->dim());
   // Starts: the disc with the Gaussian's second moment (R^2 / 4 = sigma_f^2), and a disc of
   // 0.6 of that radius with the CCD widths taking the difference (a pillbox's flat top is
   // sharper-edged than a Gaussian, so the split can move either way).
@@ -92,24 +83,13 @@ bool FitPillbox(const EffectModel& current, const EffectFitResult& current_fit,
   out->model = EffectModel::Create(*out->base, current.spec(), error);
   if (!out->model) return false;
   std::vector<double> q = out->model->FromOther(current, p);
-  for (int i : {fit::kAiryRadiusPx, fit::kDefocusPx, fit::kCcdSigmaXPx, fit::kCcdSigmaYPx}) {
-    q[out->model->ShapeIndex(i)] = best.theta[i];
-  }
-  for (int k = 0; k < n; ++k) {
-    q[out->model->XIndex(k)] = best.theta[fit::FitModel::XIndex(k)];
-    q[out->model->YIndex(k)] = best.theta[fit::FitModel::YIndex(k)];
-    const double ratio = solver_model->per_exposure_flux() && k > 0
-                             ? best.theta[solver_model->RatioIndex(k)]
-                             : 1.0;
-    q[out->model->FluxIndex(k)] = best.theta[fit::kFluxE] * ratio;
-  }
+  for (int t = 0; t < solver_model->dim(); ++t) q[out->model->Index(t)] = best.theta[t];
   const int r = out->model->ShapeIndex(fit::kDefocusPx);
   // Scored at the solver's optimum. Only where the pillbox could be adopted (delta BIC below
   // kNonNestedDeltaBic) a few iterations of the EffectModel's own solve follow (the point is
   // already the optimum of the same likelihood), for its Laplace approximation.
-  EffectEvaluator evaluator(*out->model);
-  const double log_l = evaluator.LogLikelihood(q.data());
-  if (!std::isfinite(log_l)) {
+  double log_l, chi2;
+  if (!EffectEvaluator(*out->model).Score(q.data(), nullptr, &log_l, &chi2)) {
     *error = "the pillbox fit ended outside the model's domain";
     return false;
   }
@@ -117,7 +97,7 @@ bool FitPillbox(const EffectModel& current, const EffectFitResult& current_fit,
     out->fit = EffectFitResult();
     out->fit.p = q;
     out->fit.log_likelihood = log_l;
-    out->fit.chi2 = evaluator.ChiSquare(q.data());
+    out->fit.chi2 = chi2;
     out->fit.num_pixels = out->model->NumValidPixels();
     out->fit.dof = out->fit.num_pixels - out->model->dim();
     out->fit.usable = true;
@@ -152,11 +132,8 @@ bool FitResponseWidth(const EffectModel& current, const EffectFitResult& current
   // the pixel, and blurs with variance w^2 / 12 instead of 1 / 12.
   const double w_now = current.base().options().model.pixel_response_width;
   const double collected = (w * w) / (w_now * w_now);
-  for (int k = 0; k < model->num_exposures(); ++k) {
-    const int f = model->FluxIndex(k);
-    q[f] = std::clamp(q[f] / collected, model->lower()[f], model->upper()[f]);
-    if (current.spec().flux == FluxMode::kShared) break;
-  }
+  const int f = model->Index(fit::kFluxE);  // the flux ratios stay
+  q[f] = std::clamp(q[f] / collected, model->lower()[f], model->upper()[f]);
   for (int axis : {fit::kCcdSigmaXPx, fit::kCcdSigmaYPx}) {
     const int i = model->ShapeIndex(axis);
     q[i] = std::clamp(std::sqrt(q[i] * q[i] + (w_now * w_now - w * w) / 12.0), model->lower()[i],

@@ -275,11 +275,11 @@ bool FitBaseline(const fit::FitModel& base, const EffectModel& model, const Diag
       theta[i] = std::clamp(theta[i], base.lower()[i], base.upper()[i]);
     }
     p = model.FromBaseline(theta);
-    for (int k = 0; k < n; ++k) {
-      p[model.FluxIndex(k)] = std::clamp(map.theta[fit::kFluxE] * sums[k] / sums[b],
-                                         model.lower()[model.FluxIndex(k)],
-                                         model.upper()[model.FluxIndex(k)]);
-    }
+    // Exposure 0's flux from the brightest one's by their summed signals (the ratios start
+    // at those of the signals).
+    const int f = model.Index(fit::kFluxE);
+    p[f] =
+        std::clamp(map.theta[fit::kFluxE] * sums[0] / sums[b], model.lower()[f], model.upper()[f]);
   }
   if (!model.spec().defocus) {
     // Without the defocus the CCD widths carry the whole Gaussian width: start from the

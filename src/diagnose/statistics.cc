@@ -78,7 +78,7 @@ std::vector<ExposureResidual> ComputeResiduals(const EffectModel& model,
       if (!s.valid[q]) continue;
       e.normalised.data[q] = (e.data_e.data[q] - m[q]) / std::sqrt(noise.VarianceE2(c[q]));
     }
-    const model::SpotParams sp = model.SpotFor(p.data(), k);
+    const model::SpotParams sp = model.fit_twin().SpotFor(model.TwinTheta(p.data()).data(), k);
     const model::PixelGrid grid = model.base().GridFor(k);
     e.centre_x = sp[model::kCentreX] - grid.x0;
     e.centre_y = sp[model::kCentreY] - grid.y0;

@@ -84,7 +84,7 @@ WidthTrend MeasureWidthTrend(const EffectModel& current, const EffectFitResult& 
     auto m = EffectModel::Create(*single, spec, &error);
     if (!m) continue;
     std::vector<double> q(m->dim(), 0.0);
-    q[m->FluxIndex(0)] = p[current.FluxIndex(k)];
+    q[m->Index(fit::kFluxE)] = current.FluxOf(p, k);
     q[m->ShapeIndex(fit::kAiryRadiusPx)] = p[current.ShapeIndex(fit::kAiryRadiusPx)];
     for (int axis : {fit::kCcdSigmaXPx, fit::kCcdSigmaYPx}) {
       q[m->ShapeIndex(axis)] = TotalWidth(current, p, axis);

@@ -1,52 +1,23 @@
 // The baseline spot model plus a chosen set of catalogue effects (model/effects.h), as one
 // statistical model that can be fitted (MAP with Ceres), evaluated and simulated: the model
-// side of `ccdpsf diagnose`.
+// side of `ccdpsf diagnose`. The expected electrons of exposure k are the simulator's
+// (simulate.h), the pedestal of a background without shot noise; every pixel is scored by the
+// fit's pixel likelihood (fit/pixel_likelihood.h: Gaussian with model-dependent variance for a
+// measured pixel, a bound for a censored one, the interval form for coarse ADC steps); chi^2
+// and the degrees of freedom count the measured (not censored) pixels.
 //
-// The expected electrons of exposure k are those of the simulator (simulate.h):
-//
-//   charge_k = ApplyChargeEffects( RenderSpotWithKernelEffects(spot_k, kernel effects) )
-//   model_k  = charge_k + pedestal                       (the background, if in the model)
-//
-// with the noise model of fit/likelihood.h on the charge only (the pedestal is a bias
-// residual without shot noise, as the simulator makes it): var = charge + RN^2 + g^2 / 12.
-// Each pixel is scored by the fit's own pixel likelihood (fit/pixel_likelihood.h), applied
-// to the datum less the pedestal at expectation = the charge: the Gaussian with
-// model-dependent variance (the paper's) for a measured pixel, a bound for a censored
-// (saturated) one, the interval form for coarse ADC steps; the fit minimises
-// 1/2 sum (r0^2 + r1^2) of its residuals, as fit/map_fit.h does, so cost = -log L + constant,
-// and chi^2 and the degrees of freedom count the measured (not censored) pixels.
-//
-// Parameter vector p (names as in fit.json; order fixed by the spec):
-//   flux_e                      shared flux (FluxMode::kShared; as fit/fit_model.h: the
-//                               total electrons, or the 2015 peak meta-parameter m)
-//   airy_radius_px, defocus_sigma_px (defocus_radius_px for a pillbox), ccd_sigma_x_px,
-//   ccd_sigma_y_px              shared; the CCD widths are those at zero signal when
-//                               brighter_fatter is in the model
-//   x_px_K, y_px_K [, flux_e.K] per exposure (flux_e.K with FluxMode::kPerExposure: a
-//                               multi-intensity set)
-//   <effect>.<parameter>        the catalogue's parameters of every effect in the spec except
-//                               jitter, in the spec's order (e.g. serial_cti.trail_fraction)
-//   jitter.var_x_px2.K, jitter.var_y_px2.K
-//                               jitter, per exposure K except the reference exposure: the
-//                               jitter VARIANCE [px^2] (sigma^2: a regular parameter at 0,
-//                               where d model / d sigma vanishes). A jitter common to every
-//                               exposure is exactly a change of the CCD widths, so only the
-//                               excess over the reference exposure (the sharpest, see
-//                               fit::SharpestExposure) is identified; its own jitter is absorbed in
-//                               the CCD widths. The Gaussian part only: motion blur is not
-//                               fitted.
-// Priors: flat. Baseline ranges from fit::PriorRanges (via the fit::FitModel this is built
-// on), effect ranges from the catalogue's prior_lower / prior_upper (jitter variance:
-// [0, prior_upper^2]). Bounds are Ceres parameter bounds.
-//
-// Images and derivatives: the fit's own model draws every image and its analytic
-// derivatives (fit::FitEvaluator::ModelImageColumns on a fit::FitModel with the same stamps,
-// sampling, effects and jitter reference: the "fit twin"), in both samplings, so that
-// diagnose and fit draw and differentiate one model. Its residual blocks, its solve
-// (fit::SolveResidualBlocks), its log-likelihood and chi^2 (fit::FitEvaluator::ExposureScore)
-// and its Laplace information (the fit's Fisher information) are the fit's too. This file
-// holds diagnose's layout of the parameters (a spec without the defocus, per-exposure
-// fluxes) and its multi-start search.
+// Parameter vector p: the theta of the fit's own model of the same stamps, sampling and effects
+// (fit/fit_model.h: names, order, priors and derivatives; the "fit twin"), less the defocus
+// in a spec without it (held at 0: a baseline for which "defocus" is a candidate effect):
+//   flux_e, airy_radius_px, defocus_sigma_px (defocus_radius_px for a pillbox),
+//   ccd_sigma_x_px, ccd_sigma_y_px, x_px_K, y_px_K, flux_ratio_K (K >= 1, FluxMode::kPerExposure:
+//   a multi-intensity set), then every effect's parameters in catalogue order
+//   ("<effect>.<parameter>"; jitter: the variances jitter.var_x_px2.K, jitter.var_y_px2.K of
+//   every exposure but ModelSpec::jitter_reference).
+// Images and derivatives, residual blocks, the solve (fit::SolveResidualBlocks), the
+// log-likelihood and chi^2 (fit::FitEvaluator::ExposureScore) and the Laplace information
+// (the fit's Fisher information) are the fit twin's. This file holds what diagnose adds: the
+// defocus held at 0, the catalogue's starting strengths and the multi-start search.
 #ifndef CCDPSF_DIAGNOSE_EFFECT_FIT_H_
 #define CCDPSF_DIAGNOSE_EFFECT_FIT_H_
 
@@ -65,8 +36,8 @@ namespace ccdpsf::diagnose {
 
 class EffectEvaluator;
 
-enum class FluxMode { kShared, kPerExposure };
-std::string ToString(FluxMode mode);
+// kShared or kPerExposure (fit::FluxMode; diagnose does not scale fluxes by exposure time).
+using FluxMode = fit::FluxMode;
 
 // Which model: the baseline components and the effects added to it.
 struct ModelSpec {
@@ -92,7 +63,7 @@ class EffectModel {
   // priors; it must not be in through-focus mode. Returns nullptr with a one-line reason for a
   // spec the data cannot support (jitter with one exposure, a jitter reference out of range,
   // defocus_offset in integrated sampling or without the defocus, kDefocus in `effects`, a
-  // non-Gaussian likelihood).
+  // non-Gaussian likelihood, fluxes scaled by exposure time).
   static std::unique_ptr<EffectModel> Create(const fit::FitModel& base, const ModelSpec& spec,
                                              std::string* error);
 
@@ -105,25 +76,21 @@ class EffectModel {
   const std::vector<double>& upper() const { return upper_; }
   int NumValidPixels() const { return base_.NumValidPixels(); }
 
-  // Indices into p. Flux: the shared index in kShared mode, else exposure k's.
-  int FluxIndex(int k) const;
-  int XIndex(int k) const { return exposure_begin_ + exposure_size_ * k; }
-  int YIndex(int k) const { return XIndex(k) + 1; }
-  int ShapeIndex(int shared_param) const;  // fit::SharedParam except kFluxE
+  // The fit's model of this spec (see the top of this file), theta in its layout at p (the
+  // defocus of a spec without it at 0), and the index in p of a theta index (-1: held at 0).
+  const fit::FitModel& fit_twin() const { return *twin_; }
+  std::vector<double> TwinTheta(const double* p) const;
+  int Index(int theta_index) const { return index_[theta_index]; }
+  int XIndex(int k) const { return Index(fit::FitModel::XIndex(k)); }
+  int YIndex(int k) const { return Index(fit::FitModel::YIndex(k)); }
+  int ShapeIndex(int shared_param) const { return Index(shared_param); }  // fit::SharedParam
   // The parameters of `kind` (empty if absent): for jitter, [var_x.K, var_y.K] over K.
   std::vector<int> EffectIndices(model::EffectKind kind) const;
+  // Exposure k's flux at p [e-, or the 2015 peak meta-parameter]: flux_e times its ratio.
+  double FluxOf(const std::vector<double>& p, int k) const;
 
-  // Ceres parameter blocks as contiguous segments [begin, begin + size) of p, and the blocks
-  // exposure k's residuals depend on.
-  struct Block {
-    int begin;
-    int size;
-  };
-  const std::vector<Block>& blocks() const { return blocks_; }
-  std::vector<int> BlocksOf(int k) const;
-
-  // p from a baseline theta of fit::FitModel layout (its shared flux; per-exposure fluxes
-  // scaled by each stamp's share of the summed signal), every effect at DefaultStart.
+  // p from a theta of `base` (its flux as exposure 0's; flux ratios at those of the stamps'
+  // summed signals), every effect at DefaultStart.
   std::vector<double> FromBaseline(const std::vector<double>& theta) const;
   // p of this model from p of another spec on the same stamps: parameters with the same name
   // are copied, the rest take their default start.
@@ -132,42 +99,25 @@ class EffectModel {
   // variances, its sigmas squared).
   std::vector<double> DefaultStart(model::EffectKind kind) const;
 
-  // The renderer's spot parameters of exposure k at p (before any kernel effect).
-  model::SpotParams SpotFor(const double* p, int k) const;
-
   std::unique_ptr<EffectEvaluator> NewEvaluator() const;
 
-  // The fit's model of this spec (see the top of this file); theta for exposure k at p in its
-  // layout (shared flux: exposure k's own flux; the jitter variances with the same reference
-  // exposure), and for a theta index exposure k depends on, the p index equal to it (-1: held
-  // at 0, the defocus of a spec without it).
-  const fit::FitModel& fit_twin() const { return *twin_; }
-  void TwinTheta(const double* p, int k, double* theta) const;
-  int TwinToP(int theta_index, int k) const;
   // Where exposure k's residual block (the fit's own, fit/map_fit.h, on the twin) reads its
-  // parameters in p: each twin theta index the exposure depends on sits at the p index
-  // TwinToP gives, in the blocks BlocksOf(k); the defocus of a spec without it is held at 0.
+  // parameters in p: the fit's layout with the held defocus left out (held at 0).
   fit::ExposureCostLayout ExposureLayout(int k) const;
 
  private:
   EffectModel(const fit::FitModel& base, const ModelSpec& spec) : base_(base), spec_(spec) {}
-  void Add(const std::string& name, double lower, double upper, double start);
+  // p from named values: those whose name p has are copied, the rest are the start; clamped.
+  std::vector<double> FromNamed(const std::vector<std::string>& names,
+                                const std::vector<double>& values) const;
 
   const fit::FitModel& base_;
   ModelSpec spec_;
+  std::unique_ptr<fit::FitModel> twin_;
   std::vector<std::string> names_;
   std::vector<double> lower_, upper_, start_;
-  std::vector<Block> blocks_;
-  int shared_flux_ = -1;       // index of flux_e in kShared mode
-  int shape_begin_ = 0;        // airy_radius_px, then defocus, sigma_x, sigma_y
-  int exposure_begin_ = 0;     // x_px_0
-  int exposure_size_ = 2;      // 2 or 3 (with flux_e.K)
-  std::vector<std::pair<model::EffectKind, int>> effect_begin_;  // non-jitter effects
-  std::vector<int> jitter_index_;  // per exposure: var_x index, or -1 for the reference
-  int effect_block_ = -1;          // block index of the shared effect parameters
-  std::vector<int> jitter_block_;  // per exposure: block index, or -1
-  std::unique_ptr<fit::FitModel> twin_;
-  std::vector<int> twin_effect_to_p_;  // theta index - twin's first effect index -> p index
+  std::vector<int> index_;  // Index: per theta index, its p index or -1
+  std::vector<int> theta_;  // per p index, its theta index
 };
 
 // Renders the model of an EffectModel; owns scratch space and a renderer, so use one per
@@ -188,8 +138,6 @@ class EffectEvaluator {
   // outside the renderer's domain.
   bool Score(const double* p, const std::vector<Image>* data_e, double* log_likelihood,
              double* chi2);
-  double LogLikelihood(const double* p);
-  double ChiSquare(const double* p);
 
  private:
   const EffectModel& model_;
