@@ -569,12 +569,11 @@ std::vector<double> FitModel::MomentStart(double airy_radius_px, double defocus_
     }
   }
   SetEffectStart(theta.data());
-  // Flux: the least-squares scale of the model to the data.
+  // Flux: the least-squares scale of the model to the data, clamped into the prior (the
+  // mean summed signal where that fails).
+  theta[kFluxE] = signal_e_;
   for (int i : SharedIndices()) theta[i] = std::clamp(theta[i], lower_[i], upper_[i]);
-  FitEvaluator ev(*this);
-  const double flux = ev.LeastSquaresFlux(theta.data());
-  theta[kFluxE] =
-      std::clamp(std::isfinite(flux) ? flux : signal_e_, lower_[kFluxE], upper_[kFluxE]);
+  FitEvaluator(*this).BestFluxLogLikelihood(theta.data(), 0, num_exposures());
   return theta;
 }
 
@@ -849,20 +848,6 @@ bool FitEvaluator::ModelImage(const double* theta, int k, std::vector<double>* m
   return true;
 }
 
-template <typename Visit>
-bool FitEvaluator::ForEachValidPixel(const double* theta, int first, int last, Visit visit) {
-  const double pedestal = fit_model_.PedestalAt(theta);
-  for (int k = first; k < last; ++k) {
-    const Stamp& s = fit_model_.stamps()[k];
-    const PixelNoise noise = StampNoise(s);
-    if (!ModelImage(theta, k, &pixels_, nullptr)) return false;
-    for (size_t q = 0; q < pixels_.size(); ++q) {
-      if (s.valid[q]) visit(s.electrons.data[q] - pedestal, s.CensorAt(q), pixels_[q] - pedestal, noise);
-    }
-  }
-  return true;
-}
-
 double FitEvaluator::ExposureLogLikelihood(const double* theta, int k) {
   const LikelihoodKind kind = fit_model_.options().likelihood;
   const Stamp& stamp = fit_model_.stamps()[k];
@@ -888,29 +873,14 @@ double FitEvaluator::ExposureLogLikelihood(const double* theta, int k) {
     }
     return gaussian.Total() + censored;
   }
-  double total = 0.0;
-  PixelValue v;
-  if (!ForEachValidPixel(
-          theta, k, k + 1,
-          [&](double data_e, Censor censor, double model_e, const PixelNoise& noise) {
-            EvaluatePixel(kind, data_e, censor, model_e, noise, false, &v);
-            total += v.log_p;
-          })) {
-    return -INFINITY;
-  }
-  return total;
+  double log_likelihood, chi2;
+  return ExposureScore(theta, k, nullptr, &log_likelihood, &chi2) ? log_likelihood : -INFINITY;
 }
 
 double FitEvaluator::LogLikelihood(const double* theta) {
   double total = 0.0;
   for (int k = 0; k < fit_model_.num_exposures(); ++k) total += ExposureLogLikelihood(theta, k);
   return total;
-}
-
-double FitEvaluator::LogPosterior(const double* theta) {
-  if (!fit_model_.InsidePrior(theta)) return -INFINITY;
-  const double ll = LogLikelihood(theta);
-  return std::isfinite(ll) ? ll : -INFINITY;
 }
 
 double FitEvaluator::BestFluxLogLikelihood(double* theta, int first, int last) {
@@ -961,20 +931,6 @@ double FitEvaluator::BestFluxLogLikelihood(double* theta, int first, int last) {
   return std::isfinite(total) ? total : -INFINITY;
 }
 
-double FitEvaluator::LeastSquaresFlux(const double* theta) {
-  std::vector<double> unit(theta, theta + fit_model_.dim());
-  unit[kFluxE] = 1.0;
-  double num = 0.0, den = 0.0;
-  const bool drawn =
-      ForEachValidPixel(unit.data(), 0, fit_model_.num_exposures(),
-                        [&](double data_e, Censor censor, double model_e, const PixelNoise&) {
-                          if (censor != Censor::kNone) return;  // their values are bounds
-                          num += model_e * data_e;
-                          den += model_e * model_e;
-                        });
-  return drawn && den > 0 ? num / den : NAN;
-}
-
 double FitEvaluator::ChiSquare(const double* theta) {
   double chi2 = 0.0, log_likelihood, exposure_chi2;
   for (int k = 0; k < fit_model_.num_exposures(); ++k) {
@@ -1001,7 +957,7 @@ bool FitEvaluator::ExposureScore(const double* theta, int k, const Image* data_e
   for (size_t q = 0; q < pixels_.size(); ++q) {
     if (!std::isfinite(pixels_[q])) return false;
     if (!s.valid[q]) continue;
-    EvaluatePixelWithPedestal(LikelihoodKind::kGaussian, data[q], s.CensorAt(q), pixels_[q],
+    EvaluatePixelWithPedestal(fit_model_.options().likelihood, data[q], s.CensorAt(q), pixels_[q],
                               pedestal, noise, false, &v);
     *log_likelihood += v.log_p;
     *chi2 += v.chi2;
@@ -1013,14 +969,18 @@ int FitEvaluator::CensoredViolations(const double* theta, double sd, double* wor
   int count = 0;
   *worst_sd = INFINITY;
   PixelValue v;
-  ForEachValidPixel(theta, 0, fit_model_.num_exposures(),
-                    [&](double data_e, Censor censor, double model_e, const PixelNoise& noise) {
-                      if (censor == Censor::kNone) return;
-                      EvaluatePixel(LikelihoodKind::kGaussian, data_e, censor, model_e, noise,
-                                    false, &v);
-                      *worst_sd = std::min(*worst_sd, v.censored_sd);
-                      count += v.censored_sd < -sd;
-                    });
+  const double pedestal = fit_model_.PedestalAt(theta);
+  for (int k = 0; k < fit_model_.num_exposures(); ++k) {
+    const Stamp& s = fit_model_.stamps()[k];
+    if (!ModelImage(theta, k, &pixels_, nullptr)) return count;
+    for (size_t q = 0; q < pixels_.size(); ++q) {
+      if (!s.valid[q] || s.CensorAt(q) == Censor::kNone) continue;
+      EvaluatePixelWithPedestal(LikelihoodKind::kGaussian, s.electrons.data[q], s.CensorAt(q),
+                                pixels_[q], pedestal, StampNoise(s), false, &v);
+      *worst_sd = std::min(*worst_sd, v.censored_sd);
+      count += v.censored_sd < -sd;
+    }
+  }
   return count;
 }
 

@@ -453,10 +453,9 @@ std::vector<std::vector<double>> FocusStarts(const FitModel& model, const MapOpt
     for (int i = 0; i < model.dim(); ++i) {
       theta[i] = std::clamp(theta[i], model.lower()[i], model.upper()[i]);
     }
-    // The flux: least squares for this shape (the single fit's flux is the fallback).
-    const double flux = ev->LeastSquaresFlux(theta.data());
-    if (std::isfinite(flux)) theta[kFluxE] = flux;
-    theta[kFluxE] = std::clamp(theta[kFluxE], model.lower()[kFluxE], model.upper()[kFluxE]);
+    // The flux: least squares for this shape, clamped into the prior (the single fit's flux
+    // is the fallback).
+    ev->BestFluxLogLikelihood(theta.data(), 0, n);
     return theta;
   };
   std::vector<std::vector<double>> starts;

@@ -313,8 +313,6 @@ class FitEvaluator {
   double LogLikelihood(const double* theta);
   // ... of stamp k alone (LogLikelihood is the sum of these over k). Renders only stamp k.
   double ExposureLogLikelihood(const double* theta, int k);
-  // Log-posterior up to a constant: -infinity outside the prior, else the log-likelihood.
-  double LogPosterior(const double* theta);
 
   // Expected electrons of stamp k (row-major, stamp-sized) and, if jacobian != nullptr, its
   // derivatives with respect to theta (pixels x dim, row-major; zero columns for other
@@ -345,11 +343,6 @@ class FitEvaluator {
   bool AddExposureFisherInformation(const double* theta, int k, const Image* data_e,
                                     std::vector<double>* fisher);
 
-  // The flux that best fits the data (unweighted least squares over valid pixels, every
-  // exposure) for the shape and positions in theta; theta[kFluxE] is ignored. The model is
-  // linear in the flux, so this is exact for that criterion. NaN if the model is all zero.
-  double LeastSquaresFlux(const double* theta);
-
   // Sets theta[kFluxE] to the least-squares flux of exposures [first, last), clamped to the
   // prior, and returns those exposures' log-likelihood there (-inf if it is not finite). One
   // render per exposure instead of two: the model is linear in the flux. For the screening
@@ -359,9 +352,9 @@ class FitEvaluator {
   // Sum of squared normalised residuals (chi^2) over the valid measured (not censored)
   // pixels (pixel_likelihood.h).
   double ChiSquare(const double* theta);
-  // Gaussian log-likelihood and chi^2 of exposure k's valid pixels against `data_e`
-  // (stamp-sized; null: the stamp's data). False where theta is outside the renderer's domain
-  // or the image is not finite.
+  // Log-likelihood (of the model's likelihood kind) and chi^2 of exposure k's valid pixels
+  // against `data_e` (stamp-sized; null: the stamp's data). False where theta is outside the
+  // renderer's domain or the image is not finite.
   bool ExposureScore(const double* theta, int k, const Image* data_e, double* log_likelihood,
                      double* chi2);
   // Censored pixels whose model lies more than `sd` standard deviations on the wrong side of
@@ -369,11 +362,6 @@ class FitEvaluator {
   int CensoredViolations(const double* theta, double sd, double* worst_sd);
 
  private:
-  // Renders exposures [first, last) at theta and calls visit(data_e, censor, model_e, noise)
-  // for each valid pixel: the one loop behind the log-likelihood, chi^2 and least-squares
-  // flux. False where a model image cannot be drawn.
-  template <typename Visit>
-  bool ForEachValidPixel(const double* theta, int first, int last, Visit visit);
   // Renders the spot without the brighter-fatter growth (with effects' defocus offset) into
   // plain_ (with its Jacobian in spot_jacobian_, and the offset's in plain_offset_jacobian_,
   // if want) and returns its brightest pixel's index; -1 if it cannot be drawn.
