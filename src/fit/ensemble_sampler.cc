@@ -461,9 +461,39 @@ std::vector<AutocorrelationTime> TauPerParameter(const std::vector<double>& chai
   return tau;
 }
 
+// The reported quantities (SamplerOptions::reported) of every stored state, computed once:
+// reported_dim values per state, and per step whether its states are done. A pure function
+// of (index, state) gives the same values whenever it is called, so each check reuses the
+// earlier ones and the caller gets the whole chain's (SamplerResult::reported).
+struct ReportedValues {
+  std::vector<double> values;
+  std::vector<char> done;
+
+  // Computes the states of steps [first, steps) not done yet, on the team's threads (each
+  // step written by one thread).
+  void Fill(const std::vector<double>& chain, int num_walkers, int dim, int first, int steps,
+            const SamplerOptions& options, ThreadTeam* team) {
+    const int rdim = options.reported_dim;
+    values.resize(static_cast<size_t>(steps) * num_walkers * rdim);
+    done.resize(steps, 0);
+    const int threads = team->size();
+    team->Run([&](int t) {
+      for (int step = first + t; step < steps; step += threads) {
+        if (done[step]) continue;
+        for (int w = 0; w < num_walkers; ++w) {
+          const size_t index = static_cast<size_t>(step) * num_walkers + w;
+          options.reported(index, chain.data() + index * dim, values.data() + index * rdim);
+        }
+        done[step] = 1;
+      }
+    });
+  }
+};
+
 // previous_max_tau: the largest tau of the previous check (+inf if none or not estimated).
 Diagnostics Check(const std::vector<double>& chain, int num_walkers, int dim, int steps,
-                  double previous_max_tau, const SamplerOptions& options, ThreadTeam* team) {
+                  double previous_max_tau, const SamplerOptions& options, ThreadTeam* team,
+                  ReportedValues* reported) {
   Diagnostics diag;
   const int half = steps / 2;
   const double wanted = std::ceil(options.burn_in_taus * previous_max_tau);
@@ -493,21 +523,10 @@ Diagnostics Check(const std::vector<double>& chain, int num_walkers, int dim, in
   // The reported quantities, computed from the kept states (ensemble_sampler.h).
   int reported_from = -1;  // index in diag.tau where they start (-1: none)
   if (options.reported && options.reported_dim > 0 && kept > 0) {
-    const int rdim = options.reported_dim;
-    const size_t states_per_step = static_cast<size_t>(num_walkers);
-    std::vector<double> reported(static_cast<size_t>(kept) * num_walkers * rdim);
-    const int threads = team->size();
-    team->Run([&](int t) {
-      for (int step = diag.burn_in + t; step < steps; step += threads) {
-        for (int w = 0; w < num_walkers; ++w) {
-          const size_t index = static_cast<size_t>(step) * states_per_step + w;
-          options.reported(index, chain.data() + index * dim,
-                           reported.data() + (index - diag.burn_in * states_per_step) * rdim);
-        }
-      }
-    });
+    reported->Fill(chain, num_walkers, dim, diag.burn_in, steps, options, team);
     reported_from = static_cast<int>(diag.tau.size());
-    add(TauPerParameter(reported, num_walkers, rdim, 0, kept, team));
+    add(TauPerParameter(reported->values, num_walkers, options.reported_dim, diag.burn_in, steps,
+                        team));
   }
   // Names "parameter k" for state coordinates and "reported quantity k" past them.
   auto name = [reported_from](int k) {
@@ -805,6 +824,7 @@ bool RunEnsembleSampler(const BlockedTarget& target, int dim, const std::vector<
 
   ProgressLine progress(options, start);
   Diagnostics diag;
+  ReportedValues reported;
   bool have_check = false;
   int steps = 0;
   int next_check = std::min(options.check_interval, options.max_steps);
@@ -824,7 +844,8 @@ bool RunEnsembleSampler(const BlockedTarget& target, int dim, const std::vector<
       out.log_prob = std::move(saved.chain_log_prob);
       steps = saved.steps;
       next_check = saved.next_check;
-      diag = Check(out.chain, num_walkers, dim, steps, saved.previous_max_tau, options, &team);
+      diag = Check(out.chain, num_walkers, dim, steps, saved.previous_max_tau, options, &team,
+                   &reported);
       have_check = true;
       out.resumed_from_step = steps;
     }
@@ -836,7 +857,7 @@ bool RunEnsembleSampler(const BlockedTarget& target, int dim, const std::vector<
     bool stop = steps == options.max_steps;
     if (steps == next_check) {
       const double previous_max_tau = have_check ? diag.max_tau : kInf;
-      diag = Check(out.chain, num_walkers, dim, steps, previous_max_tau, options, &team);
+      diag = Check(out.chain, num_walkers, dim, steps, previous_max_tau, options, &team, &reported);
       have_check = true;
       stop = stop || diag.converged;
       next_check = NextCheck(steps, options);
@@ -874,6 +895,10 @@ bool RunEnsembleSampler(const BlockedTarget& target, int dim, const std::vector<
 
   out.num_steps = steps;
   out.burn_in = diag.burn_in;
+  if (options.reported && options.reported_dim > 0) {
+    reported.Fill(out.chain, num_walkers, dim, 0, steps, options, &team);
+    out.reported = std::move(reported.values);
+  }
   // The state's coordinates only (the reported quantities' are the caller's to measure).
   const size_t state_entries = std::min(diag.tau.size(), static_cast<size_t>(dim));
   out.tau.assign(diag.tau.begin(), diag.tau.begin() + state_entries);

@@ -264,25 +264,15 @@ bool RunFit(const FitModel& model, const FitOptions& options, FitResult* result,
                             &result->chain, error)) {
       return false;
     }
-    // Back to the fit parameters (drawing the defocus from its exact conditional where it was
-    // integrated out); autocorrelation times and sample sizes are then measured on the
-    // quantities reported.
+    // Back to the fit parameters (the defocus drawn from its exact conditional where it was
+    // integrated out): the reported quantities, which the sampler computed once per state for
+    // its convergence checks.
     SamplerResult& chain = result->chain;
-    {
-      const int state_dim = target.dim();
-      const size_t states = chain.chain.size() / state_dim;
-      std::vector<double> theta_chain(states * dim);
-      // On the MCMC's threads: with the defocus integrated out, each state's defocus is a
-      // quantile of its conditional (DefocusQuantile, ~150 integrand evaluations a state).
-      internal::ParallelFor(static_cast<int>(states), threads, [&](int i, int) {
-        const size_t s = static_cast<size_t>(i);
-        to_theta(s, &chain.chain[s * state_dim], &theta_chain[s * dim]);
-      });
-      chain.chain = std::move(theta_chain);
-      chain.dim = dim;
-      chain.tau.assign(dim, INFINITY);
-      chain.ess.assign(dim, 0.0);
-    }
+    chain.chain = std::move(chain.reported);
+    chain.reported.clear();
+    chain.dim = dim;
+    chain.tau.assign(dim, INFINITY);
+    chain.ess.assign(dim, 0.0);
     // Their tau and ESS for the report: the same values the sampler's convergence check
     // judged (SamplerOptions::reported), so no second verdict is needed here.
     const int kept_steps = chain.num_steps - chain.burn_in;

@@ -193,6 +193,10 @@ struct SamplerResult {
   std::vector<double> chain;
   // log p of those positions: log_prob[step * num_walkers + walker].
   std::vector<double> log_prob;
+  // With SamplerOptions::reported: the reported quantities of every stored state,
+  // reported[(step * num_walkers + walker) * reported_dim + j] (the values the convergence
+  // checks judged, each computed once); else empty.
+  std::vector<double> reported;
   // Accepted stretch moves / stretch moves proposed (= steps when the independence move is
   // off), per walker (NaN for a walker that never proposed one); and its mean over walkers.
   std::vector<double> acceptance_fraction;
