@@ -20,7 +20,8 @@
 // updated by exactly one thread, so the chain is bit-identical for any num_threads.
 //
 // Convergence (checked every check_interval steps, less often in long runs: see
-// check_fraction; and at max_steps):
+// check_fraction; sooner where a check's tau predicts the criteria met before the next one,
+// at that step, at least a quarter of the spacing later; and at max_steps):
 //   burn-in   burn_in = min(ceil(burn_in_taus * max tau of the previous check), steps / 2),
 //             and steps / 2 at the first check. A transient still inside the kept steps
 //             inflates the tau measured on them, which lengthens the next burn-in and delays
@@ -75,7 +76,8 @@ namespace ccdpsf::fit {
 struct SamplerOptions {
   // Stop after this many steps (one step moves every walker once) even if not converged.
   int max_steps = 20000;
-  // Convergence checks happen at multiples of check_interval steps, ...
+  // Convergence checks happen at multiples of check_interval steps (or where the previous
+  // check predicts convergence, see the top), ...
   int check_interval = 100;
   // ... but at least check_fraction * (steps so far) apart. A check costs
   // O(walkers * dim * steps * log(steps)) (~1 ms of CPU per walker and parameter at 20000
