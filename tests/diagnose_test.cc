@@ -910,6 +910,8 @@ TEST(Diagnose, CliBadInput) {
   fs::remove_all(dir);
   fs::create_directories(dir);
   { std::ofstream(dir + "/text.fits") << "not a FITS file"; }
+  const std::string focus =
+      std::string(CCDPSF_TESTDATA) + "/campaign_small/f00_600nm_160200e_focus";
   const std::vector<std::pair<std::string, std::string>> cases = {
       {"diagnose --out=" + dir + "/o1", "at least one FITS file"},
       {"diagnose --out=" + dir + "/o2 " + dir + "/missing.fits", "missing.fits"},
@@ -918,6 +920,11 @@ TEST(Diagnose, CliBadInput) {
       {"diagnose --candidates=gremlins --out=" + dir + "/o5 " + dir + "/text.fits", "gremlins"},
       {"diagnose --max_rounds=0 --out=" + dir + "/o6 " + dir + "/text.fits", "max_rounds"},
       {"diagnose --joint --out=" + dir + "/o7 " + dir + "/text.fits", "does not apply"},
+      // Three exposures of the bundled through-focus series (FOCUSPOS -400, -200, 0 um): one
+      // defocus cannot describe them, and the change of defocus was called "missing: jitter".
+      {"diagnose --out=" + dir + "/o8 " + focus + "/exposure_000.fits " + focus +
+           "/exposure_001.fits " + focus + "/exposure_002.fits",
+       "3 focus positions (FOCUSPOS -400 to 0 um)"},
   };
   for (const auto& [args, message] : cases) {
     int code;
@@ -926,7 +933,7 @@ TEST(Diagnose, CliBadInput) {
     EXPECT_NE(out.find(message), std::string::npos) << args << "\n" << out;
     EXPECT_EQ(std::count(out.begin(), out.end(), '\n'), 1) << args << "\n" << out;
   }
-  for (const char* o : {"o1", "o2", "o3", "o4", "o5", "o6", "o7"}) {
+  for (const char* o : {"o1", "o2", "o3", "o4", "o5", "o6", "o7", "o8"}) {
     EXPECT_FALSE(fs::exists(dir + "/" + o + "/diagnose.json")) << o;
   }
   fs::remove_all(dir);

@@ -10,6 +10,7 @@
 #include "ccdpsf/random.h"
 #include "ccdpsf/trend/relations.h"
 #include "glog/logging.h"
+#include "internal/text.h"
 
 namespace ccdpsf::diagnose {
 
@@ -820,6 +821,23 @@ bool RunDiagnosis(const fit::FitModel& base, const DiagnoseOptions& options,
   if (!options.IsValid(error)) return false;
   if (base.through_focus()) {
     *error = "diagnose does not handle through-focus series (fit them with 'ccdpsf fit')";
+    return false;
+  }
+  // The baseline shares one defocus: exposures at several focus positions would make the
+  // change of defocus look like a missing effect (three of the bundled series at -400, -200
+  // and 0 um were called "missing: jitter").
+  std::vector<double> z;
+  for (const Stamp& s : base.stamps()) {
+    if (std::isfinite(s.info.focus_position_um)) z.push_back(s.info.focus_position_um);
+  }
+  std::sort(z.begin(), z.end());
+  z.erase(std::unique(z.begin(), z.end()), z.end());
+  if (z.size() >= 2) {
+    *error = "the exposures were taken at " + std::to_string(z.size()) +
+             " focus positions (FOCUSPOS " + internal::FormatNumber(z.front()) + " to " +
+             internal::FormatNumber(z.back()) +
+             " um): diagnose assumes one focus; diagnose each position's exposures, or fit the "
+             "series with 'ccdpsf fit --joint --through_focus'";
     return false;
   }
   const int n = base.num_exposures();
