@@ -105,8 +105,8 @@ bool RefineMap(const FitModel& model, std::vector<double> start, const MapOption
 // Where exposure k's residual block reads its parameters: its parameter blocks (each a
 // slice x[first, first + size) of the solver's vector x) and where each theta index the
 // exposure depends on sits in them (block, offset). Theta indices not placed are held at 0
-// and their derivatives go nowhere. The fit's x is theta; diagnose's is its own vector (a
-// baseline without the defocus holds it at 0; its per-exposure fluxes map onto flux_e).
+// and their derivatives go nowhere. The fit's x is theta; diagnose's is theta less the
+// defocus of a baseline without it, which is held at 0.
 struct ExposureCostLayout {
   struct Block {
     int first, size;
