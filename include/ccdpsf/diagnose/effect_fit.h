@@ -142,7 +142,7 @@ class EffectEvaluator {
  private:
   const EffectModel& model_;
   std::unique_ptr<fit::FitEvaluator> twin_evaluator_;
-  std::vector<double> model_buf_, theta_, image_;
+  std::vector<double> theta_, image_;
 };
 
 struct EffectFitOptions {
