@@ -366,6 +366,12 @@ void AiryDiscProfile::Build(double k, double radius, double d_max, bool derivs, 
 
 void AiryDiscProfile::Evaluate(const double* dist, int count, double* value, double* d_dk,
                                double* d_dR) const {
+  const Run run{0, count};
+  Evaluate(dist, &run, 1, value, d_dk, d_dR);
+}
+
+void AiryDiscProfile::Evaluate(const double* dist, const Run* runs, int num_runs, double* value,
+                               double* d_dk, double* d_dR) const {
   // Sub-pieces of half-length H / kSub: sub-piece p covers [2 p, 2 p + 2] H / kSub, local
   // variable u = (d - (2 p + 1) H / kSub) / (H / kSub).
   const double sub_half = half_length_ / kSub;
@@ -385,21 +391,24 @@ void AiryDiscProfile::Evaluate(const double* dist, int count, double* value, dou
   // a sum's unused lanes are masked out of the stores. All sums are listed first, then run
   // several at a time. Every lane does the operations of the scalar Horner<Q>.
   size_t num_items = 0;
-  for (int i = 0; i < count;) {
-    const int p = sub_piece(dist[i]);
-    int n = 1;
-    while (n < 4 && i + n < count && sub_piece(dist[i + n]) == p) ++n;
-    // Written in place: an item built on the stack and copied is read back in halves,
-    // which stalls on store forwarding (measured ~20 % of Evaluate).
-    if (num_items == items_.size()) items_.resize(2 * items_.size() + 64);
-    SumItem& item = items_[num_items++];
-    for (int l = 0; l < 4; ++l) {
-      item.t[l] = l < n ? local(dist[i + l], p) : 0.0;
-      item.use[l] = l < n ? -1 : 0;  // the mask's sign bits
+  for (int r = 0; r < num_runs; ++r) {
+    const int end = runs[r].at + runs[r].count;
+    for (int i = runs[r].at; i < end;) {
+      const int p = sub_piece(dist[i]);
+      int n = 1;
+      while (n < 4 && i + n < end && sub_piece(dist[i + n]) == p) ++n;
+      // Written in place: an item built on the stack and copied is read back in halves,
+      // which stalls on store forwarding (measured ~20 % of Evaluate).
+      if (num_items == items_.size()) items_.resize(2 * items_.size() + 64);
+      SumItem& item = items_[num_items++];
+      for (int l = 0; l < 4; ++l) {
+        item.t[l] = l < n ? local(dist[i + l], p) : 0.0;
+        item.use[l] = l < n ? -1 : 0;  // the mask's sign bits
+      }
+      item.c = coefficients_.data() + static_cast<size_t>(p) * 3 * kMonomials;
+      item.at = i;
+      i += n;
     }
-    item.c = coefficients_.data() + static_cast<size_t>(p) * 3 * kMonomials;
-    item.at = i;
-    i += n;
   }
   double* const out[3] = {value, d_dk, d_dR};
   if (all) {
@@ -408,18 +417,20 @@ void AiryDiscProfile::Evaluate(const double* dist, int count, double* value, dou
     HornerAll<1, 8>(items_.data(), num_items, out);
   }
 #else
-  for (int i = 0; i < count; ++i) {
-    const int p = sub_piece(dist[i]);
-    const double u = local(dist[i], p);
-    const double* a = coefficients_.data() + static_cast<size_t>(p) * 3 * kMonomials;
-    if (all) {
-      double sums[3];
-      Horner<3>(a, u, sums);
-      value[i] = sums[0];
-      d_dk[i] = sums[1];
-      d_dR[i] = sums[2];
-    } else {
-      Horner<1>(a, u, &value[i]);
+  for (int r = 0; r < num_runs; ++r) {
+    for (int i = runs[r].at; i < runs[r].at + runs[r].count; ++i) {
+      const int p = sub_piece(dist[i]);
+      const double u = local(dist[i], p);
+      const double* a = coefficients_.data() + static_cast<size_t>(p) * 3 * kMonomials;
+      if (all) {
+        double sums[3];
+        Horner<3>(a, u, sums);
+        value[i] = sums[0];
+        d_dk[i] = sums[1];
+        d_dR[i] = sums[2];
+      } else {
+        Horner<1>(a, u, &value[i]);
+      }
     }
   }
 #endif

@@ -71,6 +71,16 @@ class AiryDiscProfile {
   // S at d[0..n) (each in [0, d_max]) into value[], and when derivs, dS/dk (times dk_scale)
   // and dS/dR.
   void Evaluate(const double* d, int n, double* value, double* d_dk, double* d_dR) const;
+  // The same at several runs of points: run r is d[at .. at + count), written to the outputs
+  // at the same places. One call for a whole quadrant keeps the vector sums in full groups (a
+  // quadrant column alone leaves a short remainder, whose sums run one at a time at a quarter
+  // of the rate).
+  struct Run {
+    int at;
+    int count;
+  };
+  void Evaluate(const double* d, const Run* runs, int num_runs, double* value, double* d_dk,
+                double* d_dR) const;
 
   int pieces() const { return pieces_; }
 

@@ -218,19 +218,22 @@ void FillAiryQuadrant(double k, double dk_dr, double hx, double hy, bool derivs,
 // values come from its series.
 void FillPillboxQuadrant(double k, double dk_dr, double radius, double hx, double hy, bool derivs,
                          NodeImage* q, NodeImage* q_dr, NodeImage* q_dR, AiryDiscProfile* profile,
-                         NodeDistances* distances) {
+                         NodeDistances* distances,
+                         std::vector<AiryDiscProfile::Run>* runs_scratch) {
   const int rows = q->rows;
   // dS/dr = dS/dk dk/dr, the factor applied to the profile's samples.
   profile->Build(k, radius, std::hypot((rows - 1) * hx, (q->cols - 1) * hy), derivs, dk_dr);
   distances->Update(rows, q->cols, hx, hy);
   // With equal spacings S(|i|, |j|) = S(|j|, |i|): compute the lower triangle, mirror the rest.
   const bool mirror = hx == hy;
+  std::vector<AiryDiscProfile::Run>& runs = *runs_scratch;
+  runs.resize(q->cols);
   for (int ju = 0; ju < q->cols; ++ju) {
     const int first = (mirror && ju < rows) ? ju : 0;
-    const size_t at = static_cast<size_t>(ju) * rows + first;
-    profile->Evaluate(distances->d.data() + at, rows - first, q->data() + at,
-                      derivs ? q_dr->data() + at : nullptr, derivs ? q_dR->data() + at : nullptr);
+    runs[ju] = {ju * rows + first, rows - first};
   }
+  profile->Evaluate(distances->d.data(), runs.data(), q->cols, q->data(),
+                    derivs ? q_dr->data() : nullptr, derivs ? q_dR->data() : nullptr);
   if (!mirror) return;
   MirrorLowerTriangle(q);
   if (!derivs) return;
@@ -558,7 +561,8 @@ void RenderIntegrated(const model::ModelOptions& options, const model::SpotParam
     if (pillbox && defocus > 0.0) {
       ws->quadrant_dR.Resize(rows, cols);
       FillPillboxQuadrant(k, dk_dr, defocus, hx, hy, key.derivs, &ws->quadrant, &ws->quadrant_dr,
-                          &ws->quadrant_dR, &ws->pillbox_profile, &ws->distances);
+                          &ws->quadrant_dR, &ws->pillbox_profile, &ws->distances,
+                          &ws->pillbox_runs);
     } else {
       FillAiryQuadrant(k, dk_dr, hx, hy, key.derivs, &ws->quadrant, &ws->quadrant_dr,
                        &ws->distances);

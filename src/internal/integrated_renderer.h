@@ -83,6 +83,7 @@ struct IntegratedWorkspace {
   std::vector<double> edges;   // kernel weights: the normal's values at the window edges
   std::vector<size_t> offset;  // where each kernel node's input starts, for one output line
   AiryDiscProfile pillbox_profile;  // the pillbox model's S by distance
+  std::vector<AiryDiscProfile::Run> pillbox_runs;  // the quadrant's columns, for its Evaluate
   NodeDistances distances;          // of the quadrant's nodes, for the fills
 };
 
