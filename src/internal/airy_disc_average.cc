@@ -11,46 +11,25 @@
 namespace ccdpsf::internal {
 namespace {
 
-// Below this v = k rho the encircled-energy ratio comes from its power series: there
-// 1 - J0^2 - J1^2 cancels to ~v^2 / 4 and would lose digits.
-constexpr double kSeriesBelow = 2.0;
-
-// E(v) / v^2 = (1/4) sum_{m >= 1} c_m x^(m-1), x = v^2 / 4, with
-// c_m = (-1)^(m+1) (2m)! / (m!^4 (m + 1)) (from the power series of J0^2 and J1^2, whose
-// terms combine): c_1 = 1, c_{m+1} / c_m = -2 (2m + 1) / ((m + 1)^2 (m + 2)). At x <= 1 the
-// 18th term is ~1e-23 of the first.
-constexpr int kSeriesTerms = 18;
-const std::array<double, kSeriesTerms>& SeriesCoefficients() {
-  static const std::array<double, kSeriesTerms> c = [] {
-    std::array<double, kSeriesTerms> out{};
-    out[0] = 0.25;
-    for (int m = 1; m < kSeriesTerms; ++m) {
-      out[m] = -out[m - 1] * 2.0 * (2.0 * m + 1.0) / ((m + 1.0) * (m + 1.0) * (m + 2.0));
-    }
-    return out;
-  }();
-  return c;
-}
-
-// E(v) / v^2 and the Airy amplitude a(v) at v = k rho >= 0.
-inline void EncircledOverSquareAndAmplitude(double v, const double* table, double* e, double* a) {
-  double da;
-  model::AiryAmplitudeAndDerivativeInline(v, table, a, &da);
-  if (v < kSeriesBelow) {
-    const std::array<double, kSeriesTerms>& c = SeriesCoefficients();
-    const double x = 0.25 * v * v;
-    double sum = c[kSeriesTerms - 1];
-    for (int m = kSeriesTerms - 2; m >= 0; --m) sum = std::fma(sum, x, c[m]);
-    *e = sum;
+// e(v) = E(v) / v^2 and the Airy amplitude a(v) at v = k rho >= 0, for one lane: from the
+// tables as the vector lanes read them, or without them past the tables' range.
+inline void EncircledRatioAndAmplitude(double v, const double* e_table, const double* a_table,
+                                       double* e, double* a) {
+  if (v >= model::kAiryTableMax) {
+    model::EncircledRatioDirect(v, e);
+    *a = model::AiryAmplitude(v);
     return;
   }
-  // a = 2 J1 / v and a' = 2 J0 / v - 4 J1 / v^2 give J1 and J0.
-  const double j1 = 0.5 * v * *a;
-  const double j0 = *a + 0.5 * v * da;
-  *e = (1.0 - j0 * j0 - j1 * j1) / (v * v);
+  TablePolynomial(e_table, v, e, nullptr);
+  TablePolynomial(a_table, v, a, nullptr);
 }
 
 }  // namespace
+
+void EnsureDiscAverageTables(double v_max) {
+  model::EnsureEncircledRatioTable(v_max);
+  model::EnsureAiryTable(v_max);
+}
 
 AiryDiscAverage::AiryDiscAverage(double k, double radius) : k_(k), radius_(radius) {
   // Angular frequencies up to ~2 k R, plus the Bessel-like tail past it: 10 % and 16 nodes
@@ -74,27 +53,26 @@ void AiryDiscAverage::Evaluate(double d, double* value, double* d_dk, double* d_
 }
 
 void AiryDiscAverage::Evaluate4(const double* d, double* value, double* d_dk, double* d_dR) const {
-  static const double* const table = model::AiryTableCoefficients();
+  static const double* const e_table = model::EncircledRatioTableCoefficients();
+  static const double* const a_table = model::AiryTableCoefficients();
   const double k = k_, R = radius_;
   const bool derivs = d_dk != nullptr;
   // Per point: sums over theta of E (d cos + R) / rho^2, of I and of I cos.
   double flux[4] = {0, 0, 0, 0}, ring[4] = {0, 0, 0, 0}, ring_cos[4] = {0, 0, 0, 0};
 #if defined(__AVX2__) && defined(__FMA__)
-  // The four points side by side, one angle at a time. A point whose rho falls in the
-  // series range (v < 2) or past the table has that angle's e and a redone alone.
+  // The four points side by side, one angle at a time. A point whose v falls past the
+  // tables has that angle's e and a redone alone.
   const __m256d dv = _mm256_loadu_pd(d), Rv = _mm256_set1_pd(R), kv = _mm256_set1_pd(k);
   const __m256d base = _mm256_fmadd_pd(dv, dv, _mm256_set1_pd(R * R));
   const __m256d cross = _mm256_mul_pd(_mm256_set1_pd(2.0 * R), dv);
-  const __m256d half = _mm256_set1_pd(0.5), one = _mm256_set1_pd(1.0);
-  const __m256d lowest = _mm256_set1_pd(kSeriesBelow);
   const __m256d highest = _mm256_set1_pd(model::kAiryTableMax);
   __m256d flux4 = _mm256_setzero_pd(), ring4 = _mm256_setzero_pd(), ring_cos4 = _mm256_setzero_pd();
-  // Angles in chunks, each in three stages over the whole chunk: v; the table's a and a';
-  // the rest. Angle by angle, the chain square root -> table piece -> coefficient loads ->
-  // polynomial -> division was longer than the out-of-order window could overlap; staged,
-  // each loop's iterations are independent. Every lane's operations are the same.
+  // Angles in chunks, each in stages over the whole chunk: v; the tables; the sums. Angle by
+  // angle, the chain square root -> table piece -> coefficient loads -> polynomial was longer
+  // than the out-of-order window could overlap; staged, each loop's iterations are
+  // independent. Every lane's operations are the same.
   constexpr int kChunk = 16;
-  __m256d v_at[kChunk], a_at[kChunk], da_at[kChunk];
+  __m256d v_at[kChunk], e_at[kChunk], a_at[kChunk];
   const int n_angles = static_cast<int>(cos_theta_.size());
   for (int l0 = 0; l0 < n_angles; l0 += kChunk) {
     const int m = std::min(kChunk, n_angles - l0);
@@ -104,25 +82,22 @@ void AiryDiscAverage::Evaluate4(const double* d, double* value, double* d_dk, do
       const __m256d rho2 = _mm256_max_pd(_mm256_setzero_pd(), _mm256_fmadd_pd(cross, c, base));
       v_at[l] = _mm256_mul_pd(kv, _mm256_sqrt_pd(rho2));
     }
-    for (int l = 0; l < m; ++l) a_at[l] = TablePolynomial4(table, v_at[l], &da_at[l]);
+    for (int l = 0; l < m; ++l) e_at[l] = TablePolynomial4(e_table, v_at[l], nullptr);
+    if (derivs) {
+      for (int l = 0; l < m; ++l) a_at[l] = TablePolynomial4(a_table, v_at[l], nullptr);
+    }
     for (int l = 0; l < m; ++l) {
       const __m256d c = _mm256_set1_pd(cosines[l]);
-      const __m256d v = v_at[l];
-      __m256d a = a_at[l];
-      const __m256d j1 = _mm256_mul_pd(_mm256_mul_pd(half, v), a);
-      const __m256d j0 = _mm256_fmadd_pd(_mm256_mul_pd(half, v), da_at[l], a);
-      const __m256d rest = _mm256_fnmadd_pd(j1, j1, _mm256_fnmadd_pd(j0, j0, one));
-      __m256d e = _mm256_div_pd(rest, _mm256_mul_pd(v, v));
-      const int outside = _mm256_movemask_pd(_mm256_or_pd(_mm256_cmp_pd(v, lowest, _CMP_LT_OQ),
-                                                          _mm256_cmp_pd(v, highest, _CMP_GE_OQ)));
+      __m256d e = e_at[l], a = derivs ? a_at[l] : _mm256_setzero_pd();
+      const int outside = _mm256_movemask_pd(_mm256_cmp_pd(v_at[l], highest, _CMP_GE_OQ));
       if (outside != 0) {
         alignas(32) double vs[4], es[4], as[4];
-        _mm256_store_pd(vs, v);
+        _mm256_store_pd(vs, v_at[l]);
         _mm256_store_pd(es, e);
         _mm256_store_pd(as, a);
         for (int lane = 0; lane < 4; ++lane) {
           if ((outside >> lane) & 1)
-            EncircledOverSquareAndAmplitude(vs[lane], table, &es[lane], &as[lane]);
+            EncircledRatioAndAmplitude(vs[lane], e_table, a_table, &es[lane], &as[lane]);
         }
         e = _mm256_load_pd(es);
         a = _mm256_load_pd(as);
@@ -144,7 +119,7 @@ void AiryDiscAverage::Evaluate4(const double* d, double* value, double* d_dk, do
     for (const double c : cos_theta_) {
       const double v = k * std::sqrt(std::max(0.0, std::fma(cross, c, base)));
       double e, a;
-      EncircledOverSquareAndAmplitude(v, table, &e, &a);
+      EncircledRatioAndAmplitude(v, e_table, a_table, &e, &a);
       flux[lane] = std::fma(e, std::fma(d[lane], c, R), flux[lane]);
       ring[lane] += a * a;
       ring_cos[lane] = std::fma(a * a, c, ring_cos[lane]);

@@ -22,12 +22,16 @@
 
 namespace ccdpsf::internal {
 
+// The tables a disc average reads (model/airy.h: the encircled-energy ratio for S, the
+// amplitude for the derivatives), ready up to v = k rho = v_max.
+void EnsureDiscAverageTables(double v_max);
+
 // The angular rule for one (k, R): midpoints theta_l = pi (l + 1/2) / n on [0, pi].
 class AiryDiscAverage {
  public:
   // k = pi Rz / r [1/px], R > 0 the disc's radius [px]. The node count follows from 2 k R
   // with a margin that tests/airy_disc_average_test.cc confirms against a direct quadrature
-  // over the disc. model::EnsureAiryTable(k (d + R)) must have been called for the largest d.
+  // over the disc. EnsureDiscAverageTables(k (d + R)) must have been called for the largest d.
   AiryDiscAverage(double k, double radius);
 
   // S at distance d >= 0 [px], and (when the pointers are not null) dS/dk and dS/dR.
@@ -63,7 +67,7 @@ class AiryDiscProfile {
 
   // Same k and radius as AiryDiscAverage; derivs: also dS/dk (times dk_scale: the renderer
   // passes dk/dr to get the derivative by the Airy radius) and dS/dR. Reuses its storage.
-  // model::EnsureAiryTable(k (Reach(k, d_max) + radius)) must have been called.
+  // EnsureDiscAverageTables(k (Reach(k, d_max) + radius)) must have been called.
   void Build(double k, double radius, double d_max, bool derivs, double dk_scale = 1.0);
   // The largest distance [px] Build evaluates S at: the end of the last piece.
   static double Reach(double k, double d_max);

@@ -553,9 +553,14 @@ void RenderIntegrated(const model::ModelOptions& options, const model::SpotParam
     }
     ws->quadrant_key = QuadrantKey();  // nothing valid while the fill runs
     const int rows = key.rows, cols = key.cols;
-    // The Airy table must reach the farthest node (plus the disc's radius for the pillbox).
+    // The tables must reach the farthest node (the pillbox's, its profile's reach plus the disc's
+    // radius).
     const double d_max = std::hypot((rows - 1) * hx, (cols - 1) * hy);
-    model::EnsureAiryTable(k * (pillbox ? AiryDiscProfile::Reach(k, d_max) + defocus : d_max));
+    if (pillbox) {
+      EnsureDiscAverageTables(k * (AiryDiscProfile::Reach(k, d_max) + defocus));
+    } else {
+      model::EnsureAiryTable(k * d_max);
+    }
     ws->quadrant.Resize(rows, cols);
     ws->quadrant_dr.Resize(rows, cols);
     if (pillbox && defocus > 0.0) {

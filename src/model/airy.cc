@@ -1,6 +1,7 @@
 #include "ccdpsf/model/airy.h"
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <cmath>
 #include <mutex>
@@ -37,19 +38,78 @@ void AirySeries(double v, double* a, double* da, double* d2a) {
   *d2a = (v == 0.0) ? -0.25 : sd2a;
 }
 
+// The values, first and second derivatives of a function at node v, for the table's
+// Hermite data.
+using NodeData = void (*)(double v, double* f, double* df, double* d2f);
+
+void AmplitudeNode(double v, double* a, double* da, double* d2a) {
+  if (v < kSeriesLimit) {
+    AirySeries(v, a, da, d2a);
+    return;
+  }
+  AiryAmplitudeDirect(v, a, da);
+  *d2a = -*a - 3.0 * *da / v;  // Bessel equation for a = 2 J1(v) / v.
+}
+
+// Below this v, e(v) = E(v) / v^2 comes from its power series: there 1 - J0^2 - J1^2 cancels
+// to ~v^2 / 4 and would lose digits.
+constexpr double kEncircledSeriesBelow = 2.0;
+
+// e = sum_{m >= 0} c_m x^m, x = v^2 / 4, c_m = (-1)^m (2m + 2)! / ((m + 1)!^4 (m + 2)) / 4
+// (from the power series of J0^2 and J1^2, whose terms combine): c_0 = 1 / 4,
+// c_{m+1} / c_m = -2 (2m + 3) / ((m + 2)^2 (m + 3)). At x <= 1 the 18th term is ~1e-23 of the
+// first. de/dv = e_x v / 2 and d2e/dv2 = e_xx v^2 / 4 + e_x / 2.
+void EncircledRatioSeries(double v, double* e, double* de, double* d2e) {
+  constexpr int kTerms = 18;
+  static const std::array<double, kTerms> c = [] {
+    std::array<double, kTerms> out{};
+    out[0] = 0.25;
+    for (int m = 0; m + 1 < kTerms; ++m) {
+      out[m + 1] = -out[m] * 2.0 * (2.0 * m + 3.0) / ((m + 2.0) * (m + 2.0) * (m + 3.0));
+    }
+    return out;
+  }();
+  const double x = 0.25 * v * v;
+  double f = c[kTerms - 1], fx = 0.0, fxx = 0.0;
+  for (int m = kTerms - 2; m >= 0; --m) {  // Horner's rule for the sum and its derivatives
+    fxx = fxx * x + 2.0 * fx;
+    fx = fx * x + f;
+    f = f * x + c[m];
+  }
+  *e = f;
+  *de = fx * 0.5 * v;
+  *d2e = fxx * 0.25 * v * v + 0.5 * fx;
+}
+
+void EncircledRatioNode(double v, double* e, double* de, double* d2e) {
+  if (v < kEncircledSeriesBelow) {
+    EncircledRatioSeries(v, e, de, d2e);
+    return;
+  }
+  double a, da;
+  AiryAmplitudeDirect(v, &a, &da);
+  // J1 = v a / 2, J0 = a + v a' / 2; dE/dv = v a^2 / 2 (the intensity's ring), so
+  // e' = a^2 / (2 v) - 2 e / v and e'' = a a' / v - a^2 / (2 v^2) - 2 e' / v + 2 e / v^2.
+  const double j1 = 0.5 * v * a, j0 = a + 0.5 * v * da;
+  *e = (1.0 - j0 * j0 - j1 * j1) / (v * v);
+  *de = a * a / (2.0 * v) - 2.0 * *e / v;
+  *d2e = a * da / v - a * a / (2.0 * v * v) - 2.0 * *de / v + 2.0 * *e / (v * v);
+}
+
 // Per-interval quintic polynomials in u = (v - v_i) / h, coefficients c0..c5, equal to the
-// quintic Hermite interpolant through a, a', a'' at both ends of the interval; stored
+// quintic Hermite interpolant through f, f', f'' at both ends of the interval; stored
 // contiguously so one evaluation touches one cache line.
 // The table, built on demand in blocks of intervals from v = 0 up to the largest v asked
 // for: building all of it (60 000 Bessel-function calls) took ~0.15 s, a tenth of a complete
 // fit, while renders rarely need v beyond ~300. The storage is allocated whole at once, so
 // the pointer handed out never changes; `built` counts the intervals ready, published with
 // release semantics after they are written, and readers never read past what they have seen
-// (EnsureAiryTable before use), so no reader races a writer. Every interval's coefficients
-// depend only on its two nodes, so the values do not depend on the order of the requests.
-class AiryTable {
+// (Ensure before use), so no reader races a writer. Every interval's coefficients depend
+// only on its two nodes, so the values do not depend on the order of the requests.
+class QuinticTable {
  public:
-  AiryTable() : coefficients_(static_cast<size_t>(kIntervals) * 6) {}
+  explicit QuinticTable(NodeData node)
+      : node_(node), coefficients_(static_cast<size_t>(kIntervals) * 6) {}
 
   const double* data() const { return coefficients_.data(); }
 
@@ -72,22 +132,14 @@ class AiryTable {
   // The quintic Hermite interpolants on intervals [first, last).
   void Build(int first, int last) {
     const int n = last - first + 1;  // nodes
-    std::vector<double> a(n), da(n), d2a(n);
-    for (int l = 0; l < n; ++l) {
-      const double v = (first + l) * kTableStep;
-      if (v < kSeriesLimit) {
-        AirySeries(v, &a[l], &da[l], &d2a[l]);
-      } else {
-        AiryAmplitudeDirect(v, &a[l], &da[l]);
-        d2a[l] = -a[l] - 3.0 * da[l] / v;  // Bessel equation for a = 2 J1(v) / v.
-      }
-    }
+    std::vector<double> f(n), df(n), d2f(n);
+    for (int l = 0; l < n; ++l) node_((first + l) * kTableStep, &f[l], &df[l], &d2f[l]);
     const double h = kTableStep;
     for (int l = 0; l + 1 < n; ++l) {
       // Hermite data scaled to the unit interval.
-      const double p0 = a[l], p1 = a[l + 1];
-      const double m0 = da[l] * h, m1 = da[l + 1] * h;
-      const double c0 = d2a[l] * h * h, c1 = d2a[l + 1] * h * h;
+      const double p0 = f[l], p1 = f[l + 1];
+      const double m0 = df[l] * h, m1 = df[l + 1] * h;
+      const double c0 = d2f[l] * h * h, c1 = d2f[l + 1] * h * h;
       double* c = &coefficients_[static_cast<size_t>(first + l) * 6];
       c[0] = p0;
       c[1] = m0;
@@ -98,13 +150,19 @@ class AiryTable {
     }
   }
 
+  NodeData node_;
   std::vector<double> coefficients_;
   std::atomic<int> built_{0};
   std::mutex mutex_;
 };
 
-AiryTable& Table() {
-  static AiryTable table;
+QuinticTable& Table() {
+  static QuinticTable table(AmplitudeNode);
+  return table;
+}
+
+QuinticTable& EncircledTable() {
+  static QuinticTable table(EncircledRatioNode);
   return table;
 }
 
@@ -133,7 +191,7 @@ void AiryAmplitudeAndDerivative(double v, double* a, double* da_dv) {
   const double s = v * (1.0 / kTableStep);
   const int i = static_cast<int>(s);
   const double u = s - i;  // in [0, 1)
-  AiryTable& table = Table();
+  QuinticTable& table = Table();
   table.Ensure(v);
   const double* c = table.data() + static_cast<size_t>(i) * 6;
   *a = c[0] + u * (c[1] + u * (c[2] + u * (c[3] + u * (c[4] + u * c[5]))));
@@ -144,6 +202,15 @@ void AiryAmplitudeAndDerivative(double v, double* a, double* da_dv) {
 const double* AiryTableCoefficients() { return Table().data(); }
 
 void EnsureAiryTable(double v_max) { Table().Ensure(v_max); }
+
+const double* EncircledRatioTableCoefficients() { return EncircledTable().data(); }
+
+void EnsureEncircledRatioTable(double v_max) { EncircledTable().Ensure(v_max); }
+
+void EncircledRatioDirect(double v, double* e) {
+  double de, d2e;
+  EncircledRatioNode(std::fabs(v), e, &de, &d2e);
+}
 
 double AiryAmplitude(double v) {
   double a, da;

@@ -30,6 +30,20 @@ constexpr double kAiryTableMax = 1500.0;
 const double* AiryTableCoefficients();
 void EnsureAiryTable(double v_max);
 
+// The encircled-energy ratio e(v) = E(v) / v^2, where E(v) = 1 - J0(v)^2 - J1(v)^2 is the
+// fraction of the Airy pattern's flux within v (Born & Wolf 8.5.2; e(0) = 1 / 4), tabulated
+// like a(v) (same step, range, layout and rules: EnsureEncircledRatioTable(v) before reading
+// up to v) from e, e' = a^2 / (2 v) - 2 e / v and e'' at the nodes (the power series below
+// v = 2, where 1 - J0^2 - J1^2 cancels). For the pillbox model's disc averages
+// (internal/airy_disc_average.h), which need e alone where a and a' gave it with a division.
+// Its pieces are good to ~2e-14 (a script against the series and scipy's Bessel functions at
+// 5 points per piece, v < 200, while this was written; tests/airy_test.cc checks 1e-13).
+const double* EncircledRatioTableCoefficients();
+void EnsureEncircledRatioTable(double v_max);
+// e(v) without the table (Bessel functions or the series): for tests and for v past the
+// table's range.
+void EncircledRatioDirect(double v, double* e);
+
 // Inline versions for the renderer's inner loop (a call per node costs more than the
 // polynomial). 0 <= v, and EnsureAiryTable(v) called before. Same values as
 // AiryAmplitudeAndDerivative.
