@@ -247,9 +247,14 @@ bool RenderImage(const std::string& dir, const std::string& stem, const PlotOpti
       "; data and script are in " + dir + ": run 'gnuplot " +
       (options.format == PlotFormat::kPng ? "" : "-e \"plot_format='" + format + "'\" ") + stem +
       ".gp' there to make " + image_name;
+  bool written = false;
+  if (!options.draw) {
+    *message = "not drawn (not asked for)" + manual;
+    ::unlink(image_path.c_str());
+    return false;
+  }
   const std::string gnuplot_name = ResolveGnuplotName(options.gnuplot_path);
   const std::optional<std::string> executable = internal::FindExecutable(gnuplot_name);
-  bool written = false;
   if (!executable) {
     *message = "gnuplot ('" + gnuplot_name + "') was not found" + manual;
   } else {

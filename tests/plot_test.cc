@@ -650,6 +650,29 @@ TEST(Plot, XyPlotRejectsBadInput) {
 // ---------------------------------------------------------------------------------------------
 // Without a working gnuplot: data and script are still written, the PNG is reported missing.
 
+// A picture not asked for (PlotOptions::draw false): data and script as always, gnuplot not
+// run (a program that would fail is named, so running it would show in the message), no
+// stale picture left, and the message says how to draw it.
+TEST(Plot, PictureNotAskedForKeepsDataAndScript) {
+  ScopedTempDir dir;
+  std::ofstream(dir.File("fwhm.svg")) << "old picture";
+  PlotOptions options;
+  options.format = PlotFormat::kSvg;
+  options.gnuplot_path = "/bin/false";
+  options.draw = false;
+  PlotResult result;
+  std::string error;
+  ASSERT_TRUE(WriteXyPlot(dir.path(), "fwhm", MakeXyInput(), &result, &error, options)) << error;
+  EXPECT_FALSE(result.image_written);
+  EXPECT_NE(result.message.find("not drawn"), std::string::npos) << result.message;
+  EXPECT_EQ(result.message.find("failed"), std::string::npos) << result.message;
+  EXPECT_NE(result.message.find("gnuplot -e \"plot_format='svg'\" fwhm.gp"), std::string::npos)
+      << result.message;
+  EXPECT_TRUE(Exists(dir.File("fwhm.gp")));
+  EXPECT_TRUE(Exists(dir.File("fwhm_series.dat")));
+  EXPECT_FALSE(Exists(dir.File("fwhm.svg")));
+}
+
 TEST(Plot, MissingGnuplotStillWritesDataAndScript) {
   ScopedTempDir dir;
   PlotResult result;

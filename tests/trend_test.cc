@@ -16,6 +16,8 @@
 #include <string>
 
 #include "ccdpsf/fits_io.h"
+#include "ccdpsf/plot.h"
+#include "ccdpsf/quality.h"
 #include "ccdpsf/random.h"
 #include "ccdpsf/simulate.h"
 #include "ccdpsf/trend/campaign.h"
@@ -47,8 +49,8 @@ json ReadJson(const std::string& path) {
 
 // Writes a small simulated set (2 exposures) at the given wavelength and exposure time.
 void SimulateSet(const std::string& dir, double wavelength, double exptime,
-                 const std::vector<std::string>& omit = {},
-                 const std::vector<double>& focus = {}, int frame = 0) {
+                 const std::vector<std::string>& omit = {}, const std::vector<double>& focus = {},
+                 int frame = 0, double flux_scale = 1.0) {
   SimulationConfig c = testing_support::PaperConfig(
       model::Sampling::kIntegrated, focus.empty() ? 2 : static_cast<int>(focus.size()), 3);
   c.omit_keywords = omit;
@@ -63,6 +65,7 @@ void SimulateSet(const std::string& dir, double wavelength, double exptime,
   for (size_t k = 0; k < c.exposures.size(); ++k) {
     c.exposures[k].wavelength_nm = wavelength;
     c.exposures[k].exptime_s = exptime;
+    c.exposures[k].flux_e *= flux_scale;
     if (!focus.empty()) c.exposures[k].focus_position_um = focus[k];
   }
   SimulationResult r;
@@ -575,6 +578,78 @@ TEST(TrendCli, RecoversThePaperRelationsOnASimulatedCampaign) {
     ASSERT_TRUE(std::getline(csv, first)) << file;
     EXPECT_EQ(first, header) << file;
   }
+}
+
+// The policy of --group_plots: flagged draws where the verdict is not ok.
+TEST(GroupPictures, FlaggedDrawsWhereTheVerdictIsNotOk) {
+  Quality ok, noted, suspect, invalid;
+  noted.Add("a_note", Severity::kNote, "just so you know");
+  suspect.Add("chi2_high", Severity::kSuspect, "misfit");
+  invalid.Add("gross_misfit", Severity::kInvalid, "not this source");
+  EXPECT_FALSE(DrawsGroupPictures(GroupPictures::kFlagged, ok));
+  EXPECT_FALSE(DrawsGroupPictures(GroupPictures::kFlagged, noted));
+  EXPECT_TRUE(DrawsGroupPictures(GroupPictures::kFlagged, suspect));
+  EXPECT_TRUE(DrawsGroupPictures(GroupPictures::kFlagged, invalid));
+  for (const Quality* q : {&ok, &noted, &suspect, &invalid}) {
+    EXPECT_TRUE(DrawsGroupPictures(GroupPictures::kAll, *q));
+    EXPECT_FALSE(DrawsGroupPictures(GroupPictures::kNone, *q));
+  }
+  GroupPictures parsed = GroupPictures::kAll;
+  for (const GroupPictures p :
+       {GroupPictures::kAll, GroupPictures::kFlagged, GroupPictures::kNone}) {
+    ASSERT_TRUE(ParseGroupPictures(ToString(p), &parsed));
+    EXPECT_EQ(parsed, p);
+  }
+  EXPECT_FALSE(ParseGroupPictures("some", &parsed));
+}
+
+// Group reports on a campaign of two clean settings and one whose peak is 1.5x brighter,
+// past the ADC's full scale (a suspect verdict): by default only the suspect group's pictures are
+// drawn, the others keep data and scripts and say how to draw them; --group_plots=all draws every
+// group's; a wrong value is refused in one line. Needs gnuplot (svg: the quickest terminal).
+TEST(TrendCli, GroupPicturesAreDrawnWhereTheVerdictAsksForThem) {
+  if (!GnuplotAvailable()) GTEST_SKIP() << "gnuplot is not installed";
+  const std::string dir = Fresh("pictures");
+  SimulateSet(dir + "/ok600", 600, 2.5);
+  SimulateSet(dir + "/ok800", 800, 4.1);
+  SimulateSet(dir + "/bright700", 700, 3.3, {}, {}, 0, 1.5);
+  const std::string inputs = " " + dir + "/ok600 " + dir + "/ok800 " + dir + "/bright700";
+  std::string out;
+  for (const std::string mode : {"", "all"}) {
+    const std::string trend_dir = dir + "/trend_" + (mode.empty() ? "default" : mode);
+    ASSERT_EQ(RunCcdpsf("trend --nomcmc --plot_format=svg --out=" + trend_dir +
+                            (mode.empty() ? "" : " --group_plots=" + mode) + inputs,
+                        &out),
+              0)
+        << out;
+    EXPECT_EQ(out.find("not made"), std::string::npos) << out;
+    const json trend = ReadJson(trend_dir + "/trend.json");
+    int drawn = 0, not_drawn = 0;
+    for (const json& g : trend["groups"]) {
+      ASSERT_TRUE(g["ok"].get<bool>() || g["quality"]["verdict"] == "invalid") << g.dump();
+      const std::string report = trend_dir + "/" + g["report"].get<std::string>();
+      const bool flagged = g["quality"]["verdict"].get<std::string>() != "ok";
+      const bool expect_drawn = mode == "all" || flagged;
+      EXPECT_TRUE(fs::exists(report + "/residuals.gp")) << report;
+      EXPECT_EQ(fs::exists(report + "/residuals.svg"), expect_drawn) << report;
+      std::ifstream md_file(report + "/report.md");
+      const std::string md((std::istreambuf_iterator<char>(md_file)),
+                           std::istreambuf_iterator<char>());
+      EXPECT_EQ(md.find("`gnuplot residuals.gp`") != std::string::npos, !expect_drawn) << md;
+      (expect_drawn ? drawn : not_drawn) += 1;
+      if (mode.empty()) {
+        EXPECT_EQ(flagged, g["name"].get<std::string>().find("700") != std::string::npos)
+            << g.dump();
+      }
+    }
+    EXPECT_EQ(drawn + not_drawn, 3);
+    if (mode.empty()) {
+      EXPECT_EQ(drawn, 1);
+    }
+  }
+  ASSERT_NE(RunCcdpsf("trend --group_plots=some --out=" + dir + "/bad" + inputs, &out), 0);
+  EXPECT_NE(out.find("--group_plots must be all, flagged or none"), std::string::npos) << out;
+  EXPECT_FALSE(fs::exists(dir + "/bad"));
 }
 
 TEST(TrendCli, BrokenGroupsAreReportedAndTheRunGoesOn) {

@@ -32,6 +32,7 @@ DECLARE_bool(resume);
 DEFINE_string(requirements, "", "");
 DEFINE_double(reference_intensity_e, 157800, "");
 DEFINE_bool(group_reports, true, "");
+DEFINE_string(group_plots, "flagged", "");
 DEFINE_string(anchor_defocus, "same_wavelength", "");
 
 namespace ccdpsf::tools {
@@ -85,6 +86,9 @@ int RunTrend(const std::vector<std::string>& inputs) {
   }
   trend::GroupFitOptions fit_options;
   fit_options.plot_format = report_options.plot.format;
+  if (!trend::ParseGroupPictures(FLAGS_group_plots, &fit_options.pictures)) {
+    return Fail("--group_plots must be all, flagged or none (got \"" + FLAGS_group_plots + "\")");
+  }
   if (!ResolveFitConfig(&fit_options.config, &error)) return Fail(error);
   // A setting at one intensity cannot fit the brighter-fatter slope (it is exactly a change
   // of the CCD widths there): it goes to the intensity series (intensity_series.h).
@@ -288,6 +292,9 @@ Command TrendCommand() {
       {"reference_intensity_e", NumberText(trend::TrendOptions().reference_intensity_e),
        "Intensity zero point I0 [e- in the peak pixel] of the combined model"},
       {"group_reports", "true", "Write each group's full fit report under DIR/groups/"},
+      {"group_plots", "flagged",
+       "Which group reports get their pictures drawn: flagged (groups whose verdict is not ok), "
+       "all or none; every report keeps the pictures' data and gnuplot scripts"},
       {"anchor_defocus", "same_wavelength",
        "Through-focus series fix the defocus of single-focus settings at a stage position "
        "(FOCUSPOS) inside their scanned range, so that those settings' CCD widths are "

@@ -54,6 +54,10 @@ struct PlotOptions {
   // Longest time one gnuplot run may take before it is killed and the picture reported as
   // not made [s].
   double timeout_s = 120.0;
+  // False: the data files and the script are written but gnuplot is not run (a picture
+  // nobody asked for costs more than the fit it shows: trend's --group_plots). PlotResult's
+  // message then says how to make it.
+  bool draw = true;
 };
 
 // What a plot call produced. Paths are `dir + "/" + file name`.
@@ -62,8 +66,9 @@ struct PlotResult {
   std::string image_path;  // STEM.png / .pdf / .svg; set whether or not it was made
   std::string script_path;
   std::vector<std::string> data_paths;  // the .dat files the script reads
-  // When image_written is false: one line saying why (gnuplot not found, its exit status and
-  // last error lines, a time-out) and how to make the picture by hand, e.g. "gnuplot
+  // When image_written is false: one line saying why (not asked for, gnuplot not found, its
+  // exit status and last error lines, a time-out) and how to make the picture by hand, e.g.
+  // "gnuplot
   // ('gnuplot') was not found; data and script are in DIR: run 'gnuplot corner.gp' there to
   // make corner.png". When true: empty, or "gnuplot warnings: ..." if it printed any.
   std::string message;

@@ -443,7 +443,7 @@ bool WriteFitReport(const std::string& out_dir, const ExposuresFit& fit, const j
       return false;
     }
     if (!chain_written) return false;
-    if (!corner_plot.image_written) {
+    if (!corner_plot.image_written && options.plot.draw) {
       warnings->push_back("corner" + extension + " not made: " + corner_plot.message);
     }
   }
@@ -452,7 +452,7 @@ bool WriteFitReport(const std::string& out_dir, const ExposuresFit& fit, const j
     *error = residuals_error;
     return false;
   }
-  if (!plot.image_written) {
+  if (!plot.image_written && options.plot.draw) {
     warnings->insert(warnings->begin() + residuals_warning_at,
                      "residuals" + extension + " not made: " + plot.message);
   }
@@ -537,12 +537,23 @@ bool WriteFitReport(const std::string& out_dir, const ExposuresFit& fit, const j
       return false;
     }
     focus_plot = true;
-    if (!focus.image_written) {
+    if (!focus.image_written && options.plot.draw) {
       warnings->push_back("focus" + extension + " not made: " + focus.message);
     }
   }
 
   md << "## Plots\n\n";
+  if (!options.plot.draw) {
+    md << "The pictures were not drawn (" << options.plot_reason
+       << "). Their data and gnuplot scripts are in this folder: `gnuplot residuals.gp`"
+       << (r.have_mcmc ? ", `gnuplot corner.gp`" : "") << (focus_plot ? ", `gnuplot focus.gp`" : "")
+       << " there make them"
+       << (options.plot.format == PlotFormat::kPng
+               ? ""
+               : std::string(" (add `-e \"plot_format='") + PlotFormatName(options.plot.format) +
+                     "'\"` for " + PlotFormatName(options.plot.format) + ")")
+       << ".\n\n";
+  }
   md << "Residual maps: data and model on an asinh stretch (linear within about the noise of an "
         "empty pixel, logarithmic above, so the wings show), residuals and normalised "
         "residuals on a diverging scale with white at zero.\n\n";

@@ -33,7 +33,9 @@
 namespace ccdpsf::fit {
 
 struct FitReportOptions {
-  PlotOptions plot;  // the plots' format (and how gnuplot is run)
+  PlotOptions plot;  // the plots' format (and how gnuplot is run, or whether: plot.draw)
+  // Why the pictures are not drawn when plot.draw is false, for report.md's sentence.
+  std::string plot_reason = "not asked for";
   // Known true values (truth.h), drawn on the corner plot where they map; report.md names
   // the file.
   std::optional<TruthFile> truth;
