@@ -6,6 +6,7 @@
 #include <functional>
 #include <limits>
 #include <map>
+#include <optional>
 
 #include "ceres/ceres.h"
 #include "glog/logging.h"
@@ -642,9 +643,22 @@ bool FindMap(const FitModel& model, const MapOptions& options, MapResult* result
   // search already ran on one exposure, or on the screened joint data).
   StartOutcome best;
   std::string last_failure;
+  // A single exposure's starts are independent solves of one residual block: they run on
+  // options.num_threads threads, each solve on one Ceres thread (with one block, Ceres' thread
+  // count changes no bit), and are taken in order below, so the MAP does not depend on the
+  // threads. (Joint fits keep their starts serial: a joint solve's last bits depend on its
+  // Ceres threads, MapOptions::solver_threads.)
+  std::vector<std::optional<StartOutcome>> solved(starts.size());
+  if (model.num_exposures() == 1 && options.num_threads > 1) {
+    MapOptions one_thread = options;
+    one_thread.solver_threads = 1;
+    const int parallel = static_cast<int>(std::min(starts.size(), first_fallback));
+    ForEachIndex(model, parallel, options.num_threads,
+                 [&](int i, FitEvaluator*) { solved[i] = Solve(model, starts[i], one_thread); });
+  }
   for (size_t i = 0; i < starts.size(); ++i) {
     if (i >= first_fallback && best.usable) break;
-    const StartOutcome o = Solve(model, starts[i], options);
+    const StartOutcome o = solved[i] ? *solved[i] : Solve(model, starts[i], options);
     ++result->num_starts;
     result->start_costs.push_back(o.cost);
     if (!o.usable) {
