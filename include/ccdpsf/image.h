@@ -8,6 +8,7 @@
 #ifndef CCDPSF_IMAGE_H_
 #define CCDPSF_IMAGE_H_
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -86,6 +87,19 @@ struct Stamp {
     return n;
   }
 };
+
+// The stage positions (FOCUSPOS) the stamps were taken at, sorted, each once [um]; stamps
+// without one are left out. Positions are distinct when unequal (no tolerance): a focus
+// series (three or more) for fit, a refusal for diagnose (two or more).
+inline std::vector<double> DistinctFocusPositions(const std::vector<Stamp>& stamps) {
+  std::vector<double> z;
+  for (const Stamp& s : stamps) {
+    if (std::isfinite(s.info.focus_position_um)) z.push_back(s.info.focus_position_um);
+  }
+  std::sort(z.begin(), z.end());
+  z.erase(std::unique(z.begin(), z.end()), z.end());
+  return z;
+}
 
 }  // namespace ccdpsf
 

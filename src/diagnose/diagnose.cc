@@ -826,12 +826,7 @@ bool RunDiagnosis(const fit::FitModel& base, const DiagnoseOptions& options,
   // The baseline shares one defocus: exposures at several focus positions would make the
   // change of defocus look like a missing effect (three of the bundled series at -400, -200
   // and 0 um were called "missing: jitter").
-  std::vector<double> z;
-  for (const Stamp& s : base.stamps()) {
-    if (std::isfinite(s.info.focus_position_um)) z.push_back(s.info.focus_position_um);
-  }
-  std::sort(z.begin(), z.end());
-  z.erase(std::unique(z.begin(), z.end()), z.end());
+  const std::vector<double> z = DistinctFocusPositions(base.stamps());
   if (z.size() >= 2) {
     *error = "the exposures were taken at " + std::to_string(z.size()) +
              " focus positions (FOCUSPOS " + internal::FormatNumber(z.front()) + " to " +

@@ -97,19 +97,15 @@ bool CcdSplitUnidentified(const FitModelOptions& options) {
 }
 
 bool IsFocusSeries(const std::vector<Stamp>& stamps, std::string* why) {
-  std::vector<double> z;
   for (size_t k = 0; k < stamps.size(); ++k) {
-    const double v = stamps[k].info.focus_position_um;
-    if (!std::isfinite(v)) {
+    if (!std::isfinite(stamps[k].info.focus_position_um)) {
       *why = "exposure " + std::to_string(k) +
              (stamps[k].info.source.empty() ? "" : " ('" + stamps[k].info.source + "')") +
              " has no focus position (FOCUSPOS keyword)";
       return false;
     }
-    z.push_back(v);
   }
-  std::sort(z.begin(), z.end());
-  const int distinct = static_cast<int>(std::unique(z.begin(), z.end()) - z.begin());
+  const int distinct = static_cast<int>(DistinctFocusPositions(stamps).size());
   if (distinct < 3) {
     *why = "the exposures have " + std::to_string(distinct) +
            " distinct focus position(s) (FOCUSPOS); a through-focus series needs at least 3";
