@@ -68,9 +68,8 @@ struct PlotResult {
   std::vector<std::string> data_paths;  // the .dat files the script reads
   // When image_written is false: one line saying why (not asked for, gnuplot not found, its
   // exit status and last error lines, a time-out) and how to make the picture by hand, e.g.
-  // "gnuplot
-  // ('gnuplot') was not found; data and script are in DIR: run 'gnuplot corner.gp' there to
-  // make corner.png". When true: empty, or "gnuplot warnings: ..." if it printed any.
+  // "gnuplot ('gnuplot') was not found; data and script are in DIR: run 'gnuplot corner.gp'
+  // there to make corner.png". When true: empty, or "gnuplot warnings: ..." if it printed any.
   std::string message;
 };
 
