@@ -11,7 +11,10 @@
 #include <string>
 #include <utility>
 
+#include "ccdpsf/fit/fit_report.h"
 #include "ccdpsf/fits_io.h"
+#include "ccdpsf/plot.h"
+#include "ccdpsf/quality.h"
 #include "fitsio.h"
 #include "gtest/gtest.h"
 #include "nlohmann/json.hpp"
@@ -261,6 +264,69 @@ TEST(Cli, SeparateFitsGetOneFolderEach) {
   ASSERT_EQ(r.exit_code, 0) << r.output;
   EXPECT_TRUE(fs::exists(out + "/exposure_000/fit.json"));
   EXPECT_TRUE(fs::exists(out + "/exposure_001/fit.json"));
+}
+
+// The policy of fit --plots and trend --group_plots: flagged draws where the verdict is not ok.
+TEST(Pictures, FlaggedDrawsWhereTheVerdictIsNotOk) {
+  Quality ok, noted, suspect, invalid;
+  noted.Add("a_note", Severity::kNote, "just so you know");
+  suspect.Add("chi2_high", Severity::kSuspect, "misfit");
+  invalid.Add("gross_misfit", Severity::kInvalid, "not this source");
+  EXPECT_FALSE(fit::DrawsPictures(fit::Pictures::kFlagged, ok));
+  EXPECT_FALSE(fit::DrawsPictures(fit::Pictures::kFlagged, noted));
+  EXPECT_TRUE(fit::DrawsPictures(fit::Pictures::kFlagged, suspect));
+  EXPECT_TRUE(fit::DrawsPictures(fit::Pictures::kFlagged, invalid));
+  for (const Quality* q : {&ok, &noted, &suspect, &invalid}) {
+    EXPECT_TRUE(fit::DrawsPictures(fit::Pictures::kAll, *q));
+    EXPECT_FALSE(fit::DrawsPictures(fit::Pictures::kNone, *q));
+  }
+  fit::Pictures parsed = fit::Pictures::kAll;
+  for (const fit::Pictures p :
+       {fit::Pictures::kAll, fit::Pictures::kFlagged, fit::Pictures::kNone}) {
+    ASSERT_TRUE(fit::ParsePictures(ToString(p), &parsed));
+    EXPECT_EQ(parsed, p);
+  }
+  EXPECT_FALSE(fit::ParsePictures("some", &parsed));
+}
+
+// fit --plots: with flagged, a report's pictures are drawn exactly where its verdict is not
+// ok, and every report keeps the data and scripts and says how to draw them; none draws
+// nothing; a wrong value is refused in one line before any fitting, with no folder. Separate
+// fits of two exposures, residual maps only (--nomcmc), svg (the quickest terminal). Both
+// verdicts are ok here; a flagged report drawn through the same policy is checked by
+// Pictures.FlaggedDrawsWhereTheVerdictIsNotOk and TrendCli.GroupPicturesAreDrawnWhere...
+TEST(Cli, FitDrawsPicturesWhereThePlotsOptionAsks) {
+  if (!GnuplotAvailable()) GTEST_SKIP() << "gnuplot is not installed";
+  const std::string files =
+      " " + SimulatedSet() + "/exposure_000.fits " + SimulatedSet() + "/exposure_001.fits";
+  for (const std::string mode : {"flagged", "none"}) {
+    const std::string out = Fresh("plots_" + mode);
+    const RunResult r =
+        RunCcdpsf("fit --nomcmc --plot_format=svg --plots=" + mode + " --out=" + out + files);
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+    EXPECT_EQ(r.output.find("not made"), std::string::npos) << r.output;
+    for (const std::string name : {"exposure_000", "exposure_001"}) {
+      const std::string dir = out + "/" + name;
+      std::ifstream in(dir + "/fit.json");
+      const nlohmann::json j = nlohmann::json::parse(in);
+      const bool drawn = mode == "flagged" && j["quality"]["verdict"] != "ok";
+      EXPECT_TRUE(fs::exists(dir + "/residuals.gp")) << dir;
+      EXPECT_EQ(fs::exists(dir + "/residuals.svg"), drawn) << dir;
+      std::ifstream md_file(dir + "/report.md");
+      const std::string md((std::istreambuf_iterator<char>(md_file)),
+                           std::istreambuf_iterator<char>());
+      EXPECT_EQ(md.find("`gnuplot residuals.gp`") != std::string::npos, !drawn) << md;
+      if (!drawn) {
+        EXPECT_NE(md.find("fit --plots=" + mode), std::string::npos) << md;
+      }
+    }
+  }
+  const std::string bad = Fresh("plots_bad");
+  const RunResult r = RunCcdpsf("fit --plots=some --out=" + bad + files);
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_EQ(Lines(r.output), 1) << r.output;
+  EXPECT_NE(r.output.find("--plots must be all, flagged or none"), std::string::npos) << r.output;
+  EXPECT_FALSE(fs::exists(bad));
 }
 
 TEST(Cli, JointFitSharesThePsf) {

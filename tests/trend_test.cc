@@ -580,29 +580,6 @@ TEST(TrendCli, RecoversThePaperRelationsOnASimulatedCampaign) {
   }
 }
 
-// The policy of --group_plots: flagged draws where the verdict is not ok.
-TEST(GroupPictures, FlaggedDrawsWhereTheVerdictIsNotOk) {
-  Quality ok, noted, suspect, invalid;
-  noted.Add("a_note", Severity::kNote, "just so you know");
-  suspect.Add("chi2_high", Severity::kSuspect, "misfit");
-  invalid.Add("gross_misfit", Severity::kInvalid, "not this source");
-  EXPECT_FALSE(DrawsGroupPictures(GroupPictures::kFlagged, ok));
-  EXPECT_FALSE(DrawsGroupPictures(GroupPictures::kFlagged, noted));
-  EXPECT_TRUE(DrawsGroupPictures(GroupPictures::kFlagged, suspect));
-  EXPECT_TRUE(DrawsGroupPictures(GroupPictures::kFlagged, invalid));
-  for (const Quality* q : {&ok, &noted, &suspect, &invalid}) {
-    EXPECT_TRUE(DrawsGroupPictures(GroupPictures::kAll, *q));
-    EXPECT_FALSE(DrawsGroupPictures(GroupPictures::kNone, *q));
-  }
-  GroupPictures parsed = GroupPictures::kAll;
-  for (const GroupPictures p :
-       {GroupPictures::kAll, GroupPictures::kFlagged, GroupPictures::kNone}) {
-    ASSERT_TRUE(ParseGroupPictures(ToString(p), &parsed));
-    EXPECT_EQ(parsed, p);
-  }
-  EXPECT_FALSE(ParseGroupPictures("some", &parsed));
-}
-
 // Group reports on a campaign of two clean settings and one whose peak is 1.5x brighter,
 // past the ADC's full scale (a suspect verdict): by default only the suspect group's pictures are
 // drawn, the others keep data and scripts and say how to draw them; --group_plots=all draws every

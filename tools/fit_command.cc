@@ -29,6 +29,7 @@ DECLARE_int32(stamp_size);
 // defaults to is each command's option table (FitCommand() below, trend_command.cc,
 // diagnose_command.cc).
 DEFINE_bool(joint, false, "");
+DEFINE_string(plots, "all", "");
 DEFINE_bool(through_focus, false, "");
 DEFINE_string(likelihood, "gaussian", "");
 DEFINE_uint64(seed, 1, "");
@@ -162,6 +163,12 @@ int FitInto(const std::string& dir, const std::string& shown, const std::string&
       !FindTruth(FLAGS_truth, files, &report_options.truth, &error)) {
     return Fail(error);
   }
+  fit::Pictures pictures = fit::Pictures::kAll;
+  fit::ParsePictures(FLAGS_plots, &pictures);  // checked by RunFit before any fitting
+  report_options.plot.draw = fit::DrawsPictures(pictures, fitted.quality);
+  report_options.plot_reason =
+      std::string("fit --plots=") + fit::ToString(pictures) +
+      (pictures == fit::Pictures::kFlagged ? ", and the verdict is ok" : "");
   if (!fit::WriteFitReport(dir, fitted, run, &warnings, &error, report_options)) {
     return Fail(error);
   }
@@ -220,6 +227,10 @@ int RunFit(const std::vector<std::string>& files) {
     if (!ParsePlotFormat(FLAGS_plot_format, &format, &error) ||
         !FindTruth(FLAGS_truth, files, &truth, &error)) {
       return Fail(error);
+    }
+    fit::Pictures pictures;
+    if (!fit::ParsePictures(FLAGS_plots, &pictures)) {
+      return Fail("--plots must be all, flagged or none (got \"" + FLAGS_plots + "\")");
     }
   }
   std::vector<InputFile> inputs;
@@ -332,6 +343,10 @@ Command FitCommand() {
        "FIT.json with the fit's options (priors, MAP starts, MCMC settings, calibration, "
        "keyword map, \"flags\"); a run's OUT/config.json repeats it; flags given override it"},
       {"plot_format", "png", "Format of the plots: png, pdf or svg"},
+      {"plots", "all",
+       "Which fit reports get their pictures drawn: all, flagged (those whose verdict is not "
+       "ok; for batches of separate fits) or none; every report keeps the pictures' data and "
+       "gnuplot scripts"},
       {"truth", "",
        "truth.json of simulated data, drawn on the plots (not given: a truth.json in the folder "
        "holding all the inputs, if there is one)"},

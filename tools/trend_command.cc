@@ -86,7 +86,7 @@ int RunTrend(const std::vector<std::string>& inputs) {
   }
   trend::GroupFitOptions fit_options;
   fit_options.plot_format = report_options.plot.format;
-  if (!trend::ParseGroupPictures(FLAGS_group_plots, &fit_options.pictures)) {
+  if (!fit::ParsePictures(FLAGS_group_plots, &fit_options.pictures)) {
     return Fail("--group_plots must be all, flagged or none (got \"" + FLAGS_group_plots + "\")");
   }
   if (!ResolveFitConfig(&fit_options.config, &error)) return Fail(error);

@@ -598,4 +598,38 @@ bool WriteFitReport(const std::string& out_dir, const ExposuresFit& fit, const j
   return out.Commit({"fit.json"}, error);
 }
 
+bool ParsePictures(const std::string& text, Pictures* pictures) {
+  for (const Pictures p : {Pictures::kAll, Pictures::kFlagged, Pictures::kNone}) {
+    if (text == ToString(p)) {
+      *pictures = p;
+      return true;
+    }
+  }
+  return false;
+}
+
+const char* ToString(Pictures pictures) {
+  switch (pictures) {
+    case Pictures::kAll:
+      return "all";
+    case Pictures::kFlagged:
+      return "flagged";
+    case Pictures::kNone:
+      return "none";
+  }
+  return "?";
+}
+
+bool DrawsPictures(Pictures pictures, const Quality& quality) {
+  switch (pictures) {
+    case Pictures::kAll:
+      return true;
+    case Pictures::kFlagged:
+      return quality.Worst() != Severity::kNote;
+    case Pictures::kNone:
+      return false;
+  }
+  return true;
+}
+
 }  // namespace ccdpsf::fit

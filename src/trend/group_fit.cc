@@ -179,10 +179,10 @@ GroupResult FitOne(const CampaignGroup& group, int position, int index,
     std::vector<std::string> plot_warnings;
     fit::FitReportOptions report_options;
     report_options.plot.format = options.plot_format;
-    report_options.plot.draw = DrawsGroupPictures(options.pictures, out.quality);
+    report_options.plot.draw = fit::DrawsPictures(options.pictures, out.quality);
     report_options.plot_reason =
-        std::string("trend --group_plots=") + ToString(options.pictures) +
-        (options.pictures == GroupPictures::kFlagged ? ", and this group's verdict is ok" : "");
+        std::string("trend --group_plots=") + fit::ToString(options.pictures) +
+        (options.pictures == fit::Pictures::kFlagged ? ", and this group's verdict is ok" : "");
     std::string truth_error;
     if (!FindTruth("", group.files, &report_options.truth, &truth_error)) {
       plot_warnings.push_back("truth not drawn: " + truth_error);
@@ -201,41 +201,6 @@ GroupResult FitOne(const CampaignGroup& group, int position, int index,
 }
 
 }  // namespace
-
-bool ParseGroupPictures(const std::string& text, GroupPictures* pictures) {
-  for (const GroupPictures p :
-       {GroupPictures::kAll, GroupPictures::kFlagged, GroupPictures::kNone}) {
-    if (text == ToString(p)) {
-      *pictures = p;
-      return true;
-    }
-  }
-  return false;
-}
-
-const char* ToString(GroupPictures pictures) {
-  switch (pictures) {
-    case GroupPictures::kAll:
-      return "all";
-    case GroupPictures::kFlagged:
-      return "flagged";
-    case GroupPictures::kNone:
-      return "none";
-  }
-  return "?";
-}
-
-bool DrawsGroupPictures(GroupPictures pictures, const Quality& quality) {
-  switch (pictures) {
-    case GroupPictures::kAll:
-      return true;
-    case GroupPictures::kFlagged:
-      return quality.Worst() != Severity::kNote;
-    case GroupPictures::kNone:
-      return false;
-  }
-  return true;
-}
 
 std::vector<GroupResult> FitGroups(const std::vector<CampaignGroup>& groups,
                                    const GroupFitOptions& options, const GroupProgress& progress,

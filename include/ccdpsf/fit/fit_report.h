@@ -27,10 +27,26 @@
 #include "ccdpsf/fit/fit.h"
 #include "ccdpsf/fit/fit_exposures.h"
 #include "ccdpsf/plot.h"
+#include "ccdpsf/quality.h"
 #include "ccdpsf/truth.h"
 #include "nlohmann/json.hpp"
 
 namespace ccdpsf::fit {
+
+// Which fit reports get their pictures drawn (fit --plots, trend --group_plots). A single
+// exposure's corner and residual pictures take ~0.3 s of gnuplot, several times its fit
+// (~0.1 s): most of a batch of separate fits, or of a campaign's groups. Their data and
+// gnuplot scripts are written in every case, and report.md says how to draw them.
+enum class Pictures {
+  kAll,
+  kFlagged,  // reports whose verdict is not ok (suspect or invalid), where people look
+  kNone,
+};
+// "all", "flagged", "none"; false for anything else.
+bool ParsePictures(const std::string& text, Pictures* pictures);
+const char* ToString(Pictures pictures);
+// Whether a report with this verdict gets its pictures drawn.
+bool DrawsPictures(Pictures pictures, const Quality& quality);
 
 struct FitReportOptions {
   PlotOptions plot;  // the plots' format (and how gnuplot is run, or whether: plot.draw)

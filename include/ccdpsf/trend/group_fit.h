@@ -18,25 +18,12 @@
 #include "ccdpsf/exposure_set.h"
 #include "ccdpsf/fit/fit.h"
 #include "ccdpsf/fit/fit_config.h"
+#include "ccdpsf/fit/fit_report.h"
 #include "ccdpsf/plot.h"
 #include "ccdpsf/quality.h"
 #include "ccdpsf/trend/campaign.h"
 
 namespace ccdpsf::trend {
-
-// Which groups' reports get their pictures drawn (a group's corner and residual pictures
-// take several times its fit: 0.35 s of gnuplot against ~0.1 s on the bundled campaign).
-// Their data and gnuplot scripts are written in every case.
-enum class GroupPictures {
-  kAll,
-  kFlagged,  // groups whose verdict is not ok (suspect or invalid), where people look
-  kNone,
-};
-// "all", "flagged", "none"; false for anything else.
-bool ParseGroupPictures(const std::string& text, GroupPictures* pictures);
-const char* ToString(GroupPictures pictures);
-// Whether a group with this verdict gets its pictures drawn.
-bool DrawsGroupPictures(GroupPictures pictures, const Quality& quality);
 
 struct GroupFitOptions {
   fit::FitConfig config;  // model, fit and calibration options (MCMC threads are set to 1)
@@ -49,7 +36,7 @@ struct GroupFitOptions {
   // are in `plot_format`, with the truth.json of the group's folder when there is one.
   std::string reports_dir;
   PlotFormat plot_format = PlotFormat::kPng;
-  GroupPictures pictures = GroupPictures::kFlagged;
+  fit::Pictures pictures = fit::Pictures::kFlagged;  // whose pictures are drawn
   // Effects fitted with an intensity series' spot only (intensity_series.h; the
   // brighter-fatter slope, which a setting at one intensity cannot fit).
   std::vector<fit::FitEffect> intensity_series_effects;
