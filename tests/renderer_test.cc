@@ -164,6 +164,53 @@ void CheckJacobians(const ModelOptions& options, const std::vector<JacobianCase>
   ::testing::Test::RecordProperty("max_column_relative_error", column.str());
 }
 
+// ValidSpotParams accepts what the renderers can draw and names the first problem of what
+// they cannot: each case below breaks one rule (values chosen by hand about the limits of
+// spot_model.h: total Gaussian width and Airy radius >= 0.05 px for integrated sampling).
+TEST(ValidSpotParams, AcceptsDrawableParametersAndNamesTheProblem) {
+  ModelOptions integrated, pixel_centre, pillbox;
+  pixel_centre.sampling = Sampling::kPixelCentre;
+  pillbox.defocus = DefocusKind::kPillbox;
+  const SpotParams good = {4.0e5, 10.0, 10.0, 0.47, 0.41, 0.29, 0.33};
+  std::string error;
+  for (const ModelOptions* o : {&integrated, &pixel_centre, &pillbox}) {
+    EXPECT_TRUE(ValidSpotParams(*o, good, &error)) << error;
+  }
+  // A Gaussian defocus makes up for a CCD width of 0 in integrated sampling, not a pillbox.
+  SpotParams no_ccd = good;
+  no_ccd[kCcdSigmaX] = 0.0;
+  EXPECT_TRUE(ValidSpotParams(integrated, no_ccd, &error)) << error;
+  EXPECT_FALSE(ValidSpotParams(pillbox, no_ccd, &error));
+  EXPECT_NE(error.find("total Gaussian width >= 0.05"), std::string::npos) << error;
+  EXPECT_FALSE(ValidSpotParams(pixel_centre, no_ccd, &error));
+  EXPECT_NE(error.find("pixel_centre sampling needs ccd sigmas > 0"), std::string::npos) << error;
+  // The pixel-centre renderer draws radii below the quadrature's limit.
+  SpotParams small_radius = good;
+  small_radius[kAiryRadius] = 0.04;
+  EXPECT_TRUE(ValidSpotParams(pixel_centre, small_radius, &error)) << error;
+  EXPECT_FALSE(ValidSpotParams(integrated, small_radius, &error));
+  EXPECT_NE(error.find("airy radius must be >= 0.05"), std::string::npos) << error;
+  const std::pair<int, double> broken[] = {{kFlux, -1.0},    {kAiryRadius, 0.0},
+                                           {kDefocus, -0.1}, {kCcdSigmaY, -0.1},
+                                           {kCentreX, NAN},  {kFlux, INFINITY}};
+  const char* expected[] = {"flux must be >= 0",         "airy radius must be > 0",
+                            "defocus must be >= 0",      "ccd sigmas must be >= 0",
+                            "parameter x is not finite", "parameter flux is not finite"};
+  for (size_t i = 0; i < std::size(broken); ++i) {
+    SpotParams p = good;
+    p[broken[i].first] = broken[i].second;
+    for (const ModelOptions* o : {&integrated, &pixel_centre, &pillbox}) {
+      error.clear();
+      EXPECT_FALSE(ValidSpotParams(*o, p, &error)) << expected[i];
+      EXPECT_NE(error.find(expected[i]), std::string::npos) << error;
+    }
+  }
+  ModelOptions narrow = integrated;
+  narrow.pixel_response_width = 1.5;
+  EXPECT_FALSE(ValidSpotParams(narrow, good, &error));
+  EXPECT_NE(error.find("pixel response width must lie in (0, 1]"), std::string::npos) << error;
+}
+
 TEST(Renderer, JacobianMatchesNumericDerivativesIntegratedGaussian) {
   CheckJacobians(Options(Sampling::kIntegrated, DefocusKind::kGaussian),
                  {{{1.5e5, 5.07, 4.96, 0.47, 0.41, 0.291, 0.335}, Grid(11, 11)},
