@@ -72,6 +72,16 @@ struct NodeDistances {
 };
 
 // Scratch space reused between renders (sizes change with the parameters).
+// Kernel weights along one axis. With an integer node density Q = 1/h, the nodes seen by
+// pixel n + 1 are those seen by pixel n shifted by exactly Q, with the same weights; so one
+// window of weights serves every pixel of the axis: pixel n uses nodes first + Q n + m,
+// m = 0..size-1, with weights row m.
+struct AxisWeights {
+  int first = 0;      // first node index seen by pixel 0
+  int q = 1;          // node shift per pixel (= 1/h)
+  Eigen::MatrixXd w;  // (size x 3): h k, d(h k)/d centre, d(h k)/d width
+};
+
 struct IntegratedWorkspace {
   // The radially symmetric image S (unit flux) at the nodes (|i|, |j|) of one quadrant, and
   // its derivatives by the Airy radius and (pillbox only) the pillbox radius.
@@ -80,6 +90,7 @@ struct IntegratedWorkspace {
   AlignedDoubles row;          // first pass: the right-hand sides of one output row, by |i|
   AlignedDoubles bt;           // first pass output, [(|i| * rhs count + rhs) * ny_pad + b]
   std::vector<double> acc;     // second pass accumulators, [quantity * ny_pad + b]
+  AxisWeights wx, wy;          // kernel weights (kept: their storage is reused)
   std::vector<double> edges;   // kernel weights: the normal's values at the window edges
   std::vector<size_t> offset;  // where each kernel node's input starts, for one output line
   AiryDiscProfile pillbox_profile;  // the pillbox model's S by distance
