@@ -71,7 +71,6 @@ struct NodeDistances {
   void Update(int rows, int cols, double hx, double hy);
 };
 
-// Scratch space reused between renders (sizes change with the parameters).
 // Kernel weights along one axis. With an integer node density Q = 1/h, the nodes seen by
 // pixel n + 1 are those seen by pixel n shifted by exactly Q, with the same weights; so one
 // window of weights serves every pixel of the axis: pixel n uses nodes first + Q n + m,
@@ -82,6 +81,7 @@ struct AxisWeights {
   Eigen::MatrixXd w;  // (size x 3): h k, d(h k)/d centre, d(h k)/d width
 };
 
+// Scratch space reused between renders (sizes change with the parameters).
 struct IntegratedWorkspace {
   // The radially symmetric image S (unit flux) at the nodes (|i|, |j|) of one quadrant, and
   // its derivatives by the Airy radius and (pillbox only) the pillbox radius.

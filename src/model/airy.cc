@@ -102,11 +102,11 @@ void EncircledRatioNode(double v, double* e, double* de, double* d2e) {
 // The table, built on demand in blocks of intervals from v = 0 up to the largest v asked
 // for: building all of it (60 000 Bessel-function calls) took ~0.15 s with
 // std::cyl_bessel_j, a tenth of a complete fit at the time, while renders rarely need v
-// beyond ~300. The storage is allocated whole at once, so
-// the pointer handed out never changes; `built` counts the intervals ready, published with
-// release semantics after they are written, and readers never read past what they have seen
-// (Ensure before use), so no reader races a writer. Every interval's coefficients depend
-// only on its two nodes, so the values do not depend on the order of the requests.
+// beyond ~300. The storage is allocated whole at once, so the pointer handed out never
+// changes; `built` counts the intervals ready, published with release semantics after they
+// are written, and readers never read past what they have seen (Ensure before use), so no
+// reader races a writer. Every interval's coefficients depend only on its two nodes, so the
+// values do not depend on the order of the requests.
 class QuinticTable {
  public:
   explicit QuinticTable(NodeData node)
@@ -177,9 +177,8 @@ void AiryAmplitudeDirect(double v, double* a, double* da_dv) {
     return;
   }
   // glibc's POSIX j0/j1: ~1e-17 absolute error against mpmath up to v = 1500, where
-  // std::cyl_bessel_j errs by up to ~5e-13, and ~25 times faster (the table's build, ~5 000
-  // nodes for a typical stamp, took ~45 ms of a single fit's CLI run through
-  // std::cyl_bessel_j).
+  // std::cyl_bessel_j errs by up to ~5e-13, and ~25 times faster (through std::cyl_bessel_j
+  // the table's build took ~40 ms of a single fit's 56 ms MAP).
   const double j0 = ::j0(v);
   const double j1 = ::j1(v);
   *a = 2.0 * j1 / v;

@@ -66,12 +66,15 @@ bool ValidSpotParams(const ModelOptions& options, const SpotParams& p, std::stri
   if (!window_ok) {
     why << "the pixel response width must lie in (0, 1] px (got "
         << options.pixel_response_width << ")";
-  } else if (p[kFlux] < 0)
+  } else if (p[kFlux] < 0) {
     why << "flux must be >= 0 (got " << p[kFlux] << ")";
-  else if (p[kAiryRadius] <= 0) why << "airy radius must be > 0 px (got " << p[kAiryRadius] << ")";
-  else if (p[kDefocus] < 0) why << "defocus must be >= 0 px (got " << p[kDefocus] << ")";
-  else if (p[kCcdSigmaX] < 0 || p[kCcdSigmaY] < 0) why << "ccd sigmas must be >= 0 px";
-  else if (integrated) {
+  } else if (p[kAiryRadius] <= 0) {
+    why << "airy radius must be > 0 px (got " << p[kAiryRadius] << ")";
+  } else if (p[kDefocus] < 0) {
+    why << "defocus must be >= 0 px (got " << p[kDefocus] << ")";
+  } else if (p[kCcdSigmaX] < 0 || p[kCcdSigmaY] < 0) {
+    why << "ccd sigmas must be >= 0 px";
+  } else if (integrated) {
     if (!widths_ok) {
       why << "integrated sampling needs a total Gaussian width >= " << kMinGaussianWidthPx
           << " px on each axis (got " << gx << ", " << gy << ")";
