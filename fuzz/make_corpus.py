@@ -136,7 +136,7 @@ def main():
     ztile = rice.replace(b"ZTILE1  =                   16", b"ZTILE1  =                    0")
     assert ztile != rice
     write("rice_ztile1_zero.fits", ztile)
-    # What the first campaign found (tests/fits_io_test.cc has each as a regression test):
+    # What the first campaign found (tests/unit/fits_io_test.cc has each as a regression test):
     # an END card CFITSIO reads as END and the screen did not ("END   TFORM1..."), hiding
     # ZTILE1 = 0; and a NAXIS1 CFITSIO cannot parse in a header the file cuts short (a
     # calloc sized from an unset variable).

@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # One-step set-up on a fresh Debian 12 machine: install what is missing, build, then
 #   bash tools/bootstrap.sh demo   run the main job on the bundled data
-#   bash tools/bootstrap.sh test   run the whole test suite (Release, then address +
-#                                  undefined-behaviour sanitizers), then fuzz the FITS
-#                                  input stage for 60 s (README, "Fuzzing")
+#   bash tools/bootstrap.sh test   run the whole test suite in Release, the unit and cli
+#                                  tiers again under the address + undefined-behaviour
+#                                  sanitizers, then fuzz the input stages (tests/README.md)
 # Run as root, or as a user with sudo. Safe to re-run: installs and builds are incremental.
 set -euo pipefail
 
@@ -30,7 +30,8 @@ packages=(build-essential cmake pkg-config libceres-dev libeigen3-dev libgoogle-
           libgflags-dev libcfitsio-dev libgtest-dev nlohmann-json3-dev libbenchmark-dev
           gnuplot-nox fitsverify python3-numpy python3-scipy python3-astropy
           python3-pytest python3-emcee python3-matplotlib libopenmpi-dev openmpi-bin)
-# clang-14 and its sanitizer and libFuzzer runtimes: the test mode's short fuzzing run.
+# clang-14 and its sanitizer and libFuzzer runtimes: the test mode's sanitizer build, which
+# also makes the fuzzers.
 if [ "$mode" = test ]; then packages+=(clang-14 libclang-rt-14-dev); fi
 missing=()
 for p in "${packages[@]}"; do
@@ -63,35 +64,50 @@ if [ "$mode" = demo ]; then
   exit 0
 fi
 
-echo "== tests (Release)"
+# The test tiers (tests/README.md): unit and cli run in both builds below, e2e and the Python
+# side in Release only. ctest starts the costliest cases first when it knows their costs, so
+# the committed costs of the last measured run (tests/costs.txt) seed a fresh build's.
+seed_costs() {
+  mkdir -p "$1/Testing/Temporary"
+  if [ ! -s "$1/Testing/Temporary/CTestCostData.txt" ]; then
+    cp tests/costs.txt "$1/Testing/Temporary/CTestCostData.txt"
+  fi
+}
+echo "== tests (Release): unit, cli, e2e and python tiers"
+seed_costs build
 (cd build && ctest --output-on-failure -j"$jobs")
+/usr/bin/python3 tools/test_costs.py build --slowest 10
 
-echo "== building with address + undefined-behaviour sanitizers in build-asan/"
-cmake -S . -B build-asan -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCCDPSF_SANITIZE=ON \
-  -DCCDPSF_BUILD_BENCHMARKS=OFF > /dev/null
-cmake --build build-asan -j"$jobs"
-echo "== tests (sanitizers)"
-(cd build-asan && ctest --output-on-failure -j"$jobs")
-
-# A short fuzzing run of the FITS input stage (fuzz/fits_input_fuzzer.cc) from the committed
-# seeds: a regression in the reader's screen shows up here within seconds. New inputs go to
-# a scratch corpus, removed afterwards; a fixed seed makes the mutations repeatable. A failing
-# input is kept as build-fuzz/crash-* (or leak-, timeout-, oom-).
-echo "== building the fuzzer (clang, libFuzzer + address + undefined) in build-fuzz/"
-# -O1 with line tables only: a quicker build than RelWithDebInfo's -O2 -g, stacks still named.
-CC=clang-14 CXX=clang++-14 cmake -S . -B build-fuzz -DCMAKE_BUILD_TYPE=RelWithDebInfo \
+# One clang build serves the sanitizer tests and the fuzzers: AddressSanitizer and
+# UndefinedBehaviorSanitizer everywhere, plus libFuzzer's coverage instrumentation (unused by
+# the tests). -O1 with line tables only: a quicker build than -O2 -g, stacks still named.
+echo "== building with clang: address + undefined sanitizers, libFuzzer harnesses (build-sanitize/)"
+CC=clang-14 CXX=clang++-14 cmake -S . -B build-sanitize -DCMAKE_BUILD_TYPE=RelWithDebInfo \
   -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O1 -gline-tables-only -DNDEBUG" \
-  -DCCDPSF_FUZZ=ON -DCCDPSF_BUILD_TESTS=OFF -DCCDPSF_BUILD_BENCHMARKS=OFF > /dev/null
-cmake --build build-fuzz --target fits_input_fuzzer -j"$jobs"
-echo "== fuzzing the FITS input stage for 60 s"
+  -DCCDPSF_FUZZ=ON -DCCDPSF_E2E_TESTS=OFF -DCCDPSF_BUILD_BENCHMARKS=OFF > /dev/null
+cmake --build build-sanitize -j"$jobs"
+echo "== tests (sanitizers): unit and cli tiers"
+seed_costs build-sanitize
+(cd build-sanitize && ctest --output-on-failure -j"$jobs")
+/usr/bin/python3 tools/test_costs.py build-sanitize --slowest 10
+
+# Short fuzzing runs of the input stages from the committed seeds (README, "Fuzzing"): a
+# regression in a reader shows up here within seconds. New inputs go to a scratch corpus,
+# removed afterwards; a fixed seed makes the mutations repeatable. A failing input is kept
+# as build-sanitize/crash-* (or leak-, timeout-, oom-).
 scratch="$(mktemp -d)"
 trap 'rm -rf "$scratch"' EXIT
-if ! ./build-fuzz/fits_input_fuzzer "$scratch" fuzz/corpus -dict=fuzz/fits.dict \
-     -seed=1 -max_total_time=60 -timeout=30 -rss_limit_mb=2048 -artifact_prefix=build-fuzz/ \
-     -print_final_stats=1 > build-fuzz/fuzz.log 2>&1; then
-  tail -n 60 build-fuzz/fuzz.log
-  echo "== the fuzzer failed on the input in build-fuzz/ (crash-*, leak-*, timeout-* or oom-*);"
-  echo "   README, \"Fuzzing\", says how to reproduce it and make it a regression test"
-  exit 1
-fi
-grep -E "^#[0-9]+ +DONE|^stat::number_of_executed_units|^stat::peak_rss_mb" build-fuzz/fuzz.log
+fuzz() {  # harness, corpus, dictionary, seconds
+  echo "== fuzzing with $1 for $4 s"
+  mkdir -p "$scratch/$1"
+  if ! ./build-sanitize/"$1" "$scratch/$1" "$2" -dict="$3" -seed=1 -max_total_time="$4" \
+       -timeout=30 -rss_limit_mb=2048 -artifact_prefix=build-sanitize/ -print_final_stats=1 \
+       > "build-sanitize/$1.log" 2>&1; then
+    tail -n 60 "build-sanitize/$1.log"
+    echo "== $1 failed on the input in build-sanitize/ (crash-*, leak-*, timeout-* or oom-*);"
+    echo "   README, \"Fuzzing\", says how to reproduce it and make it a regression test"
+    exit 1
+  fi
+  grep -E "^#[0-9]+ +DONE|^stat::number_of_executed_units|^stat::peak_rss_mb" "build-sanitize/$1.log"
+}
+fuzz fits_input_fuzzer fuzz/corpus fuzz/fits.dict 60

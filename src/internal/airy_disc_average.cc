@@ -155,7 +155,7 @@ namespace {
 //                  (T_19's), but b_l falls like J_l(2 k H / kSub) = J_l(4), so the products
 //                  stay small: the rounding error is ~1e-14 of the peak (measured on test
 //                  functions of the same band while this was written;
-//                  tests/airy_disc_average_test.cc holds the profile to the direct
+//                  tests/unit/airy_disc_average_test.cc holds the profile to the direct
 //                  quadrature over the disc).
 // (The product of the two maps is the direct map from values to power series; it has entries
 // ~1e6 on the outer sub-pieces and loses four digits to cancellation, so it is not used.)

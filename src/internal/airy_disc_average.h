@@ -30,7 +30,7 @@ void EnsureDiscAverageTables(double v_max);
 class AiryDiscAverage {
  public:
   // k = pi Rz / r [1/px], R > 0 the disc's radius [px]. The node count follows from 2 k R
-  // with a margin that tests/airy_disc_average_test.cc confirms against a direct quadrature
+  // with a margin that tests/unit/airy_disc_average_test.cc confirms against a direct quadrature
   // over the disc. EnsureDiscAverageTables(k (d + R)) must have been called for the largest d.
   AiryDiscAverage(double k, double radius);
 

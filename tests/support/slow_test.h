@@ -1,7 +1,8 @@
-// End-to-end cases that take a minute or more in the Release build run there only: under
-// the address and undefined-behaviour sanitizers they would take ten times as long, and the
-// code they exercise is covered there by the quicker tests. CMake defines CCDPSF_SANITIZED
-// for the sanitizer build.
+// Heavy cases inside the sanitized tiers (tests/unit, tests/cli) run in the Release build
+// only: under AddressSanitizer and UndefinedBehaviorSanitizer they would take five to ten
+// times as long, and the code they exercise is covered there by quicker cases. Each use
+// says, in a comment beside it, which sanitized case covers its code. CMake defines
+// CCDPSF_SANITIZED in the sanitizer build (tests/README.md).
 #ifndef CCDPSF_TESTS_SUPPORT_SLOW_TEST_H_
 #define CCDPSF_TESTS_SUPPORT_SLOW_TEST_H_
 
@@ -9,7 +10,7 @@
 
 #ifdef CCDPSF_SANITIZED
 #define CCDPSF_RELEASE_ONLY() \
-  GTEST_SKIP() << "slow end-to-end case: run in the Release build only"
+  GTEST_SKIP() << "heavy case: run in the Release build only (tests/README.md)"
 #else
 #define CCDPSF_RELEASE_ONLY() static_cast<void>(0)
 #endif

@@ -37,7 +37,7 @@ void EnsureAiryTable(double v_max);
 // v = 2, where 1 - J0^2 - J1^2 cancels). For the pillbox model's disc averages
 // (internal/airy_disc_average.h), which need e alone where a and a' gave it with a division.
 // Its pieces are good to ~2e-14 (a script against the series and scipy's Bessel functions at
-// 5 points per piece, v < 200, while this was written; tests/airy_disc_average_test.cc checks).
+// 5 points per piece, v < 200, while this was written; tests/unit/airy_disc_average_test.cc checks).
 const double* EncircledRatioTableCoefficients();
 void EnsureEncircledRatioTable(double v_max);
 // e(v) without the table (Bessel functions or the series): for tests and for v past the

@@ -15,7 +15,7 @@
 // exact answer is one joint fit of the series and the setting sharing (rate, z0); the box
 // keeps all of the series' plausible defocus values and none of its shape, so the anchored
 // CCD widths are at most slightly wider than the joint fit's, never narrower
-// (tests/defocus_anchor_test.cc compares the two on a small case). The series and the
+// (tests/unit/defocus_anchor_test.cc compares the two on a small case). The series and the
 // setting are assumed to share the optics and the focus law: the same wavelength (within
 // 0.5 nm) by default; with AnchorScope::kAnyWavelength a series at another wavelength may
 // anchor (geometric defocus does not depend on the wavelength, but a chromatic shift of best

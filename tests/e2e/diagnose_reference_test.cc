@@ -22,7 +22,6 @@
 #include "gtest/gtest.h"
 #include "nlohmann/json.hpp"
 #include "support/run_ccdpsf.h"
-#include "support/slow_test.h"
 
 namespace ccdpsf {
 namespace {
@@ -119,7 +118,6 @@ const std::vector<double> kSeries = {2e4, 5e4, 1e5, 2e5, 4e5};
 class ReferenceDiagnose : public ::testing::Test {
  protected:
   void SetUp() override {
-    CCDPSF_RELEASE_ONLY();
     std::string why;
     if (Shell("/usr/bin/python3 -c 'import numpy, scipy, astropy'", &why) != 0) {
       GTEST_SKIP() << "/usr/bin/python3 with numpy, scipy and astropy makes the reference "

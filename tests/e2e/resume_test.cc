@@ -16,7 +16,6 @@
 #include "gtest/gtest.h"
 #include "nlohmann/json.hpp"
 #include "support/run_ccdpsf.h"
-#include "support/slow_test.h"
 
 namespace ccdpsf {
 namespace {
@@ -36,7 +35,6 @@ std::string Bytes(const std::string& path) {
 }
 
 TEST(Resume, AKilledFitResumesToTheChainOfAnUninterruptedRun) {
-  CCDPSF_RELEASE_ONLY();  // four 3000-step fits; the sampler's own resume test runs everywhere
   const std::string dir = FreshDir("resume", "fit");
   // Never converged (target_ess far out of reach), so every run takes all 3000 steps, with a
   // checkpoint at each convergence check.
@@ -77,7 +75,6 @@ nlohmann::json WithoutSeconds(nlohmann::json j) {
 }
 
 TEST(Resume, AKilledTrendKeepsItsFinishedGroups) {
-  CCDPSF_RELEASE_ONLY();  // three trend runs of a 7-group campaign: ~1 min in Release
   const std::string dir = FreshDir("resume", "trend");
   ASSERT_EQ(RunCcdpsf("simulate --config=" + std::string(CCDPSF_TESTDATA) +
                       "/campaign_paper_small.json --out=" + dir + "/data")

@@ -16,7 +16,6 @@
 #include "ccdpsf/trend/campaign.h"
 #include "gtest/gtest.h"
 #include "support/run_ccdpsf.h"
-#include "support/slow_test.h"
 
 namespace ccdpsf {
 namespace {
@@ -254,7 +253,6 @@ TEST(Grid, ShardsMergeToTheRunOnOneProcess) {
 
 // Two MPI processes write the same psf_map as one process, byte for byte.
 TEST(Grid, MpirunWithTwoProcessesWritesTheSameMap) {
-  CCDPSF_RELEASE_ONLY();
   std::string said;
   if (Shell("command -v mpirun", &said) != 0) GTEST_SKIP() << "mpirun not installed";
   const std::string frames = GridFrames("small", "--size 1024 --grid 3 --exposures 2 --seed 5");
@@ -281,7 +279,6 @@ TEST(Grid, MpirunWithTwoProcessesWritesTheSameMap) {
 // sensor, three exposures: all 49 spots fitted, the map holds the truth within its intervals,
 // the crowded pair and the edge spot refused.
 TEST(Grid, FullSensorGridHoldsTheTruth) {
-  CCDPSF_RELEASE_ONLY();
   const std::string frames = GridFrames("full", "--size 4096 --grid 7 --exposures 3 --seed 1");
   const std::string out = FreshDir("Grid", "full") + "/out";
   const RunResult r = RunCcdpsf("grid --nomcmc --out=" + out + Frames(frames, 3));
@@ -310,7 +307,6 @@ TEST(Grid, FullSensorGridHoldsTheTruth) {
 // each spot is fitted with the through-focus model, which identifies its CCD widths; the map
 // of ccd_sigma_x_px / ccd_sigma_y_px holds the truth that varies across the sensor.
 TEST(Grid, ThroughFocusGridIdentifiesEachSpotsCcdWidths) {
-  CCDPSF_RELEASE_ONLY();  // 9 spots x 5 exposures, through-focus fits
   const std::string frames = GridFrames(
       "focus", "--size 1024 --grid 3 --flux_e 2e5 --focus_um=-100,-50,0,50,100 "
                "--defocus_px=0.8,0.4,0.0,0.4,0.8 --no_extras --seed 3");
@@ -348,7 +344,6 @@ TEST(Grid, ThroughFocusGridIdentifiesEachSpotsCcdWidths) {
 // spot's relation of the CCD FWHM (sqrt(sigma_x sigma_y)) with wavelength has alpha =
 // (alpha_x + alpha_y) / 2, the truth's exponents (grid_frames.py's law).
 TEST(Grid, EachSpotsAlphaAcrossWavelengthsHoldsTheTruth) {
-  CCDPSF_RELEASE_ONLY();  // 3 x 5 frames, 27 through-focus fits
   std::string files;
   std::string truth_dir;
   for (const char* wavelength : {"650", "750", "850"}) {
@@ -390,7 +385,6 @@ TEST(Grid, EachSpotsAlphaAcrossWavelengthsHoldsTheTruth) {
 // A killed grid keeps the spots it had finished: --resume fits only the others and writes
 // the same map as an uninterrupted run.
 TEST(Grid, AKilledGridResumesWithItsFinishedSpots) {
-  CCDPSF_RELEASE_ONLY();  // three MCMC runs over nine spots
   const std::string frames = GridFrames("small", "--size 1024 --grid 3 --exposures 2 --seed 5");
   const std::string dir = FreshDir("Grid", "resume");
   const std::string options = " --threads=1 --target_ess=100" + Frames(frames, 2);

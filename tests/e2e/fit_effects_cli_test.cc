@@ -13,7 +13,6 @@
 #include "gtest/gtest.h"
 #include "nlohmann/json.hpp"
 #include "support/run_ccdpsf.h"
-#include "support/slow_test.h"
 
 namespace ccdpsf {
 namespace {
@@ -77,7 +76,6 @@ json ReadJson(const std::string& path) {
 // are right), and describe the data (chi^2/dof within its range) where the paper's model
 // does not (chi^2/dof 3.2 measured).
 TEST(FitEffectsCli, FitRecoversHiddenCtiAndBrighterFatter) {
-  CCDPSF_RELEASE_ONLY();
   json exposures = json::array();
   for (const auto& [flux, seconds] : {std::pair<double, double>{1.0e5, 1.0}, {3.5e5, 3.5}}) {
     for (int i = 0; i < 5; ++i) {
@@ -126,7 +124,6 @@ TEST(FitEffectsCli, FitRecoversHiddenCtiAndBrighterFatter) {
 // the Gaussian defocus the brighter-fatter slope trades against the CCD widths, so only the
 // CTI, which does not, is held to its truth here: within 4 Laplace sd.)
 TEST(FitEffectsCli, DiagnoseFinalModelContinuesInFit) {
-  CCDPSF_RELEASE_ONLY();
   json exposures = json::array();
   int i = 0;
   for (const auto& [flux, seconds] :
@@ -176,7 +173,6 @@ TEST(FitEffectsCli, DiagnoseFinalModelContinuesInFit) {
 // (the reference) with MCMC intervals; every truth within its 99.7 % interval (eight
 // quantities: a 2 % chance of a false failure if the intervals are right).
 TEST(FitEffectsCli, DiagnosedJitterIsMeasuredPerExposureByTheFit) {
-  CCDPSF_RELEASE_ONLY();
   const std::vector<double> sigmas = {0.0, 0.1, 0.15, 0.2, 0.25};
   json exposures = json::array();
   for (int k = 0; k < 5; ++k) {
@@ -218,7 +214,6 @@ TEST(FitEffectsCli, DiagnosedJitterIsMeasuredPerExposureByTheFit) {
 // 0.114], dy -0.010 in [-0.027, 0.008], sigma_x 0.289 in [0.270, 0.301], sigma_y 0.335 in
 // [0.328, 0.341]).
 TEST(FitEffectsCli, DiagnosedDefocusOffsetIsMeasuredByThePixelCentreFit) {
-  CCDPSF_RELEASE_ONLY();
   json exposures = json::array();
   for (int k = 0; k < 5; ++k) {
     exposures.push_back({{"peak_e", 6.0e4},
@@ -286,7 +281,6 @@ TEST(FitEffectsCli, AnAbsentEffectIsAnUpperLimitNotAFault) {
 // points); the series' own parameters (the kernel at zero signal, the slopes) their truths.
 // 16 quantities at 99.7 %: a ~5 % chance of a false failure if the intervals are right.
 TEST(FitEffectsCli, TrendGivesTheKernelsIntensityRelation) {
-  CCDPSF_RELEASE_ONLY();
   const double kFwhmPerSigma = 2.0 * std::sqrt(2.0 * std::log(2.0));
   const std::string campaign = FreshDir("FitEffectsCli", "bf_campaign");
   std::map<std::string, std::array<double, 2>> kernel_um;  // setting -> truth FWHM x, y

@@ -15,7 +15,6 @@
 #include "gtest/gtest.h"
 #include "nlohmann/json.hpp"
 #include "support/run_ccdpsf.h"
-#include "support/slow_test.h"
 
 namespace ccdpsf {
 namespace {
@@ -334,7 +333,6 @@ std::map<std::string, int> PrintedCounts(const std::string& output, const std::s
 // gives them. Requirements are set so that one is settled each way and one is not: limits at
 // 10x and 1/10 of the FWHM the default run measured, and one at that FWHM (P(pass) near 0.5).
 TEST(CliOptions, TrendSummaryCountsTheReportsVerdicts) {
-  CCDPSF_RELEASE_ONLY();  // two trend runs with MCMC of a 7-group campaign: ~30 s in Release
   const std::string dir = FreshDir("options", "trend");
   ASSERT_EQ(RunCcdpsf("simulate --config=" + std::string(CCDPSF_TESTDATA) +
                       "/campaign_paper_small.json --out=" + dir + "/data")
