@@ -19,6 +19,7 @@
 #include "gtest/gtest.h"
 #include "nlohmann/json.hpp"
 #include "support/run_ccdpsf.h"
+#include "support/slow_test.h"
 
 namespace ccdpsf {
 namespace {
@@ -59,6 +60,8 @@ const std::string& SimulatedSet() {
 // must lie in the 99.7 % intervals (a failure here at 3 sd is a real defect: it held for all
 // 20 seeds of the measurement).
 TEST(Cli, PillboxFitSaysTheCcdWidthsAreIdentified) {
+  CCDPSF_RELEASE_ONLY();  // a fit with MCMC; see Cli.SeparateFitsGetOneFolderEach for the sanitized
+  // run
   const std::string sim = Fresh("pillbox_sim"), out = Fresh("pillbox_fit");
   nlohmann::json config;
   {
@@ -104,6 +107,8 @@ TEST(Cli, HelpListsCommandsAndOptions) {
 }
 
 TEST(Cli, FitWritesTheDocumentedOutputs) {
+  CCDPSF_RELEASE_ONLY();  // a fit with MCMC and pictures; see Cli.SeparateFitsGetOneFolderEach for
+  // the sanitized run
   const std::string out = Fresh("fit_mcmc");
   const RunResult r = RunCcdpsf("fit --out=" + out +
                           " --max_steps=600 --target_ess=100 --seed=4 " + SimulatedSet() +
@@ -241,6 +246,8 @@ TEST(Cli, FitWritesTheDocumentedOutputs) {
 }
 
 TEST(Cli, SameSeedSameResults) {
+  CCDPSF_RELEASE_ONLY();  // two fits with MCMC; the fit command runs sanitized in
+  // Cli.BadInputGivesOneLineAndNoResults and Cli.SeparateFitsGetOneFolderEach
   const std::string a = Fresh("seed_a"), b = Fresh("seed_b");
   const std::string common = " --max_steps=300 --target_ess=50 --seed=9 " + SimulatedSet() +
                              "/exposure_001.fits";
@@ -296,6 +303,8 @@ TEST(Pictures, FlaggedDrawsWhereTheVerdictIsNotOk) {
 // verdicts are ok here; a flagged report drawn through the same policy is checked by
 // Pictures.FlaggedDrawsWhereTheVerdictIsNotOk and TrendCli.GroupPicturesAreDrawnWhere...
 TEST(Cli, FitDrawsPicturesWhereThePlotsOptionAsks) {
+  CCDPSF_RELEASE_ONLY();  // fits with pictures; see Cli.SeparateFitsGetOneFolderEach for the
+  // sanitized run
   if (!GnuplotAvailable()) GTEST_SKIP() << "gnuplot is not installed";
   const std::string files =
       " " + SimulatedSet() + "/exposure_000.fits " + SimulatedSet() + "/exposure_001.fits";
@@ -330,6 +339,8 @@ TEST(Cli, FitDrawsPicturesWhereThePlotsOptionAsks) {
 }
 
 TEST(Cli, JointFitSharesThePsf) {
+  CCDPSF_RELEASE_ONLY();  // a joint fit with MCMC; see Cli.SeparateFitsGetOneFolderEach for the
+  // sanitized run
   const std::string out = Fresh("joint");
   const RunResult r = RunCcdpsf("fit --nomcmc --joint --out=" + out + " " + SimulatedSet() +
                           "/exposure_000.fits " + SimulatedSet() + "/exposure_001.fits " +

@@ -27,6 +27,7 @@
 #include "gtest/gtest.h"
 #include "nlohmann/json.hpp"
 #include "support/run_ccdpsf.h"
+#include "support/slow_test.h"
 
 namespace ccdpsf {
 namespace {
@@ -161,6 +162,7 @@ TEST_F(LabDefects, CleanExposureIsOk) {
 }
 
 TEST_F(LabDefects, CosmicRayBesideThePeak) {
+  CCDPSF_RELEASE_ONLY();  // see LabDefects.CleanExposureIsOk for the sanitized runs
   // One exposure: a lone spike in the core is masked, and the verdict says so.
   std::string output;
   const json fit = Fit("cr1", WithDefect("cosmic_adjacent"), &output);
@@ -168,12 +170,14 @@ TEST_F(LabDefects, CosmicRayBesideThePeak) {
 }
 
 TEST_F(LabDefects, CosmicRayThreePixelsAway) {
+  CCDPSF_RELEASE_ONLY();  // see LabDefects.CleanExposureIsOk for the sanitized runs
   std::string output;
   const json fit = Fit("cr3", WithDefect("cosmic_3px"), &output);
   ExpectHandled(fit, {"another_source", "core_outlier_masked"}, "another_source", output);
 }
 
 TEST_F(LabDefects, HotColumnThroughTheStamp) {
+  CCDPSF_RELEASE_ONLY();  // see LabDefects.CleanExposureIsOk for the sanitized runs
   std::string output;
   const json fit = Fit("hot", WithDefect("hot_column"), &output);
   ExpectHandled(fit, {"column_defect"}, "column_defect", output);
@@ -189,6 +193,7 @@ TEST_F(LabDefects, HotColumnThroughTheStamp) {
 // spot. Before, the column was taken for nine "other sources" and 205 of the 441 pixels were
 // masked around them.
 TEST_F(LabDefects, HotColumnThroughAStampSizedFrame) {
+  CCDPSF_RELEASE_ONLY();  // see LabDefects.CleanExposureIsOk for the sanitized runs
   const std::string dir = Fresh("stamp_sized");
   {
     std::ofstream config(dir + "/sim.json");
@@ -226,6 +231,7 @@ TEST_F(LabDefects, HotColumnThroughAStampSizedFrame) {
 }
 
 TEST_F(LabDefects, SecondSpotSixPixelsAway) {
+  CCDPSF_RELEASE_ONLY();  // see LabDefects.CleanExposureIsOk for the sanitized runs
   std::string output;
   const json fit = Fit("second", WithDefect("second_spot"), &output);
   ExpectHandled(fit, {"another_source"}, "another_source", output);
@@ -235,6 +241,9 @@ TEST_F(LabDefects, SecondSpotSixPixelsAway) {
 }
 
 TEST_F(LabDefects, ClippedCoreWithoutSaturate) {
+  CCDPSF_RELEASE_ONLY();  // a fit per defect; the screens run sanitized in
+  // LabDefects.CleanExposureIsOk, .BlackLevelClippedAtZero and
+  // .MultiExtensionSegmentWithItsOwnOverscan
   // One exposure: only the peak pixel is clipped (its neighbours hold < 70 % of it), and
   // alone a clipped peak and a core flatter than the model look alike: the widths come out
   // wrong, and the verdict says why (the rule; the stronger check does not apply).
@@ -254,6 +263,7 @@ TEST_F(LabDefects, ClippedCoreWithoutSaturate) {
 }
 
 TEST_F(LabDefects, CosmicRayInOneExposureOfASet) {
+  CCDPSF_RELEASE_ONLY();  // see LabDefects.CleanExposureIsOk for the sanitized runs
   std::string output;
   std::string set = WithDefect("cosmic_adjacent");
   for (int k = 1; k < 5; ++k) set += " " + CleanSet() + "/exposure_00" + std::to_string(k) + ".fits";
@@ -263,6 +273,7 @@ TEST_F(LabDefects, CosmicRayInOneExposureOfASet) {
 }
 
 TEST_F(LabDefects, EightBitCamera) {
+  CCDPSF_RELEASE_ONLY();  // see LabDefects.CleanExposureIsOk for the sanitized runs
   std::string output;
   const json fit = Fit("8bit", WithDefect("quantised_8bit"), &output);
   ExpectHandled(fit, {}, "", output);

@@ -14,6 +14,7 @@
 #include "gtest/gtest.h"
 #include "internal/airy_table_simd.h"
 #include "internal/gauss_legendre.h"
+#include "support/slow_test.h"
 
 namespace ccdpsf::internal {
 namespace {
@@ -133,6 +134,8 @@ TEST(AiryDiscAverage, MatchesDirectQuadratureOverTheDisc) {
 // (peak / R and peak / k): the fourth-order differences at steps 1e-3 R and 1e-3 k have
 // truncation errors ~(2 k h)^4 / 30 < 1e-9 relative for these k R, and rounding ~1e-15 / 1e-3.
 TEST(AiryDiscAverage, DerivativesMatchFiniteDifferencesOfTheDirectQuadrature) {
+  CCDPSF_RELEASE_ONLY();  // many quadratures; the same code runs sanitized in
+  // AiryDiscAverage.MatchesDirectQuadratureOverTheDisc
   for (const Case& c : Cases()) {
     if (c.disc_radius < 0.2 || c.d > 5.0) continue;  // keeps the test's run time short
     const double k = M_PI * model::kAiryRz / c.airy_radius;
@@ -184,6 +187,8 @@ TEST(AiryDiscAverage, SmallDiscIsTheAiryIntensity) {
 // and 24). So, against the circle integral, 1.5e-11 of the peak for S and 2e-11 of peak / k and
 // peak / R for the derivatives; against the direct quadrature, 5e-12 of the peak.
 TEST(AiryDiscProfile, MatchesTheCircleIntegralBetweenItsPoints) {
+  CCDPSF_RELEASE_ONLY();  // a dense scan; the profile runs sanitized in
+  // AiryDiscAverage.MatchesDirectQuadratureOverTheDisc
   for (const double r : {0.3, 0.47, 0.9}) {
     for (const double radius : {0.05, 0.6, 3.0}) {
       const double k = M_PI * model::kAiryRz / r;

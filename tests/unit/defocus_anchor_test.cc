@@ -177,6 +177,8 @@ fit::FitOptions Mcmc(uint64_t seed) {
 // wider), its 99.7 % interval holding the truth, and the anchor must matter: without it the
 // single exposure's CCD widths span the prior's ridge (68 % interval several times wider).
 TEST(DefocusAnchor, AgreesWithTheExactJointFitOnASmallCase) {
+  CCDPSF_RELEASE_ONLY();  // two joint fits; the anchor runs sanitized in
+  // DefocusAnchor.BoxIsTheSeriesIntervalAtTheStagePosition
   const std::vector<double> z = {-400, -200, 0, 200, 400, 300};
   const SimulationConfig c = testing_support::FocusSeriesConfig(z, 60.0, 0.0015, 4.0e5, 7);
   const std::vector<Stamp> stamps = testing_support::SimulateStamps(c, 8);
@@ -253,6 +255,8 @@ TEST(DefocusAnchor, AgreesWithTheExactJointFitOnASmallCase) {
 // CCD-only relations, within 3 sd of the truth) and not the 600 nm one (a gap there); the
 // notes state the assumption. A bad --anchor_defocus is a one-line error.
 TEST(DefocusAnchor, TrendAnchorsASimulatedSetting) {
+  CCDPSF_RELEASE_ONLY();  // a trend run; the anchor's code runs sanitized in
+  // DefocusAnchor.BoxIsTheSeriesIntervalAtTheStagePosition
   const std::string dir = testing_support::FreshDir("DefocusAnchor", "trend");
   {
     std::ofstream(dir + "/campaign.json") << R"({"campaign": {"seed": 3,

@@ -43,6 +43,7 @@
 #include "nlohmann/json.hpp"
 #include "support/run_ccdpsf.h"
 #include "support/simulated_stamps.h"
+#include "support/slow_test.h"
 
 namespace ccdpsf::diagnose {
 namespace {
@@ -203,6 +204,7 @@ TEST(Diagnose, CleanDataNamesNothing) {
 }
 
 TEST(Diagnose, FindsBackground) {
+  CCDPSF_RELEASE_ONLY();  // a diagnosis; see Diagnose.CleanDataNamesNothing for the sanitized run
   SimulationConfig c = Paper();
   c.effects.background = model::BackgroundParams{20.0};
   ExpectFound(Diagnose(testing_support::SimulateStamps(c, 6)), {EffectKind::kBackground},
@@ -217,6 +219,7 @@ TEST(Diagnose, FindsIpc) {
 }
 
 TEST(Diagnose, FindsSerialCti) {
+  CCDPSF_RELEASE_ONLY();  // a diagnosis; see Diagnose.FindsIpc for the sanitized run
   SimulationConfig c = Paper();
   c.effects.serial_cti = model::CtiParams{1e-3, 1.5};
   ExpectFound(Diagnose(testing_support::SimulateStamps(c, 8)), {EffectKind::kSerialCti},
@@ -224,6 +227,7 @@ TEST(Diagnose, FindsSerialCti) {
 }
 
 TEST(Diagnose, FindsParallelCti) {
+  CCDPSF_RELEASE_ONLY();  // a diagnosis; see Diagnose.FindsIpc for the sanitized run
   SimulationConfig c = Paper();
   c.effects.parallel_cti = model::CtiParams{1e-3, 1.5};
   ExpectFound(Diagnose(testing_support::SimulateStamps(c, 9)), {EffectKind::kParallelCti},
@@ -231,6 +235,7 @@ TEST(Diagnose, FindsParallelCti) {
 }
 
 TEST(Diagnose, FindsHalo) {
+  CCDPSF_RELEASE_ONLY();  // a diagnosis; see Diagnose.FindsIpc for the sanitized run
   SimulationConfig c = Paper();
   c.effects.halo = model::HaloParams{0.03, 2.5};
   ExpectFound(Diagnose(testing_support::SimulateStamps(c, 10)), {EffectKind::kHalo},
@@ -242,6 +247,7 @@ TEST(Diagnose, FindsHalo) {
 // (SignalIndependenceContradiction in diagnose.cc, for a spot that broadens with signal)
 // must leave it named.
 TEST(Diagnose, FindsHaloAcrossIntensities) {
+  CCDPSF_RELEASE_ONLY();  // a diagnosis; see Diagnose.FindsIpc for the sanitized run
   SimulationConfig c = Paper();
   const double flux[] = {4.0e5, 1.6e5, 6.4e4};
   for (int k = 0; k < 3; ++k) c.exposures[k].flux_e = flux[k];
@@ -574,6 +580,7 @@ TEST(Diagnose, EffectModelDerivativesAreTheFitsAnalyticOnes) {
 }
 
 TEST(Diagnose, FindsNonlinearityAcrossIntensities) {
+  CCDPSF_RELEASE_ONLY();  // a diagnosis; see Diagnose.FindsIpc for the sanitized run
   // At one intensity a quadratic response is largely a change of the widths (a flatter
   // peak); across intensities its growth with the signal gives it away.
   SimulationConfig c = Paper();
@@ -588,6 +595,7 @@ TEST(Diagnose, FindsNonlinearityAcrossIntensities) {
 }
 
 TEST(Diagnose, FindsBrighterFatterAcrossIntensities) {
+  CCDPSF_RELEASE_ONLY();  // a diagnosis; see Diagnose.FindsIpc for the sanitized run
   // The slope is that of the CCD widths, so it is identified where the CCD widths are. With
   // the paper's Gaussian defocus only sigma_f^2 + sigma_ccd^2 is (pitfall 1), and with it only
   // approximately the total width's slope (diagnose.json: total_slope_*). Here the projector
@@ -630,6 +638,7 @@ TEST(Diagnose, FindsBrighterFatterAcrossIntensities) {
 }
 
 TEST(Diagnose, FindsJitterPerExposure) {
+  CCDPSF_RELEASE_ONLY();  // a diagnosis; see Diagnose.FindsIpc for the sanitized run
   SimulationConfig c = Paper();
   const double sigma[] = {0.0, 0.15, 0.25};
   for (int k = 0; k < 3; ++k) {
@@ -645,6 +654,7 @@ TEST(Diagnose, FindsJitterPerExposure) {
 }
 
 TEST(Diagnose, FindsTwoEffects) {
+  CCDPSF_RELEASE_ONLY();  // a diagnosis; see Diagnose.FindsIpc for the sanitized run
   SimulationConfig c = Paper();
   c.effects.serial_cti = model::CtiParams{1e-3, 1.5};
   c.effects.background = model::BackgroundParams{20.0};
@@ -654,6 +664,7 @@ TEST(Diagnose, FindsTwoEffects) {
 }
 
 TEST(Diagnose, FindsDefocusInPixelCentreSampling) {
+  CCDPSF_RELEASE_ONLY();  // a diagnosis; see Diagnose.CleanDataNamesNothing for the sanitized run
   // In the 2015 discretisation (pixel_centre) the sampled defocus and CCD Gaussians do not
   // combine into one Gaussian (docs/trust.md, single focus), so a baseline with no defocus misses
   // something the widths cannot absorb, and "defocus" is named. The paper's defocus, 0.41 px.
@@ -681,6 +692,8 @@ Outcome DiagnosePixelCentre(const SimulationConfig& c, uint64_t noise_seed,
 }
 
 TEST(Diagnose, FindsDefocusOffsetInPixelCentreSampling) {
+  CCDPSF_RELEASE_ONLY();  // a diagnosis; diagnose's code runs sanitized in Diagnose.EffectModel*
+  // and Diagnose.CleanDataNamesNothing
   // The 2015 model's F kernel centred 0.1 px (the catalogue default) away from the Airy: in
   // that discretisation it is not a shift of the spot, and the data can tell. Five exposures
   // (the set of bench/diagnose_benchmark.cc): the baseline fit absorbs part of the offset
@@ -695,6 +708,7 @@ TEST(Diagnose, FindsDefocusOffsetInPixelCentreSampling) {
 }
 
 TEST(Diagnose, CleanPixelCentreDataNamesNothing) {
+  CCDPSF_RELEASE_ONLY();  // a diagnosis; see Diagnose.CleanDataNamesNothing for the sanitized run
   // In pixel_centre sampling defocus_offset is tested (the 2015 F kernel can move away from
   // the Airy); on data without it, it must not be claimed, nor anything else.
   const Outcome o =
@@ -709,6 +723,7 @@ TEST(Diagnose, CleanPixelCentreDataNamesNothing) {
 }
 
 TEST(Diagnose, DefocusOffsetIsNotClaimed) {
+  CCDPSF_RELEASE_ONLY();  // a diagnosis; see Diagnose.FindsIpc for the sanitized run
   // In integrated sampling a shifted defocus kernel is exactly a shift: the fitted position
   // absorbs it and nothing is missing.
   SimulationConfig c = Paper();
@@ -722,6 +737,7 @@ TEST(Diagnose, DefocusOffsetIsNotClaimed) {
 }
 
 TEST(Diagnose, RealisticNonlinearityIsBelowDetection) {
+  CCDPSF_RELEASE_ONLY();  // a diagnosis; see Diagnose.FindsIpc for the sanitized run
   // The catalogue's realistic nonlinearity (beta 3e-8 / e-: 0.45 % low at the 1.5e5 e- peak)
   // across three intensities: mostly absorbed by the widths and fluxes, it is below what such
   // data detect (bench/diagnose_benchmark.cc: named in 0 of 10 simulations of a five-intensity
@@ -736,6 +752,8 @@ TEST(Diagnose, RealisticNonlinearityIsBelowDetection) {
 }
 
 TEST(Diagnose, ReportHasTheDocumentedFields) {
+  CCDPSF_RELEASE_ONLY();  // a diagnosis through the binary; the report's writer runs sanitized in
+  // Diagnose.CliBadInput's refusals and the e2e tier's Release runs
   SimulationConfig c = Paper();
   c.effects.background = model::BackgroundParams{20.0};
   const auto stamps = testing_support::SimulateStamps(c, 6);

@@ -31,6 +31,7 @@
 #include "ccdpsf/fit/autocorrelation.h"
 #include "ccdpsf/random.h"
 #include "gtest/gtest.h"
+#include "support/slow_test.h"
 
 namespace ccdpsf::fit {
 namespace {
@@ -192,6 +193,8 @@ TEST(EnsembleSampler, Scaled5dGaussianMomentsAndAcceptance) {
 }
 
 TEST(EnsembleSampler, UniformBoxMomentsAndSupport) {
+  CCDPSF_RELEASE_ONLY();  // long chains; see EnsembleSampler.Correlated2dGaussianMoments for the
+  // sanitized run
   // Density 1 on [-1, 3] x [0, 0.5] x [10, 20], -inf outside: mean (lo + hi) / 2 and
   // variance (hi - lo)^2 / 12 per coordinate, and no sample may leave the box.
   const double lo[3] = {-1.0, 0.0, 10.0};
@@ -395,6 +398,8 @@ TEST(EnsembleSampler, LogProbIsTheDensityOfTheChain) {
 }
 
 TEST(EnsembleSampler, ConvergesWithEnoughStepsAndSaysWhyNotOtherwise) {
+  CCDPSF_RELEASE_ONLY();  // long chains; the sampler runs sanitized in
+  // EnsembleSampler.Correlated2dGaussianMoments and ...SameSeedIsBitIdenticalForAnyThreadCount
   const Gaussian g = Correlated2d();
   const std::vector<double> initial = InitialBall(g, 16, 0.5, 6);
   SamplerOptions options = QuietOptions(17);
@@ -453,6 +458,8 @@ TEST(EnsembleSampler, ConvergesWithEnoughStepsAndSaysWhyNotOtherwise) {
 // extreme) has no finite tau on any window, so the run cannot converge, and the reason names
 // it; the state's own tau and ESS are still those reported.
 TEST(EnsembleSampler, ConvergenceIsJudgedOnTheReportedQuantities) {
+  CCDPSF_RELEASE_ONLY();  // long chains; see EnsembleSampler.Correlated2dGaussianMoments for the
+  // sanitized run
   const Gaussian g = Correlated2d();
   const std::vector<double> initial = InitialBall(g, 16, 0.5, 6);
   SamplerOptions options = QuietOptions(17);
@@ -549,6 +556,8 @@ TEST(EnsembleSampler, LaplaceMoveGetsTheMomentsWithFewerEvaluations) {
 // (tens of SE at the ESS reached here), and an over-narrow proposal taken at face value
 // would shrink the variances.
 TEST(EnsembleSampler, WrongLaplaceMoveStillGivesTheRightMoments) {
+  CCDPSF_RELEASE_ONLY();  // long chains; the Laplace move runs sanitized in
+  // EnsembleSampler.BlockedTargetWithLaplaceMove
   for (const Gaussian& g : {Correlated2d(), Scaled5d()}) {
     const int dim = static_cast<int>(g.mean.size());
     SCOPED_TRACE(std::to_string(dim) + "-D Gaussian");

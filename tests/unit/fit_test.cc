@@ -19,6 +19,7 @@
 #include "gtest/gtest.h"
 #include "support/fit_helpers.h"
 #include "support/simulated_stamps.h"
+#include "support/slow_test.h"
 
 namespace ccdpsf::fit {
 namespace {
@@ -268,6 +269,8 @@ TEST(Fit, EveryStartReachesTheSameSolution) {
 // binomial sd of the coverage is 6 %; we accept 68 +- 18 % (3 sd). The full run (larger n,
 // MCMC intervals) is tools/calibration_check.sh.
 TEST(Fit, LaplaceIntervalsAreCalibrated) {
+  CCDPSF_RELEASE_ONLY();  // many fits; see Fit.RecoversIdentifiedQuantitiesAndJointIsTighter for
+  // the sanitized run
   const int n = 60;
   int inside_tx = 0, inside_r = 0, inside_flux = 0, inside_x = 0;
   for (int s = 0; s < n; ++s) {
@@ -294,6 +297,8 @@ TEST(Fit, LaplaceIntervalsAreCalibrated) {
 // pixel_centre data fitted in pixel_centre mode: the 2015 discretisation separates defocus
 // from the CCD kernel, so the paper-style sigma_f, sigma_x, sigma_y come back individually.
 TEST(Fit, PixelCentreRecoversSeparateWidths) {
+  CCDPSF_RELEASE_ONLY();  // fits with MCMC; see Fit.McmcIsDeterministicAndAgreesWithLaplace for the
+  // sanitized run
   const SimulationConfig c = PaperConfig(model::Sampling::kPixelCentre, 5, 13);
   FitModelOptions options;
   options.model.sampling = model::Sampling::kPixelCentre;
@@ -320,6 +325,8 @@ TEST(Fit, PixelCentreRecoversSeparateWidths) {
 // truth; the tolerance, 0.5 in log L, is far above the solver's convergence tolerance. Of ten
 // seeds the single-exposure seeding failed three (this is one), the joint screening none.
 TEST(Map, LowSignalPixelCentreJointFitFindsTheBestBasin) {
+  CCDPSF_RELEASE_ONLY();  // a multi-start joint MAP; see Fit.EveryStartReachesTheSameSolution for
+  // the sanitized run
   SimulationConfig c = PaperConfig(model::Sampling::kPixelCentre, 10, 45);
   for (auto& e : c.exposures) e.flux_e = 7100;
   FitModelOptions options;
@@ -347,6 +354,8 @@ TEST(Map, LowSignalPixelCentreJointFitFindsTheBestBasin) {
 // below the basin of the truth (chi^2/dof 1.013). The MAP's chi^2/dof must be within 5 sd
 // of 1 (sd sqrt(2 / dof) = 0.028).
 TEST(Map, PixelCentreScreeningKeepsEveryAiryRadius) {
+  CCDPSF_RELEASE_ONLY();  // many MAP fits; the screening runs sanitized in
+  // Fit.EveryStartReachesTheSameSolution
   namespace fs = std::filesystem;
   std::string error;
   auto config = LoadCampaignConfig(std::string(CCDPSF_TESTDATA) + "/campaign_table1.json", &error);
@@ -450,6 +459,8 @@ TEST(Fit, McmcIsDeterministicAndAgreesWithLaplace) {
 // positions, and the prior-dominated CCD width and defocus (the part the blocked sampler
 // draws from its exact conditional instead of walking).
 TEST(Fit, BlockedSamplerAgreesWithPlainEnsemble) {
+  CCDPSF_RELEASE_ONLY();  // two long chains; see Fit.McmcIsDeterministicAndAgreesWithLaplace for
+  // the sanitized run
   const SimulationConfig c = PaperConfig(model::Sampling::kIntegrated, 2, 41);
   auto model = MustCreate(SimulateStamps(c, 42));
   FitOptions o;
@@ -523,6 +534,8 @@ void ChainMeanSd(const FitResult& r, int i, double* mean, double* sd) {
 // independence move without its q ratio, pulled to the Laplace centre) shifts the 16 / 84 %
 // quantiles by ~0.1 sd, several SE at ESS 1000.
 TEST(Fit, LaplaceMoveAgreesWithALongStretchOnlyRun) {
+  CCDPSF_RELEASE_ONLY();  // two long chains; the fit's MCMC runs sanitized in
+  // Fit.McmcIsDeterministicAndAgreesWithLaplace
   for (const int exposures : {1, 2}) {
     SCOPED_TRACE(std::to_string(exposures) + " exposure(s)");
     const SimulationConfig c = PaperConfig(model::Sampling::kIntegrated, exposures, 51);

@@ -17,6 +17,7 @@
 #include "nlohmann/json.hpp"
 #include "support/fits_fixtures.h"
 #include "support/run_ccdpsf.h"
+#include "support/slow_test.h"
 
 namespace ccdpsf {
 namespace {
@@ -201,6 +202,8 @@ TEST(Campaign, ASubfolderPerSettingIsReadAsItIs) {
 
 // The CLI: a manifest and a keyword map instead of rewriting headers; --strict.
 TEST(MetadataCli, ManifestKeywordMapAndStrict) {
+  CCDPSF_RELEASE_ONLY();  // fits through the binary; the manifest and keyword map run sanitized in
+  // Manifest.* and KeywordMap.*
   const std::string dir = Fresh("cli");
   // A frame whose header has another lab's gain keyword and nothing else.
   SpotFile(dir + "/spot.fits", {{"EGAIN", 3.1, ""}});

@@ -17,6 +17,7 @@
 #include "gtest/gtest.h"
 #include "internal/subprocess.h"
 #include "support/fits_fixtures.h"
+#include "support/slow_test.h"
 
 namespace ccdpsf {
 namespace {
@@ -795,6 +796,8 @@ double QuantileOf(std::vector<double> values, double q) {
 }
 
 TEST(Plot, EachFormatWritesAFileWithItsExtensionAndMagicBytes) {
+  CCDPSF_RELEASE_ONLY();  // gnuplot three times over; the plot writer runs sanitized in
+  // Plot.CornerWritesDataScriptAndPng
   if (!GnuplotAvailable()) GTEST_SKIP() << "gnuplot is not installed";
   struct Case {
     PlotFormat format;

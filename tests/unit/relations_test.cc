@@ -24,6 +24,7 @@
 #include "ccdpsf/fit/fit.h"
 #include "ccdpsf/random.h"
 #include "gtest/gtest.h"
+#include "support/slow_test.h"
 
 namespace ccdpsf::trend {
 namespace {
@@ -250,6 +251,8 @@ TEST(Relations, GaussianPointsWithoutDrawsAreFlaggedAndFitted) {
 // standard errors (and leaves room for the ~3 % Monte-Carlo jitter of each bound at R = 1000,
 // which changes the coverage only at second order).
 TEST(Relations, IntervalsCoverTheTruth) {
+  CCDPSF_RELEASE_ONLY();  // many relation fits; the relations run sanitized in the other Relations
+  // cases
   const int num_sets = 1000;
   const std::vector<double> lambda = {600, 680, 750, 820, 890};
   const std::vector<double> intensity = {1.0e4, 5.0e4, 1.0e5, 1.5e5};

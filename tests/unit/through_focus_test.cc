@@ -22,6 +22,7 @@
 #include "support/fit_helpers.h"
 #include "support/run_ccdpsf.h"
 #include "support/simulated_stamps.h"
+#include "support/slow_test.h"
 
 namespace ccdpsf::fit {
 namespace {
@@ -426,6 +427,8 @@ TEST(ThroughFocus, EachExposureAloneMeasuresItsTotalWidth) {
 }
 
 TEST(ThroughFocus, CliFitsASimulatedSeries) {
+  CCDPSF_RELEASE_ONLY();  // a fit through the binary; the series model runs sanitized in the other
+  // ThroughFocus cases
   namespace fs = std::filesystem;
   const std::string dir =
       ::testing::TempDir() + "/ccdpsf_focus_" + std::to_string(static_cast<long>(::getpid()));

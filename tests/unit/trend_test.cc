@@ -26,6 +26,7 @@
 #include "nlohmann/json.hpp"
 #include "support/run_ccdpsf.h"
 #include "support/simulated_stamps.h"
+#include "support/slow_test.h"
 
 namespace ccdpsf::trend {
 namespace {
@@ -498,6 +499,8 @@ TEST(Trend, ThroughFocusSeriesJudgesTheRequirementsOnItsOwnDraws) {
 // truth, and the requirement table must agree with the truth's verdicts. A short MCMC (ESS
 // 200, 30 tau) keeps it to ~1 minute; the full Table-1 campaign is a benchmark script.
 TEST(TrendCli, RecoversThePaperRelationsOnASimulatedCampaign) {
+  CCDPSF_RELEASE_ONLY();  // a campaign through the binary; trend's library runs sanitized in
+  // Trend.* and Campaign.*
   const std::string dir = Fresh("e2e");
   std::string out;
   ASSERT_EQ(RunCcdpsf("simulate --config=" + std::string(CCDPSF_TESTDATA) +
@@ -585,6 +588,7 @@ TEST(TrendCli, RecoversThePaperRelationsOnASimulatedCampaign) {
 // drawn, the others keep data and scripts and say how to draw them; --group_plots=all draws every
 // group's; a wrong value is refused in one line. Needs gnuplot (svg: the quickest terminal).
 TEST(TrendCli, GroupPicturesAreDrawnWhereTheVerdictAsksForThem) {
+  CCDPSF_RELEASE_ONLY();  // a campaign through the binary; see Trend.* for the sanitized run
   if (!GnuplotAvailable()) GTEST_SKIP() << "gnuplot is not installed";
   const std::string dir = Fresh("pictures");
   SimulateSet(dir + "/ok600", 600, 2.5);
