@@ -137,7 +137,11 @@ TEST(FitEffectsCli, DiagnoseFinalModelContinuesInFit) {
   }
   const std::string files = Simulate(HiddenEffectsConfig(exposures, 12), "intensities");
   const std::string dir = FreshDir("FitEffectsCli", "intensities_runs");
-  RunResult r = RunCcdpsf("diagnose --out=" + dir + "/diagnose" + files);
+  // The hand-off is the point here (diagnose's naming is checked in diagnose_test.cc and on
+  // reference-sensor data): the hidden effects and two rivals of the same signatures keep
+  // diagnose's rounds to a third of a search over the whole catalogue.
+  RunResult r = RunCcdpsf("diagnose --candidates=serial_cti,parallel_cti,ipc,brighter_fatter "
+                          "--out=" + dir + "/diagnose" + files);
   ASSERT_EQ(r.exit_code, 0) << r.output;
   const json final_fit = ReadJson(dir + "/diagnose/final_fit.json");
   ASSERT_TRUE(final_fit["effects"].contains("serial_cti")) << final_fit.dump();

@@ -26,19 +26,28 @@ using testing_support::RunCcdpsf;
 using testing_support::RunResult;
 using testing_support::Shell;
 
-// Frames of a grid written by the independent script, once per process and shape.
+// Frames of a grid written by the independent script, made once per test run and shape: each
+// case is its own process (ctest), and four cases share the small set, so the frames are kept
+// in a folder named by the options and by the script's own text (a changed script makes new
+// frames). A folder appears whole or not at all: it is written under a private name and
+// renamed, and a case that loses the race to another uses the winner's (the script is
+// deterministic in its options, so both are the same frames).
 std::string GridFrames(const std::string& name, const std::string& options) {
-  static std::map<std::string, std::string> made;
-  auto it = made.find(name);
-  if (it != made.end()) return it->second;
-  const std::string dir = FreshDir("grid_frames", name) + "/frames";
+  const std::string script = std::string(CCDPSF_SOURCE_DIR) + "/tests/support/grid_frames.py";
+  std::ifstream in(script, std::ios::binary);
+  std::stringstream text;
+  text << in.rdbuf();
+  const size_t key = std::hash<std::string>()(text.str() + "\n" + options);
+  const std::string dir = ::testing::TempDir() + "/ccdpsf_grid_frames_" + name + "_" +
+                          std::to_string(key);
+  std::error_code ec;
+  if (std::filesystem::exists(dir + "/truth.csv", ec)) return dir;
+  const std::string own = FreshDir("grid_frames", name) + "/frames";
   std::string output;
-  const int code = Shell("/usr/bin/python3 " + std::string(CCDPSF_SOURCE_DIR) +
-                             "/tests/support/grid_frames.py " + dir + " " + options,
-                         &output);
+  const int code = Shell("/usr/bin/python3 " + script + " " + own + " " + options, &output);
   EXPECT_EQ(code, 0) << output;
-  made[name] = dir;
-  return dir;
+  std::filesystem::rename(own, dir, ec);  // fails if another case's frames are there first
+  return std::filesystem::exists(dir + "/truth.csv", ec) ? dir : own;
 }
 
 std::string Frames(const std::string& dir, int n) {
