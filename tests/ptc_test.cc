@@ -1,11 +1,18 @@
-// Photon transfer with pixel covariances (ptc_model.h): the covariance model against a
-// brute-force integration of its differential equation and against Astier et al.'s series.
+// Photon transfer with pixel covariances (ptc_model.h, flat_covariance.h): the covariance
+// model against a brute-force integration of its differential equation and against Astier
+// et al.'s series, and the covariance estimator on synthetic correlated noise of known
+// covariance.
 #include <algorithm>
 #include <cmath>
+#include <random>
 #include <string>
 #include <vector>
 
+#include "ccdpsf/flat_covariance.h"
+#include "ccdpsf/fits_io.h"
+#include "ccdpsf/photon_transfer_frames.h"
 #include "ccdpsf/ptc_model.h"
+#include "ccdpsf/random.h"
 #include "gtest/gtest.h"
 
 namespace ccdpsf {
@@ -259,6 +266,91 @@ TEST(PtcModel, SeriesAndClosedFormsAgreeAtTheirBoundary) {
     EXPECT_NEAR(df0, (PtcF0(x + step, nullptr) - PtcF0(x - step, nullptr)) / (2 * step), 1e-8) << x;
     EXPECT_NEAR(dh, (PtcH(x + step, nullptr) - PtcH(x - step, nullptr)) / (2 * step), 1e-8) << x;
   }
+}
+
+// ---------------------------------------------------------------------------------------------
+// The covariance estimator
+
+// A floating-point frame (no ADC rounding or limits) of nx x ny pixels.
+FitsImage Frame(int nx, int ny) {
+  FitsImage f;
+  f.pixels = Image(nx, ny);
+  f.bitpix = -64;
+  return f;
+}
+
+TEST(FlatCovariance, RecoversTheCovarianceOfCorrelatedNoise) {
+  // Two frames of 480 x 360 pixels: bias 500 + a fixed pattern (a 10 % gradient and 2 %
+  // pixel response non-uniformity on 3000 ADU, the same in both) + independent noise f = w (*)
+  // h, w white of sd 20 ADU, h = 1 at (0,0), 0.3 at (1,0), 0.15 at (0,1), 0.1 at (1,1). Its
+  // covariance is C_l = 400 sum_x h_x h_(x+l): C_00 = 449, C_10 = 126, C_01 = 72, C_20 = 0, and
+  // C_11 = 40 but C_1-1 = 18, so the estimator (which averages the mirror lags) must give 29.
+  // Within 5 sds of the estimate; the sd is the estimator's white-noise formula (C_00 /
+  // sqrt(N)) times 1.6: for this kernel the exact variance, (1/N) sum_m (C_m^2 + C_(m+l)
+  // C_(m-l)), is at most 1.45^2 that of white noise. A hot pixel (in both frames) and a
+  // cosmic ray (in one) are masked, as a defect and an outlier, and the mean is the level less
+  // the bias.
+  const int nx = 480, ny = 360;
+  std::mt19937_64 engine(DeriveSeed(44, 1));
+  std::vector<double> pattern(nx * ny);
+  for (int y = 0; y < ny; ++y) {
+    for (int x = 0; x < nx; ++x) {
+      pattern[y * nx + x] = 3000.0 * (1.0 + 0.1 * (x - nx / 2.0) / nx) *
+                            (1.0 + 0.02 * StandardNormal(engine));
+    }
+  }
+  const double h[2][2] = {{1.0, 0.3}, {0.15, 0.1}};  // h[j][i]
+  auto noise = [&]() {
+    std::vector<double> w((nx + 1) * (ny + 1));
+    for (double& v : w) v = 20.0 * StandardNormal(engine);
+    std::vector<double> f(nx * ny, 0.0);
+    for (int y = 0; y < ny; ++y) {
+      for (int x = 0; x < nx; ++x) {
+        double s = 0.0;
+        for (int j = 0; j <= 1; ++j) {
+          for (int i = 0; i <= 1; ++i) s += h[j][i] * w[(y + 1 - j) * (nx + 1) + (x + 1 - i)];
+        }
+        f[y * nx + x] = s;
+      }
+    }
+    return f;
+  };
+  FitsImage a = Frame(nx, ny), b = Frame(nx, ny);
+  const std::vector<double> fa = noise(), fb = noise();
+  double pattern_mean = 0.0;
+  for (int k = 0; k < nx * ny; ++k) {
+    a.pixels.data[k] = 500.0 + pattern[k] + fa[k];
+    b.pixels.data[k] = 500.0 + pattern[k] + fb[k];
+    pattern_mean += pattern[k];
+  }
+  pattern_mean /= nx * ny;
+  a.pixels(100, 100) += 5000.0;  // hot pixel
+  b.pixels(100, 100) += 5000.0;
+  // A cosmic ray of 250 ADU in one frame: 8 sd of the difference, but under 2 sd of the
+  // mean image's spread about its neighbours (the 2 % response pattern, ~60 ADU): an outlier
+  // of the difference, not a defect.
+  a.pixels(300, 200) += 250.0;
+  const std::vector<FitsImage> frames = {a, b};  // the set points into these
+  TransferFrameSet set;
+  std::vector<std::string> warnings;
+  std::string error;
+  ASSERT_TRUE(PrepareTransferFrames(frames, {}, TransferFrameOptions(), &set, &warnings, &error))
+      << error;
+  const FlatPairCovariance c = MeasureFlatPair(set.frames[0], set.frames[1], 500.0, 2);
+  EXPECT_GE(c.defects, 1);
+  EXPECT_GE(c.outliers, 1);
+  EXPECT_LT(c.defects + c.outliers, 20);
+  EXPECT_NEAR(c.mean_adu, pattern_mean, 1.0);
+  const double expected[3][3] = {{449.0, 126.0, 0.0}, {72.0, 29.0, 0.0}, {0.0, 0.0, 0.0}};
+  for (int j = 0; j <= 2; ++j) {
+    for (int i = 0; i <= 2; ++i) {
+      const int l = j * 3 + i;
+      const double sd = 1.6 * 449.0 * std::sqrt((l == 0 ? 2.0 : 1.0) / c.products[l]);
+      EXPECT_NEAR(c.cov_adu2[l], expected[j][i], 5.0 * sd) << "lag " << i << j;
+    }
+  }
+  // Mirror products double the count of the diagonal lags.
+  EXPECT_GT(c.products[4], 1.9 * c.products[1]);
 }
 
 }  // namespace
