@@ -68,7 +68,8 @@ exposures                 list of spot exposures; required unless "flats" is giv
   wavelength_nm           > 0 [nm], written as WAVELEN (metadata only: the Airy radius is
                           airy_radius_px whatever the wavelength)
 flats                     optional: flat-field pairs (see "Flats" below)
-  levels_e                list of 1..1000 mean levels (0, 1e7] [e- per pixel]
+  levels_e                list of 1..1000 mean levels [0, 1e7] [e- per pixel]; 0 makes a
+                          bias pair (EXPTIME 0)
   pairs_per_level         integer 1..100, default 1: frames 2k and 2k + 1 of a level pair
   flux_e_per_s            > 0 [e- / s per pixel], default 1e4: EXPTIME = level / this
   gradient                [gx, gy], each in [-0.5, 0.5], default [0, 0]: the illumination
@@ -505,7 +506,7 @@ def number_list(value, name, length_lo, length_hi, lo, hi, lo_open=False):
 
 def read_flats(fl):
     out = {"levels_e": number_list(fl.raw("levels_e"), "config.flats.levels_e", 1, 1000,
-                                   0.0, MAX_FLAT_LEVEL_E, lo_open=True),
+                                   0.0, MAX_FLAT_LEVEL_E),
            "pairs_per_level": fl.integer("pairs_per_level", 1, 100, required=False, default=1),
            "flux_e_per_s": fl.number("flux_e_per_s", 0.0, lo_open=True, required=False, default=1e4),
            "gradient": number_list(fl.raw("gradient", required=False, default=[0.0, 0.0]),
