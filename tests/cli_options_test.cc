@@ -26,7 +26,8 @@ using testing_support::FreshDir;
 using testing_support::RunCcdpsf;
 using testing_support::RunResult;
 
-const std::vector<std::string> kCommands = {"simulate", "fit", "trend", "diagnose", "gain"};
+const std::vector<std::string> kCommands = {"simulate", "fit", "trend", "diagnose", "gain",
+                                            "ptc"};
 
 struct HelpOption {
   std::string type;
@@ -92,7 +93,7 @@ TEST(CliOptions, EachCommandListsAndTakesOnlyItsOwnOptions) {
   std::map<std::string, std::map<std::string, HelpOption>> help;
   for (const std::string& c : kCommands) help[c] = HelpOptions(c);
   ASSERT_FALSE(help["fit"].empty());
-  const std::regex per_command_part("(^|; |\\()(simulate|fit|trend|diagnose|gain)[:,]");
+  const std::regex per_command_part("(^|; |\\()(simulate|fit|trend|diagnose|gain|ptc)[:,]");
   for (const std::string& c : kCommands) {
     for (const auto& [name, o] : help[c]) {
       EXPECT_FALSE(o.description.empty()) << c << " --" << name;

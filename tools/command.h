@@ -56,6 +56,7 @@ Command FitCommand();
 Command TrendCommand();
 Command DiagnoseCommand();
 Command GainCommand();
+Command PtcCommand();
 Command GridCommand();
 Command EffectsCommand();
 
