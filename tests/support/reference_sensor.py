@@ -167,13 +167,16 @@ photon transfer curve of flats at 1.5e5 e- lie 17 % below Poisson ((1 - exp(2 a_
 (-2 a_00 mu) = 0.83; aimed at 10-20 %); the nearest neighbours take two thirds of the
 charged pixel's loss, with a_10 and a_01 in 1e-7 .. 4e-7; a_01 / a_10 ~ 1.5 by choice (the
 parallel direction's barriers are clocked potentials, softer than the channel stops);
-a_11 / a_10 ~ 0.2, and the far lags fall as ~r^-(p+1). On the paper's spot (airy 0.47, Gaussian defocus 0.41, CCD 0.291 /
-0.335 px; the peak pixel holds 0.31-0.37 of the flux, by the sub-pixel centre) with the
-defaults and 100 batches, paired with the same seed without the shift: the defocus +
-diffusion + shift width (photon_moments below) grows by 3.4 % in x and 5.6 % in y from peak
-8e3 to 1.56e5 e- (+0.1 / +0.3 % at the faint end); attributed to the CCD diffusion alone,
-0.291 -> 0.321 px and 0.335 -> 0.382 px. The growth is close to linear in the peak signal,
-and larger along y (B_y > B_x).
+a_11 / a_10 ~ 0.2, and the far lags fall as ~r^-(p+1).
+
+Spot-width growth, on the paper's spot (airy 0.47, Gaussian defocus 0.41, CCD 0.291 / 0.335
+px) with the defaults and 100 batches, paired with the same seed without the shift: the
+defocus + diffusion + shift width (photon_moments below) grows from peak 7e3 to 1.6e5 e- by
+4.5 % in x and 4.9 % in y for a spot centred on a pixel (the peak pixel holding 0.37 of the
+flux); attributed to the CCD diffusion alone, 0.291 -> 0.330 px and 0.335 -> 0.378 px. Spots
+off the pixel centre share their charge among more pixels and grow by 3.5-4 % in x and
+4.3-5.6 % in y (testdata/reference_sensor/intensity_series.json; a series drifting along
+x). The growth is close to linear in the peak signal.
 
 Spots. Electrons are collected in the batches of step 1 (boundary_shift.batches). Before each
 batch, the boundaries are displaced by the charge collected in the batches before it (exact

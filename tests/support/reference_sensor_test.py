@@ -400,8 +400,8 @@ def test_boundary_shift_spots(tmp_path):
     - charge is conserved: every electron is reassigned, none created or lost (the images
       sum to the same total, photons = collected + lost);
     - the defocus + diffusion + shift width grows strictly with flux in x and y, by more than
-      1.5 % (x) and 3 % (y) at 5e5 e- (the simulation gives ~3 and ~6 %), more in y (B_y > B_x);
-      at 2e4 e- by less than 0.6 %;
+      2.5 % (x) and 3 % (y) at 5e5 e- (the simulation gives 5.1 and 5.9 %), more in y
+      (B_y > B_x); at 2e4 e- by less than 0.6 % (it gives 0.2 %);
     - the peak pixel loses charge, growing with flux; the four edge neighbours together gain
       more electrons than the four diagonal ones, and both gain."""
     mod = load_module()
@@ -429,7 +429,7 @@ def test_boundary_shift_spots(tmp_path):
             assert edges > diagonals > 0, (edges, diagonals)
     ratios = np.array(ratios)
     assert np.all(np.diff(ratios, axis=0) > 0), ratios
-    assert ratios[-1, 0] > 1.015 and ratios[-1, 1] > 1.03 and ratios[-1, 1] > ratios[-1, 0], ratios
+    assert ratios[-1, 0] > 1.025 and ratios[-1, 1] > 1.03 and ratios[-1, 1] > ratios[-1, 0], ratios
     assert np.all(ratios[0] < 1.006), ratios
     assert 0 < peak_loss[0] < peak_loss[1] < peak_loss[2], peak_loss
 
