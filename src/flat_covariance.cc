@@ -23,8 +23,8 @@ double Median(double* values, size_t n) {
 
 }  // namespace
 
-FlatPairCovariance MeasureFlatPair(const TransferFrame& a, const TransferFrame& b,
-                                   double bias_adu, int max_lag) {
+FlatPairCovariance MeasureFlatPair(const TransferFrame& a, const TransferFrame& b, double bias_adu,
+                                   int max_lag) {
   FlatPairCovariance out;
   out.max_lag = max_lag;
   const int side = max_lag + 1;

@@ -335,8 +335,7 @@ BiasEstimate ResolveTransferBias(const TransferFrameSet& set, const TransferFram
       std::optional<std::string> text = FindString(image.header, "BIASSEC");
       std::string error;
       std::optional<PixelRegion> r =
-          text ? ParseIrafSection(*text, image.pixels.nx, image.pixels.ny, &error)
-               : std::nullopt;
+          text ? ParseIrafSection(*text, image.pixels.nx, image.pixels.ny, &error) : std::nullopt;
       if (!r) {
         all = false;
         break;

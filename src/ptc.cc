@@ -45,11 +45,11 @@ std::string Format(const char* format, double value) {
 
 // One covariance to fit.
 struct Point {
-  int pair;     // index into the result's pairs
-  int lag;      // lag index
-  double mu;    // level [ADU]
-  double y;     // covariance [ADU^2]
-  double n;     // products N_ij
+  int pair;   // index into the result's pairs
+  int lag;    // lag index
+  double mu;  // level [ADU]
+  double y;   // covariance [ADU^2]
+  double n;   // products N_ij
 };
 
 // Parameter layout: g, a (lags), [b (lags)], n (lags).
@@ -223,9 +223,8 @@ bool StartingPoint(const Layout& layout, const std::vector<Point>& points, Eigen
       }
       if (l == 0) {
         if (!(c(1) > 0.0)) {
-          *error =
-              "no ptc estimate: the variance does not grow with the level (slope " +
-              Format("%.3g", c(1)) + " ADU per ADU)";
+          *error = "no ptc estimate: the variance does not grow with the level (slope " +
+                   Format("%.3g", c(1)) + " ADU per ADU)";
           return false;
         }
         g = 1.0 / c(1);
@@ -459,7 +458,9 @@ bool EstimatePtc(const std::vector<FitsImage>& frames, const std::vector<std::st
   {
     Eigen::VectorXd weights(layout.lags);
     for (int j = 0; j <= L; ++j) {
-      for (int i = 0; i <= L; ++i) weights(j * side + i) = (i > 0 ? 2.0 : 1.0) * (j > 0 ? 2.0 : 1.0);
+      for (int i = 0; i <= L; ++i) {
+        weights(j * side + i) = (i > 0 ? 2.0 : 1.0) * (j > 0 ? 2.0 : 1.0);
+      }
     }
     result->a_sum.value = weights.dot(result->fitted_a);
     result->a_sum.sd = std::sqrt(std::max(weights.dot(result->a_covariance * weights), 0.0));
@@ -498,12 +499,14 @@ bool EstimatePtc(const std::vector<FitsImage>& frames, const std::vector<std::st
     }
   }
   if (dof > 0 && fit.chi2 / dof > kChi2Warning) {
-    warnings.push_back(Format("the covariances scatter %.2g x more than their sampling errors "
-                              "(chi2/dof); the sds are scaled up accordingly",
-                              std::sqrt(fit.chi2 / dof)));
+    warnings.push_back(
+        Format("the covariances scatter %.2g x more than their sampling errors "
+               "(chi2/dof); the sds are scaled up accordingly",
+               std::sqrt(fit.chi2 / dof)));
   }
   if (result->gain_e_per_adu.sd > 0.1 * g) {
-    warnings.push_back(Format("the gain is uncertain to %.0f %%", 100.0 * result->gain_e_per_adu.sd / g));
+    warnings.push_back(
+        Format("the gain is uncertain to %.0f %%", 100.0 * result->gain_e_per_adu.sd / g));
   }
   return true;
 }
@@ -554,9 +557,10 @@ nlohmann::json PtcJson(const PtcResult& r) {
     for (int l = 0; l < lags && l < static_cast<int>(p.cov.cov_adu2.size()); ++l) {
       covariances["C_" + r.lag_names[l]] = {
           {"adu2", JsonNumber(p.cov.cov_adu2[l])},
-          {"sd_adu2", l < static_cast<int>(p.sd_adu2.size()) ? JsonNumber(p.sd_adu2[l]) : nlohmann::json()},
-          {"model_adu2",
-           l < static_cast<int>(p.model_adu2.size()) ? JsonNumber(p.model_adu2[l]) : nlohmann::json()},
+          {"sd_adu2",
+           l < static_cast<int>(p.sd_adu2.size()) ? JsonNumber(p.sd_adu2[l]) : nlohmann::json()},
+          {"model_adu2", l < static_cast<int>(p.model_adu2.size()) ? JsonNumber(p.model_adu2[l])
+                                                                   : nlohmann::json()},
           {"products", p.cov.products[l]}};
     }
     nlohmann::json j = {{"files", {p.first, p.second}},

@@ -99,8 +99,8 @@ PtcCovarianceModel::PtcCovarianceModel(int max_lag) : max_lag_(std::max(0, max_l
   }
 }
 
-void PtcCovarianceModel::Evaluate(const Eigen::VectorXd& a, const Eigen::VectorXd& b,
-                                  double mu_e, Eigen::VectorXd* k, Eigen::MatrixXd* dk_da,
+void PtcCovarianceModel::Evaluate(const Eigen::VectorXd& a, const Eigen::VectorXd& b, double mu_e,
+                                  Eigen::VectorXd* k, Eigen::MatrixXd* dk_da,
                                   Eigen::MatrixXd* dk_db, Eigen::VectorXd* dk_dmu) const {
   const bool with_b = b.size() == a.size();
   const Eigen::VectorXd alpha = forward_ * a;

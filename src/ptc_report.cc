@@ -103,7 +103,8 @@ bool WritePtcReport(const std::string& dir, const PtcResult& r, const PlotOption
     covariances.y_label = "C_ij / mu [ADU]";
     covariances.log_x = true;
     covariances.dodge_fraction = 0.01;
-    for (const auto& [i, j] : std::vector<std::pair<int, int>>{{1, 0}, {0, 1}, {1, 1}, {2, 0}, {0, 2}}) {
+    for (const auto& [i, j] :
+         std::vector<std::pair<int, int>>{{1, 0}, {0, 1}, {1, 1}, {2, 0}, {0, 2}}) {
       if (i > r.max_lag || j > r.max_lag) continue;
       const int l = j * side + i;
       const std::string name = "C_" + r.lag_names[l];
@@ -147,7 +148,9 @@ bool WritePtcReport(const std::string& dir, const PtcResult& r, const PlotOption
     md << "| " << r.lag_names[l] << " | " << Fmt(r.a[l].value, "%.4g") << " | "
        << Fmt(r.a[l].sd, "%.2g") << " | " << Fmt(r.n[l].value, "%.4g") << " | "
        << Fmt(r.n[l].sd, "%.2g") << " |";
-    if (!r.b.empty()) md << " " << Fmt(r.b[l].value, "%.3g") << " | " << Fmt(r.b[l].sd, "%.2g") << " |";
+    if (!r.b.empty()) {
+      md << " " << Fmt(r.b[l].value, "%.3g") << " | " << Fmt(r.b[l].sd, "%.2g") << " |";
+    }
     md << "\n";
   }
   md << "\n## Model\n\n"
@@ -160,7 +163,9 @@ bool WritePtcReport(const std::string& dir, const PtcResult& r, const PlotOption
      << ", lags 0 <= i, j <= " << r.max_lag << ". Weighted least squares, weights the inverse "
      << "sampling variances C_00^2 / N_ij (2 C_00^2 / N_00 at lag 0); chi2 " << Fmt(r.chi2, "%.5g")
      << " for " << r.dof << " degrees of freedom";
-  if (r.sd_scale > 1.0) md << "; the sds are scaled by sqrt(chi2/dof) = " << Fmt(r.sd_scale, "%.3g");
+  if (r.sd_scale > 1.0) {
+    md << "; the sds are scaled by sqrt(chi2/dof) = " << Fmt(r.sd_scale, "%.3g");
+  }
   md << ".\n\n## Pairs\n\n| files | exposure [s] | mu [ADU] | C_00 [ADU^2] | C_10 | C_01 | "
         "pixels kept | used |\n|---|---|---|---|---|---|---|---|\n";
   for (const PtcPair& p : r.pairs) {
@@ -170,7 +175,9 @@ bool WritePtcReport(const std::string& dir, const PtcResult& r, const PlotOption
        << p.cov.kept << " | " << (p.used ? "yes" : "no: " + p.excluded_because) << " |\n";
   }
   md << "\n## Plots\n\n";
-  if (images.empty()) md << "No picture was made (see the warnings); the .dat and .gp files are here.\n";
+  if (images.empty()) {
+    md << "No picture was made (see the warnings); the .dat and .gp files are here.\n";
+  }
   for (const std::string& image : images) md << "![" << image << "](" << image << ")\n\n";
   std::vector<std::string> all = r.warnings;
   all.insert(all.end(), warnings->begin(), warnings->end());

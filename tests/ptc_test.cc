@@ -3,6 +3,8 @@
 // equation and against Astier et al.'s series, the covariance estimator on synthetic
 // correlated noise of known covariance, and the whole analysis on flat pairs made by the
 // independent reference sensor (tests/support/reference_sensor.py) with known a_ij.
+#include "ccdpsf/ptc.h"
+
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -11,10 +13,9 @@
 #include <string>
 #include <vector>
 
-#include "ccdpsf/flat_covariance.h"
 #include "ccdpsf/fits_io.h"
+#include "ccdpsf/flat_covariance.h"
 #include "ccdpsf/photon_transfer_frames.h"
-#include "ccdpsf/ptc.h"
 #include "ccdpsf/ptc_model.h"
 #include "ccdpsf/random.h"
 #include "gtest/gtest.h"
@@ -121,9 +122,7 @@ TEST(PtcModel, VarianceAloneIsAstiersExponential) {
   // / (2 a_00) exactly (Astier et al. eq. 16) and every other lag 0. Checked at a_00 mu = -0.2
   // (the PTC 17 % below Poisson) and +0.05, to 1e-12 relative (rounding).
   PtcCovarianceModel model(2);
-  const struct {
-    double a00, mu;
-  } cases[] = {{-1.3e-6, 0.2 / 1.3e-6}, {1e-6, 5e4}};
+  const struct { double a00, mu; } cases[] = {{-1.3e-6, 0.2 / 1.3e-6}, {1e-6, 5e4}};
   for (const auto& c : cases) {
     Eigen::VectorXd a = Eigen::VectorXd::Zero(9);
     a(0) = c.a00;
@@ -171,8 +170,8 @@ TEST(PtcModel, FirstOrderInB) {
     Eigen::VectorXd with_b, without_b;
     model.Evaluate(a, b, mu, &with_b, nullptr, nullptr, nullptr);
     model.Evaluate(a, Eigen::VectorXd(), mu, &without_b, nullptr, nullptr, nullptr);
-    const LagGrid brute = IntegrateCovariance(Mirror(a, L, 2), Mirror(a.cwiseProduct(b), L, 2),
-                                              mu, 400, 16);
+    const LagGrid brute =
+        IntegrateCovariance(Mirror(a, L, 2), Mirror(a.cwiseProduct(b), L, 2), mu, 400, 16);
     double worst = 0.0;
     *b_effect = 0.0;
     for (int l : {0, 1, 3, 4}) {
@@ -305,8 +304,8 @@ TEST(FlatCovariance, RecoversTheCovarianceOfCorrelatedNoise) {
   std::vector<double> pattern(nx * ny);
   for (int y = 0; y < ny; ++y) {
     for (int x = 0; x < nx; ++x) {
-      pattern[y * nx + x] = 3000.0 * (1.0 + 0.1 * (x - nx / 2.0) / nx) *
-                            (1.0 + 0.02 * StandardNormal(engine));
+      pattern[y * nx + x] =
+          3000.0 * (1.0 + 0.1 * (x - nx / 2.0) / nx) * (1.0 + 0.02 * StandardNormal(engine));
     }
   }
   const double h[2][2] = {{1.0, 0.3}, {0.15, 0.1}};  // h[j][i]
@@ -407,11 +406,11 @@ TEST(PtcReference, RecoversGainAndBoundaryShiftFromReferenceFlats) {
     out << config.dump(1);
   }
   std::string output;
-  ASSERT_EQ(Shell("/usr/bin/python3 " + std::string(CCDPSF_SOURCE_DIR) +
-                      "/tests/support/reference_sensor.py " + dir + "/config.json " + dir +
-                      "/flats",
-                  &output),
-            0)
+  ASSERT_EQ(
+      Shell("/usr/bin/python3 " + std::string(CCDPSF_SOURCE_DIR) +
+                "/tests/support/reference_sensor.py " + dir + "/config.json " + dir + "/flats",
+            &output),
+      0)
       << output;
   const nlohmann::json truth = nlohmann::json::parse(ReadText(dir + "/flats/truth.json"));
   std::string files;
@@ -445,8 +444,8 @@ TEST(PtcReference, RecoversGainAndBoundaryShiftFromReferenceFlats) {
   const double chi2 = ptc["fit"]["chi2"], dof = ptc["fit"]["dof"];
   EXPECT_LT(std::fabs(chi2 - dof), 4.0 * std::sqrt(2.0 * dof));
   // The report, the plots' data and the provenance are there.
-  for (const char* f : {"report.md", "ptc.csv", "run.json", "ptc_variance.gp",
-                        "ptc_covariances.gp"}) {
+  for (const char* f :
+       {"report.md", "ptc.csv", "run.json", "ptc_variance.gp", "ptc_covariances.gp"}) {
     EXPECT_FALSE(ReadText(dir + "/ptc/" + f).empty()) << f;
   }
   EXPECT_EQ(ptc["a_covariance"]["names"].size(), 16u);
@@ -462,8 +461,8 @@ TEST(PtcCommand, BadInputIsOneLineAndNonZero) {
   EXPECT_EQ(RunCcdpsf("ptc " + dir + "/none.fits", &output), 2) << output;
   EXPECT_EQ(RunCcdpsf("ptc --out=" + dir + "/o", &output), 2) << output;
   // Options out of range: one line, exit 1, nothing written.
-  for (const std::string& flag : {std::string("--max_lag=0"), std::string("--max_lag=9"),
-                                  std::string("--ptc_model=abc")}) {
+  for (const std::string& flag :
+       {std::string("--max_lag=0"), std::string("--max_lag=9"), std::string("--ptc_model=abc")}) {
     EXPECT_EQ(RunCcdpsf("ptc --out=" + dir + "/o " + flag + " " + dir + "/x.fits", &output), 1)
         << flag;
     EXPECT_EQ(std::count(output.begin(), output.end(), '\n'), 1) << output;

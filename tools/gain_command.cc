@@ -16,7 +16,7 @@
 #include "gflags/gflags.h"
 
 DECLARE_string(out);
-DECLARE_int32(max_image_mb);  // the reader's memory ceiling (input_flags.cc)
+DECLARE_int32(max_image_mb);             // the reader's memory ceiling (input_flags.cc)
 DEFINE_string(gain_method, "auto", "");  // meaning: GainCommand()'s table
 
 namespace ccdpsf::tools {

@@ -18,7 +18,7 @@
 DECLARE_string(out);
 DECLARE_string(plot_format);
 DECLARE_int32(max_image_mb);
-DEFINE_int32(max_lag, 3, "");        // meaning: PtcCommand()'s table
+DEFINE_int32(max_lag, 3, "");       // meaning: PtcCommand()'s table
 DEFINE_string(ptc_model, "a", "");  // meaning: PtcCommand()'s table
 
 namespace ccdpsf::tools {
@@ -33,10 +33,11 @@ std::string Show(double value, const char* format = "%.4g") {
 }
 
 void PrintSummary(const PtcResult& r) {
-  std::printf("ccdpsf ptc: %d flat pair(s) used of %zu, levels %s to %s ADU, model %s, lags "
-              "0..%d\n",
-              r.pairs_used, r.pairs.size(), Show(r.min_level_adu).c_str(),
-              Show(r.max_level_adu).c_str(), PtcModelName(r.model), r.max_lag);
+  std::printf(
+      "ccdpsf ptc: %d flat pair(s) used of %zu, levels %s to %s ADU, model %s, lags "
+      "0..%d\n",
+      r.pairs_used, r.pairs.size(), Show(r.min_level_adu).c_str(), Show(r.max_level_adu).c_str(),
+      PtcModelName(r.model), r.max_lag);
   std::printf("  gain         %s +- %s e-/ADU\n", Show(r.gain_e_per_adu.value, "%.5g").c_str(),
               Show(r.gain_e_per_adu.sd, "%.2g").c_str());
   if (std::isfinite(r.read_noise_e.value)) {

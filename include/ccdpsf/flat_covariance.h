@@ -37,14 +37,14 @@ inline constexpr double kFlatDefectSigma = 6.0;
 
 struct FlatPairCovariance {
   int max_lag = 0;
-  double mean_adu = 0.0;      // (mean A + mean B) / 2 - bias over the kept pixels [ADU]
-  double mean_a_adu = 0.0;    // each frame's mean - bias [ADU]
+  double mean_adu = 0.0;    // (mean A + mean B) / 2 - bias over the kept pixels [ADU]
+  double mean_a_adu = 0.0;  // each frame's mean - bias [ADU]
   double mean_b_adu = 0.0;
-  double raw_mean_adu = 0.0;  // mean_adu + bias: where the ADC's limits are [ADU]
+  double raw_mean_adu = 0.0;    // mean_adu + bias: where the ADC's limits are [ADU]
   long long region_pixels = 0;  // pixels of the shared data region
   long long kept = 0;
-  long long at_floor = 0;     // region pixels at the floor in either frame
-  long long at_ceiling = 0;   // at or above the ceiling in either frame
+  long long at_floor = 0;    // region pixels at the floor in either frame
+  long long at_ceiling = 0;  // at or above the ceiling in either frame
   long long not_finite = 0;
   long long defects = 0;
   long long outliers = 0;
@@ -54,8 +54,8 @@ struct FlatPairCovariance {
 
 // The covariances of the pair (a, b) (same size; their shared data region) for lags up to
 // max_lag, with the bias level [ADU] subtracted for the means.
-FlatPairCovariance MeasureFlatPair(const TransferFrame& a, const TransferFrame& b,
-                                   double bias_adu, int max_lag);
+FlatPairCovariance MeasureFlatPair(const TransferFrame& a, const TransferFrame& b, double bias_adu,
+                                   int max_lag);
 
 }  // namespace ccdpsf
 

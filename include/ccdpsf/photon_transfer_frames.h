@@ -87,7 +87,7 @@ struct PtcFrameInfo {
 struct TransferFrame {
   const FitsImage* image = nullptr;
   PixelRegion region;
-  double floor = -std::numeric_limits<double>::infinity();  // at or below: at the floor
+  double floor = -std::numeric_limits<double>::infinity();   // at or below: at the floor
   double ceiling = std::numeric_limits<double>::infinity();  // at or above: at the top
 };
 

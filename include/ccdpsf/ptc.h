@@ -19,8 +19,8 @@
 // sampling variances of the estimates, C_00(mu)^2 / N_ij (2 C_00^2 / N_00 at lag 0), with
 // C_00 the fitted model's (iterated to convergence, so that the weights do not follow the
 // noise of the points). The minimum is found by Levenberg-Marquardt from a start made of
-// straight-line fits (C_00 = c0 + mu / g + a_00 mu^2; C_ij = n_ij / g^2 + a_ij mu^2), so it is
-// deterministic. Parameter covariance: the inverse of J^T W J at the minimum, scaled by
+// weighted linear fits (C_00 = c0 + mu / g + a_00 mu^2; C_ij = n_ij / g^2 + a_ij mu^2), so
+// it is deterministic. Parameter covariance: the inverse of J^T W J at the minimum, scaled by
 // chi2 / dof when that exceeds 1 (points that scatter more than their counting errors).
 // Derived: read noise RN = sqrt(n_00 - q g^2) [e-] (q: the ADC's rounding, ADU^2), given when
 // RN^2 > 2 sd (else an upper bound); the sum of the a_ij over all lags within the range
@@ -64,7 +64,7 @@ struct PtcPair {
   double exptime_s = std::numeric_limits<double>::quiet_NaN();
   FlatPairCovariance cov;
   bool used = false;
-  std::string excluded_because;  // empty when used
+  std::string excluded_because;    // empty when used
   std::vector<double> model_adu2;  // per lag, the fitted model at the pair's level
   std::vector<double> sd_adu2;     // per lag, the sampling sd used as the weight
 };

@@ -61,9 +61,8 @@ class PtcCovarianceModel {
   // K [e-^2] at mean level mu_e [e-] for every lag, and when the pointers are not null, its
   // derivatives: dk_da (lags x lags: d K_l / d a_m) and dk_db (the same for b), and dk_dmu
   // (d K_l / d mu_e).
-  void Evaluate(const Eigen::VectorXd& a, const Eigen::VectorXd& b, double mu_e,
-                Eigen::VectorXd* k, Eigen::MatrixXd* dk_da, Eigen::MatrixXd* dk_db,
-                Eigen::VectorXd* dk_dmu) const;
+  void Evaluate(const Eigen::VectorXd& a, const Eigen::VectorXd& b, double mu_e, Eigen::VectorXd* k,
+                Eigen::MatrixXd* dk_da, Eigen::MatrixXd* dk_db, Eigen::VectorXd* dk_dmu) const;
 
  private:
   int max_lag_;
