@@ -26,7 +26,7 @@
 // + 2/3 (a (*) a + ab) mu^2 + 1/6 (2 a (*) a (*) a + 5 a (*) ab) mu^3 + ...] (checked term
 // by term in tests/ptc_test.cc); with b = 0 and a_00 alone, K_00 = (exp(2 a_00 mu) - 1) /
 // (2 a_00), their eq. (16). Evaluated exactly (not truncated at mu^4), the model stays right
-// at a_00 mu ~ -0.2 and beyond, where the truncated series errs by ~(a mu)^4 / 15.
+// at a_00 mu ~ -0.2 and beyond, where the truncated series errs by ~2 (a mu)^4 / 15.
 //
 // The model of a measured covariance [ADU^2] at the mean level mu [ADU] of a flat pair, with
 // gain g [e-/ADU] and a constant n_ij [e-^2] (the read noise and the ADC's rounding at lag 0,
@@ -37,8 +37,8 @@
 // The a_ij and b_ij are taken mirror symmetric (a_{-i,j} = a_{i,-j} = a_ij, as a sensor
 // symmetric about its column and row axes gives) and 0 beyond the lags 0 <= i, j <= L
 // fitted. K is computed on a periodic grid of N = max(64, 16 L) pixels a side: the n-th
-// convolution power of a reaches n L lags, so those that wrap (n > 8) weigh less than
-// (a mu)^8 / 8! relative, < 1e-7 for |a mu| < 1.
+// convolution power of a reaches n L lags, so only the terms n > 8 wrap, and they weigh
+// |x|^n / (n + 1)! < 1e-7 of K for |x| = |2 a^ mu| < 0.9 (a CCD at 2e5 e-: |x| ~ 0.85).
 #ifndef CCDPSF_PTC_MODEL_H_
 #define CCDPSF_PTC_MODEL_H_
 
