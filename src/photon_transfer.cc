@@ -7,10 +7,10 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
-#include <set>
 #include <sstream>
 
 #include "ccdpsf/exposure.h"
+#include "internal/json_number.h"
 
 namespace ccdpsf {
 namespace {
@@ -18,23 +18,13 @@ namespace {
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 constexpr double kInf = std::numeric_limits<double>::infinity();
 
-// A black level clipped by the ADC: at least this fraction of a frame's pixels (and at least
-// kMinFloorPixels) at exactly its minimum value. The same rule as exposure.h's calibration:
-// unclipped noise of sd >= 0.5 ADU puts well under 1 % of a large frame at its single
-// lowest value.
-constexpr double kFloorFraction = 0.01;
-constexpr long long kMinFloorPixels = 10;
-// A bin is trusted only when at most this fraction of its samples touch the floor: a normal
-// distribution cut 3.1 sd from its mean (0.1 % beyond) loses about 1 % of its variance, and
-// censoring at the cut (what the floor does) loses less.
-constexpr double kMaxClippedFraction = 1e-3;
-// Levels above this fraction of the ADC's range are left out: many ADCs and output
-// amplifiers compress there before they clip.
-constexpr double kFullScaleFraction = 0.9;
-// Outliers (cosmic rays, a pixel that changed between two frames) are clipped at this many
-// sd about their cell's mean; a normal sample loses 6e-7 of its points and a negligible 1e-5
-// of its variance, which is not corrected.
-constexpr double kOutlierClipSigma = 5.0;
+// Samples touching the floor: kTransferMaxFloorFraction (photon_transfer_frames.h).
+constexpr double kMaxClippedFraction = kTransferMaxFloorFraction;
+// Levels above kTransferFullScaleFraction of the ADC's range are left out.
+constexpr double kFullScaleFraction = kTransferFullScaleFraction;
+// Outliers are clipped at kTransferOutlierClipSigma sd about their cell's mean (the loss
+// of variance is not corrected).
+constexpr double kOutlierClipSigma = kTransferOutlierClipSigma;
 constexpr int kMaxClipRounds = 10;
 // A bin needs this many samples after the selection to give a point (its variance is then
 // known to sqrt(2 / 29) = 26 %; the weights account for that).
@@ -70,8 +60,6 @@ constexpr double kCurvatureSignificance = 3.0;
 constexpr double kMaxPairIlluminationChange = 0.05;
 // A gain whose sd exceeds this fraction of it is flagged as uncertain.
 constexpr double kUncertainGain = 0.1;
-// Exposure times equal within this relative tolerance are the same.
-constexpr double kExptimeTolerance = 1e-6;
 
 // The upper 0.135 % point of Student's t with `dof` degrees of freedom: tabulated (computed
 // by numerical integration of the density) up to 8, the Cornish-Fisher expansion around
@@ -107,13 +95,7 @@ struct Source {
   double divisor = 2.0;
 };
 
-// A frame ready for sampling: its pixels, region and ADC limits.
-struct Prepared {
-  const FitsImage* image = nullptr;
-  PixelRegion region;
-  double floor = -kInf;   // pixels at or below this are at the floor
-  double ceiling = kInf;  // pixels at or above this are dropped
-};
+using Prepared = TransferFrame;
 
 // printf of one number, for messages.
 std::string Format(const char* format, double value) {
@@ -124,75 +106,6 @@ std::string Format(const char* format, double value) {
 
 // Levels and fractions in messages: 4 significant digits.
 std::string Num(double value) { return Format("%.4g", value); }
-
-bool SameExptime(double a, double b) {
-  return std::fabs(a - b) <=
-         kExptimeTolerance * std::max(1.0, std::max(std::fabs(a), std::fabs(b)));
-}
-
-// The data region: DATASEC when the header has a valid one, else the whole frame.
-PixelRegion DataRegion(const FitsImage& image, const std::string& name,
-                       std::vector<std::string>* warnings) {
-  PixelRegion whole{0, image.pixels.nx, 0, image.pixels.ny};
-  std::optional<std::string> section = FindString(image.header, "DATASEC");
-  if (!section) return whole;
-  std::string error;
-  std::optional<PixelRegion> region =
-      ParseIrafSection(*section, image.pixels.nx, image.pixels.ny, &error);
-  if (!region) {
-    warnings->push_back(name + ": DATASEC ignored (" + error + ")");
-    return whole;
-  }
-  return *region;
-}
-
-// Floor, ceiling and the frame's record of them.
-Prepared PrepareFrame(const FitsImage& image, const std::string& name,
-                      const PhotonTransferOptions& options, PtcFrameInfo* info,
-                      std::vector<std::string>* warnings) {
-  Prepared p;
-  p.image = &image;
-  p.region = DataRegion(image, name, warnings);
-  const Image& px = image.pixels;
-  double minimum = kInf;
-  long long at_minimum = 0, finite = 0;
-  for (int y = p.region.y_begin; y < p.region.y_end; ++y) {
-    for (int x = p.region.x_begin; x < p.region.x_end; ++x) {
-      const double v = px(x, y);
-      if (!std::isfinite(v)) continue;
-      ++finite;
-      if (v < minimum) {
-        minimum = v;
-        at_minimum = 1;
-      } else if (v == minimum) {
-        ++at_minimum;
-      }
-    }
-  }
-  info->floor_pixel_fraction = finite > 0 ? static_cast<double>(at_minimum) / finite : 0.0;
-  info->floor_clipped =
-      finite > 0 && at_minimum >= kMinFloorPixels && info->floor_pixel_fraction >= kFloorFraction;
-  // Pixels at the ADC's bottom are at the floor even when there are few of them.
-  p.floor = info->floor_clipped ? minimum : image.adc_min;
-  info->floor_adu = p.floor;
-
-  p.ceiling = image.adc_max;
-  info->ceiling_source = std::isfinite(image.adc_max) ? "ADC maximum" : "none";
-  double saturation = options.saturation_adu;
-  std::string saturation_source = "option";
-  if (!std::isfinite(saturation)) {
-    if (std::optional<double> s = FindNumber(image.header, "SATURATE")) {
-      saturation = *s;
-      saturation_source = "keyword SATURATE";
-    }
-  }
-  if (std::isfinite(saturation) && saturation < p.ceiling) {
-    p.ceiling = saturation;
-    info->ceiling_source = saturation_source;
-  }
-  info->ceiling_adu = p.ceiling;
-  return p;
-}
 
 // Pairs: one sample per pixel with all 8 neighbours inside the region.
 Source PairSamples(const Prepared& a, const Prepared& b) {
@@ -518,8 +431,8 @@ Accumulated Accumulate(const std::vector<Source>& sources, const std::vector<dou
 // top is judged by the level: pixels at the top are dropped as they come, but because bins
 // are made on the neighbours' level, a saturated spot's pixels land in bins of any level, so
 // counting them would condemn levels far below the top. A level is kept when less than
-// 0.1 % of its pixels' noise distribution (3.1 sd) reaches the top.
-constexpr double kTailSd = 3.1;
+// 0.1 % of its pixels' noise distribution (kTransferTailSd) reaches the top.
+constexpr double kTailSd = kTransferTailSd;
 
 void ApplyRules(std::vector<PtcPoint>* points, double ceiling, double step, double full_scale_level,
                 double* floor_cut, double* top_cut) {
@@ -691,119 +604,6 @@ std::pair<double, double> IlluminationChange(const std::vector<CellMean>& means,
   return {(sw * sxy - sx * sy) / den, std::sqrt(sw / den)};
 }
 
-struct BiasEstimate {
-  double value = kNaN;
-  double sd = kNaN;
-  std::string source = "unknown";
-};
-
-// The bias level, by the precedence of photon_transfer.h.
-BiasEstimate ResolveBias(const std::vector<FitsImage>& frames,
-                         const std::vector<std::string>& names,
-                         const std::vector<Prepared>& prepared, const std::vector<double>& exptimes,
-                         const PhotonTransferOptions& options, std::vector<std::string>* warnings) {
-  BiasEstimate bias;
-  if (std::isfinite(options.bias_adu)) {
-    bias.value = options.bias_adu;
-    bias.sd = 0.0;
-    bias.source = options.bias_source;
-    return bias;
-  }
-  {
-    double sum = 0.0;
-    bool all = true;
-    for (const FitsImage& f : frames) {
-      std::optional<double> v = FindNumber(f.header, "BIASLVL");
-      if (!v || !std::isfinite(*v)) {
-        all = false;
-        break;
-      }
-      sum += *v;
-    }
-    if (all && !frames.empty()) {
-      bias.value = sum / frames.size();
-      bias.sd = 0.0;
-      bias.source = "keyword BIASLVL";
-      return bias;
-    }
-  }
-  // A sample of pixels: its clipped mean and the mean's sd, unless the sample sits on the
-  // floor (then the mean is biased high and is refused).
-  struct Pooled {
-    double sum = 0.0, var_sum = 0.0;
-    int count = 0;
-    bool clipped = false;
-  };
-  auto add_region = [&](Pooled* pool, size_t i, const PixelRegion& r) {
-    std::vector<double> values;
-    long long at_floor = 0;
-    const Image& px = frames[i].pixels;
-    for (int y = r.y_begin; y < r.y_end; ++y) {
-      for (int x = r.x_begin; x < r.x_end; ++x) {
-        values.push_back(px(x, y));
-        at_floor += px(x, y) <= prepared[i].floor;
-      }
-    }
-    if (values.empty()) return;
-    if (at_floor > kMaxClippedFraction * values.size()) pool->clipped = true;
-    std::optional<ClippedStats> stats = SigmaClippedStats(std::move(values), kOutlierClipSigma);
-    if (!stats || stats->num_used < 2) return;
-    pool->sum += stats->mean;
-    pool->var_sum += stats->stddev * stats->stddev / stats->num_used;
-    ++pool->count;
-  };
-  {
-    Pooled pool;
-    bool all = !frames.empty();
-    for (size_t i = 0; i < frames.size() && all; ++i) {
-      std::optional<std::string> text = FindString(frames[i].header, "BIASSEC");
-      std::string error;
-      std::optional<PixelRegion> r =
-          text ? ParseIrafSection(*text, frames[i].pixels.nx, frames[i].pixels.ny, &error)
-               : std::nullopt;
-      if (!r) {
-        all = false;
-        break;
-      }
-      add_region(&pool, i, *r);
-    }
-    if (all && pool.count > 0) {
-      if (pool.clipped) {
-        warnings->push_back(
-            "the bias section sits on the clipped black level: its mean is not "
-            "the bias and was not used");
-      } else {
-        bias.value = pool.sum / pool.count;
-        bias.sd = std::sqrt(pool.var_sum) / pool.count;
-        bias.source = "bias section (BIASSEC)";
-        return bias;
-      }
-    }
-  }
-  {
-    Pooled pool;
-    std::string which;
-    for (size_t i = 0; i < frames.size(); ++i) {
-      if (!(exptimes[i] == 0.0)) continue;
-      add_region(&pool, i, prepared[i].region);
-      which += (which.empty() ? "" : ", ") + names[i];
-    }
-    if (pool.count > 0) {
-      if (pool.clipped) {
-        warnings->push_back(
-            "the zero-second frames sit on the clipped black level: their mean "
-            "is not the bias and was not used");
-      } else {
-        bias.value = pool.sum / pool.count;
-        bias.sd = std::sqrt(pool.var_sum) / pool.count;
-        bias.source = "zero-second frames (" + which + ")";
-        return bias;
-      }
-    }
-  }
-  return bias;
-}
-
 }  // namespace
 
 const char* PtcMethodName(PtcMethod method) {
@@ -837,29 +637,7 @@ bool PhotonTransferOptions::IsValid(std::string* error) const {
     *error = "a bin needs at least 10 samples (got " + std::to_string(min_samples_per_bin) + ")";
     return false;
   }
-  if (!std::isnan(bias_adu) && !std::isfinite(bias_adu)) {
-    *error = "the bias level must be finite";
-    return false;
-  }
-  if (!std::isnan(saturation_adu) && !std::isfinite(saturation_adu)) {
-    *error = "the saturation level must be finite";
-    return false;
-  }
-  for (double t : exptime_s) {
-    if (!std::isnan(t) && !(std::isfinite(t) && t >= 0.0)) {
-      *error = "an exposure time must be >= 0 s (got " + Num(t) + ")";
-      return false;
-    }
-  }
-  if (!scene.empty() && !exptime_s.empty() && scene.size() != exptime_s.size()) {
-    *error = "scene must be parallel to exptime_s";
-    return false;
-  }
-  if (!exptime_sources.empty() && exptime_sources.size() != exptime_s.size()) {
-    *error = "exptime_sources must be parallel to exptime_s";
-    return false;
-  }
-  return true;
+  return TransferFrameOptions::IsValid(error);
 }
 
 bool EstimatePhotonTransfer(const std::vector<FitsImage>& frames,
@@ -872,56 +650,15 @@ bool EstimatePhotonTransfer(const std::vector<FitsImage>& frames,
     *error = "no frames to estimate a gain from";
     return false;
   }
-  if (!options.scene.empty() && options.scene.size() != frames.size()) {
-    *error = "got " + std::to_string(options.scene.size()) + " scenes for " +
-             std::to_string(frames.size()) + " frames";
-    return false;
-  }
-  if (!options.exptime_s.empty() && options.exptime_s.size() != frames.size()) {
-    *error = "got " + std::to_string(options.exptime_s.size()) + " exposure times for " +
-             std::to_string(frames.size()) + " frames";
-    return false;
-  }
-  std::vector<std::string> names = names_in;
-  names.resize(frames.size());
-  for (size_t i = 0; i < frames.size(); ++i) {
-    if (names[i].empty()) names[i] = "frame " + std::to_string(i + 1);
-  }
   std::vector<std::string>& warnings = result->warnings;
 
   // Frames: exposure times, limits.
-  std::vector<Prepared> prepared(frames.size());
-  std::vector<double> exptimes(frames.size(), kNaN);
-  result->frames.resize(frames.size());
-  double rounding = 0.0;
-  for (size_t i = 0; i < frames.size(); ++i) {
-    PtcFrameInfo& info = result->frames[i];
-    info.name = names[i];
-    if (frames[i].pixels.empty()) {
-      *error = names[i] + ": empty image";
-      return false;
-    }
-    if (!options.exptime_s.empty() && std::isfinite(options.exptime_s[i])) {
-      exptimes[i] = options.exptime_s[i];
-      info.exptime_source = options.exptime_sources.empty() ? "option" : options.exptime_sources[i];
-    } else if (std::optional<double> t = FindNumber(frames[i].header, "EXPTIME")) {
-      if (std::isfinite(*t) && *t >= 0.0) {
-        exptimes[i] = *t;
-        info.exptime_source = "keyword EXPTIME";
-      }
-    }
-    info.exptime_s = exptimes[i];
-    prepared[i] = PrepareFrame(frames[i], names[i], options, &info, &warnings);
-    // The ADC's step in physical units: the range over the 2^BITPIX - 1 steps (BSCALE), 1
-    // when the range is not finite (64-bit integers). Floating-point data are not rounded.
-    if (frames[i].bitpix > 0) {
-      const double range = frames[i].adc_max - frames[i].adc_min;
-      const double step = std::isfinite(range) && frames[i].bitpix < 64
-                              ? range / (std::ldexp(1.0, frames[i].bitpix) - 1.0)
-                              : 1.0;
-      rounding = std::max(rounding, step * step / 12.0);
-    }
-  }
+  TransferFrameSet set;
+  if (!PrepareTransferFrames(frames, names_in, options, &set, &warnings, error)) return false;
+  const std::vector<std::string>& names = set.names;
+  const std::vector<Prepared>& prepared = set.frames;
+  const std::vector<double>& exptimes = set.exptimes;
+  const double rounding = set.rounding_adu2;
   result->rounding_adu2 = rounding;
 
   // A frame set without two different values has no noise to measure: say so plainly.
@@ -952,51 +689,9 @@ bool EstimatePhotonTransfer(const std::vector<FitsImage>& frames,
     }
   }
 
-  // Pairs: frames of one illumination (photon_transfer.h), two by two in input order.
-  std::vector<std::pair<size_t, size_t>> pairs;
-  {
-    std::set<std::string> not_paired;  // why frames sharing an exposure time were not paired
-    std::vector<bool> taken(frames.size(), false);
-    for (size_t i = 0; i < frames.size(); ++i) {
-      if (taken[i] || !std::isfinite(exptimes[i])) continue;
-      for (size_t j = i + 1; j < frames.size(); ++j) {
-        if (taken[j] || !std::isfinite(exptimes[j]) || !SameExptime(exptimes[i], exptimes[j])) {
-          continue;
-        }
-        if (!options.scene.empty() && options.scene[i] != options.scene[j]) continue;
-        std::string differs;
-        for (const char* key : {"WAVELEN", "FOCUSPOS"}) {
-          const std::optional<double> a = FindNumber(frames[i].header, key);
-          const std::optional<double> b = FindNumber(frames[j].header, key);
-          if (a && b && *a != *b) differs = key;
-        }
-        if (!differs.empty()) {
-          not_paired.insert(names[i] + " and " + names[j] + " share an exposure time but not " +
-                            differs + ": not paired");
-          continue;
-        }
-        if (frames[j].pixels.nx != frames[i].pixels.nx ||
-            frames[j].pixels.ny != frames[i].pixels.ny) {
-          not_paired.insert(names[i] + " and " + names[j] +
-                            " share an exposure time but not a size: not paired");
-          continue;
-        }
-        pairs.emplace_back(i, j);
-        taken[i] = taken[j] = true;
-        break;
-      }
-    }
-    // Said only when some frame is left without a partner, and once (a listing of every
-    // combination that does not pair would bury the other warnings).
-    size_t unpaired_with_reason = 0;
-    for (size_t i = 0; i < frames.size(); ++i) unpaired_with_reason += !taken[i];
-    if (unpaired_with_reason > 0 && !not_paired.empty()) {
-      warnings.push_back(*not_paired.begin() +
-                         (not_paired.size() > 1
-                              ? " (and " + std::to_string(not_paired.size() - 1) + " more)"
-                              : std::string()));
-    }
-  }
+  // Pairs: frames of one illumination (photon_transfer_frames.h), two by two in input order.
+  const std::vector<std::pair<size_t, size_t>> pairs =
+      FindIlluminationPairs(set, options, &warnings);
   bool use_pairs = false;
   switch (options.method) {
     case PtcMethod::kPairs:
@@ -1020,29 +715,13 @@ bool EstimatePhotonTransfer(const std::vector<FitsImage>& frames,
 
   std::vector<Source> sources;
   if (use_pairs) {
-    std::vector<bool> in_pair(frames.size(), false);
     for (size_t p = 0; p < pairs.size(); ++p) {
       const auto [i, j] = pairs[p];
       Source s = PairSamples(prepared[i], prepared[j]);
       s.label = names[i] + " - " + names[j];
       sources.push_back(std::move(s));
-      in_pair[i] = in_pair[j] = true;
-      result->frames[i].role = "pair " + std::to_string(p + 1) + " (with " + names[j] + ")";
-      result->frames[j].role = "pair " + std::to_string(p + 1) + " (with " + names[i] + ")";
     }
-    int unpaired = 0;
-    for (size_t i = 0; i < frames.size(); ++i) {
-      if (in_pair[i]) continue;
-      ++unpaired;
-      result->frames[i].role = std::isfinite(exptimes[i])
-                                   ? "not used: no partner under the same illumination"
-                                   : "not used: exposure time unknown";
-    }
-    if (unpaired > 0) {
-      warnings.push_back(std::to_string(unpaired) +
-                         " frame(s) without a partner under the "
-                         "same illumination not used");
-    }
+    DescribePairs(pairs, &set, &warnings);
     result->pairs = static_cast<int>(pairs.size());
     result->frames_used = static_cast<int>(2 * pairs.size());
   } else {
@@ -1050,7 +729,7 @@ bool EstimatePhotonTransfer(const std::vector<FitsImage>& frames,
       Source s = SingleFrameSamples(prepared[i]);
       s.label = names[i];
       sources.push_back(std::move(s));
-      result->frames[i].role = "single frame";
+      set.info[i].role = "single frame";
     }
     result->frames_used = static_cast<int>(frames.size());
     if (options.method == PtcMethod::kAuto) {
@@ -1063,6 +742,8 @@ bool EstimatePhotonTransfer(const std::vector<FitsImage>& frames,
       }
     }
   }
+
+  result->frames = set.info;
 
   // Clipping at the floor, for messages.
   bool any_clipped = false;
@@ -1332,7 +1013,7 @@ bool EstimatePhotonTransfer(const std::vector<FitsImage>& frames,
 
   // Bias and read noise. var = a + m b with a = q - bias b + (RN b)^2, so
   // RN^2 [e-^2] = (a - q + bias b) / b^2.
-  const BiasEstimate bias = ResolveBias(frames, names, prepared, exptimes, options, &warnings);
+  const BiasEstimate bias = ResolveTransferBias(set, options, &warnings);
   result->bias_adu = bias.value;
   result->bias_sd_adu = bias.sd;
   result->bias_source = bias.source;
@@ -1390,69 +1071,49 @@ bool EstimatePhotonTransferFromFiles(const std::vector<std::string>& paths,
                                      const PhotonTransferOptions& options,
                                      PhotonTransferResult* result, std::string* error) {
   std::vector<FitsImage> frames;
-  for (const std::string& path : paths) {
-    std::optional<FitsImage> image = ReadFitsImage(path, error);
-    if (!image) return false;
-    frames.push_back(std::move(*image));
-  }
-  return EstimatePhotonTransfer(frames, paths, options, result, error);
+  return ReadTransferFrames(paths, &frames, error) &&
+         EstimatePhotonTransfer(frames, paths, options, result, error);
 }
 
-namespace {
-
-// NaN and infinities are not JSON numbers: they become null.
-nlohmann::json Number(double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(); }
-
-}  // namespace
+using internal::JsonNumber;
 
 nlohmann::json PhotonTransferJson(const PhotonTransferResult& r) {
   nlohmann::json points = nlohmann::json::array();
   for (const PtcPoint& p : r.points) {
-    nlohmann::json j = {{"mean_adu", Number(p.mean_adu)},
-                        {"variance_adu2", Number(p.variance_adu2)},
-                        {"variance_sd_adu2", Number(p.variance_sd_adu2)},
+    nlohmann::json j = {{"mean_adu", JsonNumber(p.mean_adu)},
+                        {"variance_adu2", JsonNumber(p.variance_adu2)},
+                        {"variance_sd_adu2", JsonNumber(p.variance_sd_adu2)},
                         {"pixels", p.pixels},
-                        {"bin_low_adu", Number(p.bin_low_adu)},
-                        {"bin_high_adu", Number(p.bin_high_adu)},
+                        {"bin_low_adu", JsonNumber(p.bin_low_adu)},
+                        {"bin_high_adu", JsonNumber(p.bin_high_adu)},
                         {"floor_fraction", p.floor_fraction},
                         {"ceiling_fraction", p.ceiling_fraction},
                         {"used", p.used}};
     if (!p.used) j["excluded_because"] = p.excluded_because;
     points.push_back(j);
   }
-  nlohmann::json frames = nlohmann::json::array();
-  for (const PtcFrameInfo& f : r.frames) {
-    frames.push_back({{"file", f.name},
-                      {"exptime_s", Number(f.exptime_s)},
-                      {"exptime_source", f.exptime_source},
-                      {"black_level_clipped", f.floor_clipped},
-                      {"floor_adu", Number(f.floor_adu)},
-                      {"pixels_at_minimum_fraction", f.floor_pixel_fraction},
-                      {"ceiling_adu", Number(f.ceiling_adu)},
-                      {"ceiling_source", f.ceiling_source},
-                      {"role", f.role}});
-  }
+  const nlohmann::json frames = TransferFramesJson(r.frames);
   return {{"method", r.method},
-          {"gain_e_per_adu", Number(r.gain_e_per_adu)},
-          {"gain_sd_e_per_adu", Number(r.gain_sd_e_per_adu)},
-          {"read_noise_e", Number(r.read_noise_e)},
-          {"read_noise_sd_e", Number(r.read_noise_sd_e)},
-          {"read_noise_upper_e", Number(r.read_noise_upper_e)},
-          {"bias_adu", Number(r.bias_adu)},
-          {"bias_sd_adu", Number(r.bias_sd_adu)},
+          {"gain_e_per_adu", JsonNumber(r.gain_e_per_adu)},
+          {"gain_sd_e_per_adu", JsonNumber(r.gain_sd_e_per_adu)},
+          {"read_noise_e", JsonNumber(r.read_noise_e)},
+          {"read_noise_sd_e", JsonNumber(r.read_noise_sd_e)},
+          {"read_noise_upper_e", JsonNumber(r.read_noise_upper_e)},
+          {"bias_adu", JsonNumber(r.bias_adu)},
+          {"bias_sd_adu", JsonNumber(r.bias_sd_adu)},
           {"bias_source", r.bias_source},
           {"fit",
            {{"model", "variance_adu2 = intercept_adu2 + mean_adu / gain_e_per_adu"},
-            {"intercept_adu2", Number(r.intercept_adu2)},
-            {"intercept_sd_adu2", Number(r.intercept_sd_adu2)},
-            {"slope_per_adu", Number(r.slope_per_adu)},
-            {"slope_sd_per_adu", Number(r.slope_sd_per_adu)},
+            {"intercept_adu2", JsonNumber(r.intercept_adu2)},
+            {"intercept_sd_adu2", JsonNumber(r.intercept_sd_adu2)},
+            {"slope_per_adu", JsonNumber(r.slope_per_adu)},
+            {"slope_sd_per_adu", JsonNumber(r.slope_sd_per_adu)},
             {"rounding_adu2", r.rounding_adu2},
             {"chi2", r.chi2},
             {"dof", r.dof},
             {"points_used", r.points_used},
-            {"min_level_adu", Number(r.min_level_adu)},
-            {"max_level_adu", Number(r.max_level_adu)}}},
+            {"min_level_adu", JsonNumber(r.min_level_adu)},
+            {"max_level_adu", JsonNumber(r.max_level_adu)}}},
           {"pairs", r.pairs},
           {"frames_used", r.frames_used},
           {"frames", frames},

@@ -26,9 +26,9 @@ DEFINE_string(defocus, "gaussian", "");
 namespace ccdpsf::tools {
 
 const std::vector<Command>& Commands() {
-  static const std::vector<Command> commands = {SimulateCommand(), FitCommand(),  TrendCommand(),
-                                                DiagnoseCommand(), GainCommand(), GridCommand(),
-                                                EffectsCommand()};
+  static const std::vector<Command> commands = {SimulateCommand(), FitCommand(),    TrendCommand(),
+                                                DiagnoseCommand(), GainCommand(),   PtcCommand(),
+                                                GridCommand(),     EffectsCommand()};
   return commands;
 }
 

@@ -15,6 +15,7 @@
 
 #include "ccdpsf/fit/fit_config.h"
 #include "ccdpsf/manifest.h"
+#include "ccdpsf/photon_transfer_frames.h"
 
 namespace ccdpsf::tools {
 
@@ -55,6 +56,7 @@ Command FitCommand();
 Command TrendCommand();
 Command DiagnoseCommand();
 Command GainCommand();
+Command PtcCommand();
 Command GridCommand();
 Command EffectsCommand();
 
@@ -95,12 +97,29 @@ constexpr int kExitStrict = 3;
 // The options that say what a file's header lacks, shared by fit, diagnose and trend, and the
 // reader's memory ceiling (tools/input_flags.cc).
 std::vector<Option> InputOptions();
+// --max_image_mb, the reader's memory ceiling, as every command that reads FITS files shows it.
+Option MaxImageMbOption();
 // The values the flags give (sources "flag --name") and the keyword map's overlay.
 bool InputFlags(GivenMetadata* given, KeywordMap* keywords, std::string* error);
 // The run's files with their options: flags, then --manifest's rows, then `config`.
 // `files` may be empty with --manifest. *manifest receives the manifest if one was given.
 bool ResolveInputs(const std::vector<std::string>& files, const CalibrationOptions& config,
                    std::vector<InputFile>* inputs, Manifest* manifest, std::string* error);
+
+// The files of a photon-transfer command (gain, ptc) and what --manifest, --exptime_s,
+// --bias_adu and --saturation_adu say of them: per file its exposure time (the flag for every
+// file, else its manifest row, else NaN: the EXPTIME keyword) and scene (its manifest
+// setting); one bias and one saturation level for the set (the flag, else the manifest's rows,
+// which must agree). `args` may be empty with --manifest: every file it lists. `purpose` names
+// the command's result in messages ("the gain estimate"). False with a one-line reason; the
+// caller checks the options' validity.
+bool ResolveTransferInputs(const std::vector<std::string>& args, const std::string& purpose,
+                           std::vector<std::string>* files, TransferFrameOptions* options,
+                           std::string* error);
+// The options of those flags as the photon-transfer commands' help shows them.
+std::vector<Option> TransferInputOptions();
+// Those flags for run.json: the files, and each flag's value (null when not given).
+nlohmann::json TransferRunOptions(const std::vector<std::string>& files);
 
 // What a run reads: `args` and the files named by --config, --manifest, --keywords,
 // --bad_pixel_mask and --requirements where given. An output folder must not hold any of

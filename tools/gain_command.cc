@@ -15,12 +15,8 @@
 #include "command.h"
 #include "gflags/gflags.h"
 
-DECLARE_double(exptime_s);
-DECLARE_double(bias_adu);
-DECLARE_double(saturation_adu);
-DECLARE_string(manifest);
 DECLARE_string(out);
-DECLARE_int32(max_image_mb);  // the reader's memory ceiling (input_flags.cc)
+DECLARE_int32(max_image_mb);             // the reader's memory ceiling (input_flags.cc)
 DEFINE_string(gain_method, "auto", "");  // meaning: GainCommand()'s table
 
 namespace ccdpsf::tools {
@@ -37,99 +33,6 @@ std::string Show(double value, const char* format = "%.3g") {
   char text[64];
   std::snprintf(text, sizeof(text), format, value);
   return text;
-}
-
-// The run's files and what the manifest and flags say of them. False with a one-line reason.
-bool ResolveGainInputs(const std::vector<std::string>& args, std::vector<std::string>* files,
-                       PhotonTransferOptions* options, std::string* error) {
-  Manifest manifest;
-  const bool has_manifest = FlagGiven("manifest");
-  if (has_manifest && !LoadManifest(FLAGS_manifest, &manifest, error)) return false;
-  std::vector<const ManifestRow*> rows;
-  if (args.empty()) {
-    for (const ManifestRow& row : manifest.rows) {
-      files->push_back(row.file);
-      rows.push_back(&row);
-    }
-  } else {
-    for (const std::string& file : args) {
-      const ManifestRow* row = has_manifest ? manifest.Find(file) : nullptr;
-      if (has_manifest && row == nullptr) {
-        *error = "'" + file + "' is not listed in the manifest '" + FLAGS_manifest + "'";
-        return false;
-      }
-      files->push_back(file);
-      rows.push_back(row);
-    }
-  }
-  if (files->empty()) {
-    *error = "the manifest '" + FLAGS_manifest + "' lists no files";
-    return false;
-  }
-  auto row_number = [](const ManifestRow* row, const char* quantity,
-                       std::string* source) -> double {
-    if (row == nullptr) return kNaN;
-    const GivenValue* v = row->values.Find(quantity);
-    if (v == nullptr || !v->number) return kNaN;
-    *source = v->source;
-    return *v->number;
-  };
-
-  // Exposure times: the flag for every file, else each file's manifest row, else (NaN) the
-  // file's EXPTIME keyword.
-  for (const ManifestRow* row : rows) {
-    std::string source = "flag --exptime_s";
-    double t = kNaN;
-    if (FlagGiven("exptime_s")) {
-      t = FLAGS_exptime_s;
-    } else {
-      t = row_number(row, "exptime_s", &source);
-    }
-    if (!std::isnan(t) && !(std::isfinite(t) && t >= 0.0)) {
-      *error = "exposure time " + Show(t) + " s (" + source + ") must be >= 0";
-      return false;
-    }
-    options->exptime_s.push_back(t);
-    options->exptime_sources.push_back(std::isfinite(t) ? source : "unknown");
-    // Frames pair only within a manifest setting (the same scene).
-    options->scene.push_back(row != nullptr ? row->setting : std::string());
-  }
-
-  // Bias and saturation: one value for the set, from the flag or the manifest's rows (which
-  // must then agree: the fit has one intercept).
-  auto one_value = [&](const char* quantity, bool flag_given, double flag_value, double* value,
-                       std::string* source) {
-    if (flag_given) {
-      *value = flag_value;
-      *source = std::string("flag --") + quantity;
-      return true;
-    }
-    for (const ManifestRow* row : rows) {
-      std::string s;
-      const double v = row_number(row, quantity, &s);
-      if (std::isnan(v)) continue;
-      if (std::isfinite(*value) && v != *value) {
-        *error = std::string("the manifest gives different values of ") + quantity + " (" +
-                 Show(*value) + " and " + Show(v) + "); the gain estimate needs one";
-        return false;
-      }
-      *value = v;
-      *source = s;
-    }
-    return true;
-  };
-  std::string saturation_source;
-  if (!one_value("bias_adu", FlagGiven("bias_adu"), FLAGS_bias_adu, &options->bias_adu,
-                 &options->bias_source) ||
-      !one_value("saturation_adu", FlagGiven("saturation_adu"), FLAGS_saturation_adu,
-                 &options->saturation_adu, &saturation_source)) {
-    return false;
-  }
-  if (!ParsePtcMethod(FLAGS_gain_method, &options->method)) {
-    *error = "--gain_method must be auto, pairs or single_frame (got '" + FLAGS_gain_method + "')";
-    return false;
-  }
-  return options->IsValid(error);
 }
 
 void PrintSummary(const PhotonTransferResult& r) {
@@ -181,7 +84,14 @@ int RunGain(const std::vector<std::string>& args) {
   std::vector<std::string> files;
   PhotonTransferOptions options;
   std::string error;
-  if (!ResolveGainInputs(args, &files, &options, &error)) return Fail(error);
+  if (!ResolveTransferInputs(args, "the gain estimate", &files, &options, &error)) {
+    return Fail(error);
+  }
+  if (!ParsePtcMethod(FLAGS_gain_method, &options.method)) {
+    return Fail("--gain_method must be auto, pairs or single_frame (got '" + FLAGS_gain_method +
+                "')");
+  }
+  if (!options.IsValid(&error)) return Fail(error);
   OutputFolder out;
   if (!FLAGS_out.empty() && !out.Begin(FLAGS_out, RunInputs(files), {}, &error)) {
     return Fail(error);
@@ -195,15 +105,9 @@ int RunGain(const std::vector<std::string>& args) {
       !WriteTextFileAtomically(out.partial() + "/gain.csv", PhotonTransferCsv(result), &error)) {
     return Fail(error);
   }
-  const nlohmann::json run_options = {
-      {"files", files},
-      {"exptime_s", FlagGiven("exptime_s") ? nlohmann::json(FLAGS_exptime_s) : nlohmann::json()},
-      {"bias_adu", FlagGiven("bias_adu") ? nlohmann::json(FLAGS_bias_adu) : nlohmann::json()},
-      {"saturation_adu",
-       FlagGiven("saturation_adu") ? nlohmann::json(FLAGS_saturation_adu) : nlohmann::json()},
-      {"manifest", FLAGS_manifest},
-      {"gain_method", FLAGS_gain_method},
-      {"out", FLAGS_out}};
+  nlohmann::json run_options = TransferRunOptions(files);
+  run_options["gain_method"] = FLAGS_gain_method;
+  run_options["out"] = FLAGS_out;
   // Nothing random is drawn: the seed recorded is 0.
   if (!WriteRunRecord(out.partial(), "gain", run_options, 0, &error) ||
       !out.Commit({}, &error)) {
@@ -216,37 +120,20 @@ int RunGain(const std::vector<std::string>& args) {
 }  // namespace
 
 Command GainCommand() {
+  std::vector<Option> options = TransferInputOptions();
+  options.push_back({"gain_method", "auto",
+                     "auto (pairs when two frames share an exposure time, else single_frame), "
+                     "pairs or single_frame"});
+  options.push_back(MaxImageMbOption());
+  options.push_back({"out", "",
+                     "Output folder for gain.json and gain.csv (not given: the summary on the "
+                     "terminal only)"});
   return {"gain",
           "ccdpsf gain [--exptime_s=S] [--manifest=FILE] [--bias_adu=B] [--saturation_adu=S] "
           "[--gain_method=auto|pairs|single_frame] [--max_image_mb=MB] [--out=DIR] FILE.fits...",
           "Estimate the gain [e-/ADU] and read noise [e-] by photon transfer, from frame pairs "
           "at equal exposure times or from single frames.",
-          {{"exptime_s", "0",
-            "Exposure time [s] of every frame; overrides the manifest and EXPTIME (frames at "
-            "one exposure time are paired)",
-            true},
-           {"manifest", "",
-            "CSV or JSON file with one row per frame (columns: file, and exptime_s, bias_adu, "
-            "saturation_adu where the headers lack them); no files given: every file it lists",
-            true},
-           {"bias_adu", "0",
-            "Bias level [ADU] of every frame; overrides the manifest and BIASLVL (else from the "
-            "overscan or the frame)",
-            true},
-           {"saturation_adu", "0",
-            "Saturation level [ADU]: pixels at or above it are left out; overrides the manifest "
-            "and SATURATE",
-            true},
-           {"gain_method", "auto",
-            "auto (pairs when two frames share an exposure time, else single_frame), pairs or "
-            "single_frame"},
-           {"max_image_mb", std::to_string(kDefaultMaxImageBytes >> 20),
-            "Largest image to read [MB = 2^20 bytes], as doubles (8 bytes a pixel); larger "
-            "images, and gzip files decompressing to more, are refused before reading"},
-           {"out", "",
-            "Output folder for gain.json and gain.csv (not given: the summary on the terminal "
-            "only)"}},
-          RunGain};
+          options, RunGain};
 }
 
 }  // namespace ccdpsf::tools

@@ -1,7 +1,10 @@
 // The flags that say what a file's header lacks, shared by fit, diagnose and trend: one
 // per metadata quantity (metadata.h), the keyword map, the manifest and the stamp size; and
-// the reader's memory ceiling (also read by gain).
+// the reader's memory ceiling (also read by gain); and what the photon-transfer commands (gain,
+// ptc) take from the manifest and these flags (ResolveTransferInputs).
 #include <cmath>
+#include <cstdio>
+#include <limits>
 
 #include "ccdpsf/fits_io.h"
 #include "ccdpsf/manifest.h"
@@ -31,6 +34,12 @@ DEFINE_int32(stamp_size, 21, "");
 DEFINE_int32(max_image_mb, static_cast<int>(ccdpsf::kDefaultMaxImageBytes >> 20), "");
 
 namespace ccdpsf::tools {
+
+Option MaxImageMbOption() {
+  return {"max_image_mb", std::to_string(kDefaultMaxImageBytes >> 20),
+          "Largest image to read [MB = 2^20 bytes], as doubles (8 bytes a pixel); larger images, "
+          "and gzip files decompressing to more, are refused before reading"};
+}
 
 std::vector<Option> InputOptions() {
   // The metadata flags: each value applies to every file and outranks the manifest and the
@@ -75,9 +84,7 @@ std::vector<Option> InputOptions() {
        "file, setting, and any quantity above)",
        true},
       {"stamp_size", std::to_string(CalibrationOptions().stamp_size), "Stamp side [px]"},
-      {"max_image_mb", std::to_string(kDefaultMaxImageBytes >> 20),
-       "Largest image to read [MB = 2^20 bytes], as doubles (8 bytes a pixel); larger images, "
-       "and gzip files decompressing to more, are refused before reading"}};
+      MaxImageMbOption()};
   return o;
 }
 
@@ -156,6 +163,137 @@ std::vector<std::string> RunInputs(const std::vector<std::string>& args) {
     if (gflags::GetCommandLineOption(flag, &value) && !value.empty()) inputs.push_back(value);
   }
   return inputs;
+}
+
+namespace {
+
+// A number of a message: "%.3g", or "-" when not finite.
+std::string ShowNumber(double value) {
+  if (!std::isfinite(value)) return "-";
+  char text[64];
+  std::snprintf(text, sizeof(text), "%.3g", value);
+  return text;
+}
+
+}  // namespace
+
+nlohmann::json TransferRunOptions(const std::vector<std::string>& files) {
+  auto given = [](const char* name, double value) {
+    return FlagGiven(name) ? nlohmann::json(value) : nlohmann::json();
+  };
+  return {{"files", files},
+          {"exptime_s", given("exptime_s", FLAGS_exptime_s)},
+          {"bias_adu", given("bias_adu", FLAGS_bias_adu)},
+          {"saturation_adu", given("saturation_adu", FLAGS_saturation_adu)},
+          {"manifest", FLAGS_manifest}};
+}
+
+std::vector<Option> TransferInputOptions() {
+  return {{"exptime_s", "0",
+           "Exposure time [s] of every frame; overrides the manifest and EXPTIME (frames at "
+           "one exposure time are paired)",
+           true},
+          {"manifest", "",
+           "CSV or JSON file with one row per frame (columns: file, and exptime_s, bias_adu, "
+           "saturation_adu where the headers lack them); no files given: every file it lists",
+           true},
+          {"bias_adu", "0",
+           "Bias level [ADU] of every frame; overrides the manifest and BIASLVL (else from the "
+           "overscan or the frame)",
+           true},
+          {"saturation_adu", "0",
+           "Saturation level [ADU]: pixels at or above it are left out; overrides the manifest "
+           "and SATURATE",
+           true}};
+}
+
+bool ResolveTransferInputs(const std::vector<std::string>& args, const std::string& purpose,
+                           std::vector<std::string>* files, TransferFrameOptions* options,
+                           std::string* error) {
+  Manifest manifest;
+  const bool has_manifest = FlagGiven("manifest");
+  if (has_manifest && !LoadManifest(FLAGS_manifest, &manifest, error)) return false;
+  std::vector<const ManifestRow*> rows;
+  if (args.empty()) {
+    for (const ManifestRow& row : manifest.rows) {
+      files->push_back(row.file);
+      rows.push_back(&row);
+    }
+  } else {
+    for (const std::string& file : args) {
+      const ManifestRow* row = has_manifest ? manifest.Find(file) : nullptr;
+      if (has_manifest && row == nullptr) {
+        *error = "'" + file + "' is not listed in the manifest '" + FLAGS_manifest + "'";
+        return false;
+      }
+      files->push_back(file);
+      rows.push_back(row);
+    }
+  }
+  if (files->empty()) {
+    *error = "the manifest '" + FLAGS_manifest + "' lists no files";
+    return false;
+  }
+  auto row_number = [](const ManifestRow* row, const char* quantity,
+                       std::string* source) -> double {
+    if (row == nullptr) return std::numeric_limits<double>::quiet_NaN();
+    const GivenValue* v = row->values.Find(quantity);
+    if (v == nullptr || !v->number) return std::numeric_limits<double>::quiet_NaN();
+    *source = v->source;
+    return *v->number;
+  };
+
+  // Exposure times: the flag for every file, else each file's manifest row, else (NaN) the
+  // file's EXPTIME keyword.
+  for (const ManifestRow* row : rows) {
+    std::string source = "flag --exptime_s";
+    double t = std::numeric_limits<double>::quiet_NaN();
+    if (FlagGiven("exptime_s")) {
+      t = FLAGS_exptime_s;
+    } else {
+      t = row_number(row, "exptime_s", &source);
+    }
+    if (!std::isnan(t) && !(std::isfinite(t) && t >= 0.0)) {
+      *error = "exposure time " + ShowNumber(t) + " s (" + source + ") must be >= 0";
+      return false;
+    }
+    options->exptime_s.push_back(t);
+    options->exptime_sources.push_back(std::isfinite(t) ? source : "unknown");
+    // Frames pair only within a manifest setting (the same scene).
+    options->scene.push_back(row != nullptr ? row->setting : std::string());
+  }
+
+  // Bias and saturation: one value for the set, from the flag or the manifest's rows (which
+  // must then agree: the fit has one intercept).
+  auto one_value = [&](const char* quantity, bool flag_given, double flag_value, double* value,
+                       std::string* source) {
+    if (flag_given) {
+      *value = flag_value;
+      *source = std::string("flag --") + quantity;
+      return true;
+    }
+    for (const ManifestRow* row : rows) {
+      std::string s;
+      const double v = row_number(row, quantity, &s);
+      if (std::isnan(v)) continue;
+      if (std::isfinite(*value) && v != *value) {
+        *error = std::string("the manifest gives different values of ") + quantity + " (" +
+                 ShowNumber(*value) + " and " + ShowNumber(v) + "); " + purpose + " needs one";
+        return false;
+      }
+      *value = v;
+      *source = s;
+    }
+    return true;
+  };
+  std::string saturation_source;
+  if (!one_value("bias_adu", FlagGiven("bias_adu"), FLAGS_bias_adu, &options->bias_adu,
+                 &options->bias_source) ||
+      !one_value("saturation_adu", FlagGiven("saturation_adu"), FLAGS_saturation_adu,
+                 &options->saturation_adu, &saturation_source)) {
+    return false;
+  }
+  return true;
 }
 
 }  // namespace ccdpsf::tools

@@ -47,7 +47,9 @@
 //                  (f m)^2 and lowers g; correlation lowers the variance and raises g), which
 //                  pairs avoid.
 //
-// Levels the ADC cannot record faithfully are kept out (rules in photon_transfer.cc):
+// The frames' exposure times, ADC limits, pairing and bias: photon_transfer_frames.h (shared
+// with `ccdpsf ptc`). Levels the ADC cannot record faithfully are kept out (rules in
+// photon_transfer.cc):
 //   - a black level clipped by the ADC (the frame's minimum value holds >= 1 % of its pixels
 //     and >= 10 of them): pixels at that value (and any at the ADC's bottom) are "at the
 //     floor". Going up from the lowest bin, every bin in which more than 0.1 % of the samples
@@ -78,6 +80,7 @@
 #include <vector>
 
 #include "ccdpsf/fits_io.h"
+#include "ccdpsf/photon_transfer_frames.h"
 #include "nlohmann/json.hpp"
 
 namespace ccdpsf {
@@ -87,24 +90,10 @@ enum class PtcMethod { kAuto, kPairs, kSingleFrame };
 const char* PtcMethodName(PtcMethod method);
 bool ParsePtcMethod(const std::string& text, PtcMethod* method);
 
-struct PhotonTransferOptions {
+// The frames' exposure times, scenes, bias and saturation: photon_transfer_frames.h.
+struct PhotonTransferOptions : TransferFrameOptions {
   // kAuto: pairs when at least two frames share an illumination (above), else single_frame.
   PtcMethod method = PtcMethod::kAuto;
-  // One entry per frame [s] (NaN: not given, then the frame's EXPTIME keyword), or empty:
-  // every frame's EXPTIME. Frames with no exposure time are never paired. Frames of exposure
-  // time 0 are bias frames: they also give the bias level.
-  std::vector<double> exptime_s;
-  std::vector<std::string> exptime_sources;  // optional, parallel to exptime_s ("manifest ...")
-  // Optional, one per frame: frames pair only within the same scene (e.g. a manifest's
-  // setting). Frames whose headers both carry WAVELEN or FOCUSPOS pair only when these agree
-  // too: an equal exposure time is not the same illumination at another wavelength or focus.
-  std::vector<std::string> scene;
-  // The bias level [ADU] when known from elsewhere; NaN: the BIASLVL keyword, else the bias
-  // section (BIASSEC), else zero-second frames, else unknown (then no read noise).
-  double bias_adu = std::numeric_limits<double>::quiet_NaN();
-  std::string bias_source = "option";
-  // Saturation [ADU]; NaN: the SATURATE keyword, else only the ADC's maximum.
-  double saturation_adu = std::numeric_limits<double>::quiet_NaN();
   int num_bins = 24;              // level bins before merging (see BuildBins in the .cc)
   int min_samples_per_bin = 100;  // a bin with fewer samples is merged into its neighbour
 
@@ -125,19 +114,6 @@ struct PtcPoint {
   double ceiling_fraction = 0.0;  // samples that touched the ADC's top or saturation
   bool used = false;
   std::string excluded_because;  // empty when used
-};
-
-// What was learnt about one input frame.
-struct PtcFrameInfo {
-  std::string name;
-  double exptime_s = std::numeric_limits<double>::quiet_NaN();
-  std::string exptime_source = "unknown";
-  double floor_adu = -std::numeric_limits<double>::infinity();  // clipped black level
-  bool floor_clipped = false;
-  double floor_pixel_fraction = 0.0;  // pixels at the frame's minimum
-  double ceiling_adu = std::numeric_limits<double>::infinity();
-  std::string ceiling_source = "none";
-  std::string role;  // "pair 1 (with X)", "single frame", "not used: ..."
 };
 
 struct PhotonTransferResult {

@@ -25,7 +25,8 @@ using testing_support::FreshDir;
 using testing_support::RunCcdpsf;
 using testing_support::RunResult;
 
-const std::vector<std::string> kCommands = {"simulate", "fit", "trend", "diagnose", "gain"};
+const std::vector<std::string> kCommands = {"simulate", "fit", "trend", "diagnose", "gain",
+                                            "ptc"};
 
 struct HelpOption {
   std::string type;
@@ -108,7 +109,7 @@ TEST(CliOptions, EachCommandListsAndTakesOnlyItsOwnOptions) {
   std::map<std::string, std::map<std::string, HelpOption>> help;
   for (const std::string& c : kCommands) help[c] = HelpOptions(c);
   ASSERT_FALSE(help["fit"].empty());
-  const std::regex per_command_part("(^|; |\\()(simulate|fit|trend|diagnose|gain)[:,]");
+  const std::regex per_command_part("(^|; |\\()(simulate|fit|trend|diagnose|gain|ptc)[:,]");
   std::map<std::string, int> foreign_tried;
   for (const std::string& c : kCommands) {
     for (const auto& [name, o] : help[c]) {
