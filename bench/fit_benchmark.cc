@@ -113,6 +113,40 @@ void BM_JointFullFit5SerialCti(benchmark::State& s) {
   FullFit(s, 5, true, &kSerialCti, {3e-3, 1.5});
 }
 
+// Issue 44: a 12-exposure intensity series (peaks ~7e3 to ~1.6e5 e-, fluxes per exposure)
+// drawn with the catalogue's boundary_shift, fitted jointly with it and without it (the
+// paper's model): the effect may cost at most 3x. MAP alone and the complete fit.
+std::unique_ptr<fit::FitModel> IntensitySeries(bool with_shift) {
+  SimulationConfig c = testing_support::PaperConfig(model::Sampling::kIntegrated, 12, 44);
+  for (int k = 0; k < 12; ++k) c.exposures[k].flux_e *= std::pow(0.045, k / 11.0) * 1.05;
+  std::string error;
+  model::AddDefaultEffect(model::EffectKind::kBoundaryShift, &c.effects);
+  fit::FitModelOptions o;
+  o.flux = fit::FluxMode::kPerExposure;
+  if (with_shift) o.effects.push_back({model::EffectKind::kBoundaryShift, {}});
+  return fit::FitModel::Create(testing_support::SimulateStamps(c, 45), o, &error);
+}
+void SeriesFit(benchmark::State& state, bool with_shift, bool mcmc) {
+  auto model = IntensitySeries(with_shift);
+  fit::FitOptions options;
+  options.run_mcmc = mcmc;
+  options.mcmc.progress = false;
+  options.mcmc.seed = 1;
+  for (auto _ : state) {
+    fit::FitResult r;
+    std::string error;
+    if (!fit::RunFit(*model, options, &r, &error)) state.SkipWithError(error.c_str());
+    state.counters["map_s"] = r.map.seconds;
+    state.counters["mcmc_s"] = mcmc ? r.chain.seconds : 0.0;
+    state.counters["steps"] = mcmc ? r.chain.num_steps : 0;
+    state.counters["chi2_dof"] = r.map.chi2 / r.map.dof;
+  }
+}
+void BM_Series12Map(benchmark::State& s) { SeriesFit(s, false, false); }
+void BM_Series12MapBoundaryShift(benchmark::State& s) { SeriesFit(s, true, false); }
+void BM_Series12FullFit(benchmark::State& s) { SeriesFit(s, false, true); }
+void BM_Series12FullFitBoundaryShift(benchmark::State& s) { SeriesFit(s, true, true); }
+
 BENCHMARK(BM_SingleMap)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_JointMap12)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_SingleFullFit)->Unit(benchmark::kSecond)->Iterations(1)->UseRealTime();
@@ -124,6 +158,10 @@ BENCHMARK(BM_JointFullFit5StretchOnly)->Unit(benchmark::kSecond)->Iterations(1)-
 BENCHMARK(BM_SingleFullFitSerialCti)->Unit(benchmark::kSecond)->Iterations(1)->UseRealTime();
 BENCHMARK(BM_SingleFullFitHalo)->Unit(benchmark::kSecond)->Iterations(1)->UseRealTime();
 BENCHMARK(BM_JointFullFit5SerialCti)->Unit(benchmark::kSecond)->Iterations(1)->UseRealTime();
+BENCHMARK(BM_Series12Map)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_Series12MapBoundaryShift)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_Series12FullFit)->Unit(benchmark::kSecond)->Iterations(1)->UseRealTime();
+BENCHMARK(BM_Series12FullFitBoundaryShift)->Unit(benchmark::kSecond)->Iterations(1)->UseRealTime();
 
 }  // namespace
 

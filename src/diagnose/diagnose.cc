@@ -79,11 +79,24 @@ std::string NotIdentifiable(const fit::FitModel& base, const ModelSpec& spec, Ef
         return "one intensity: a width growing with the peak signal is exactly a change of the "
                "CCD widths (needs exposures at two or more intensities)";
       }
+      if (spec.Has(EffectKind::kBoundaryShift)) {
+        return "the model already has boundary_shift, the physics of the same effect";
+      }
       return "";
     case EffectKind::kJitter:
       if (base.num_exposures() < 2) {
         return "one exposure: its jitter is exactly a change of the CCD widths (needs two or "
                "more exposures)";
+      }
+      return "";
+    case EffectKind::kBoundaryShift:
+      if (mo.sampling != model::Sampling::kIntegrated || mo.pixel_response_width != 1.0) {
+        return "boundaries move in the pixel integral: needs integrated sampling with the "
+               "whole pixel collecting";
+      }
+      if (spec.Has(EffectKind::kBrighterFatter)) {
+        return "the model already has brighter_fatter, the empirical description of the same "
+               "effect";
       }
       return "";
     case EffectKind::kDefocusOffset:

@@ -61,6 +61,20 @@ bool EffectsFitInSampling(const FitModelOptions& options, std::string* error) {
              "is a component of the 2015 pixel_centre model only";
     return false;
   }
+  if (options.HasEffect(model::EffectKind::kBoundaryShift)) {
+    if (options.model.sampling != model::Sampling::kIntegrated ||
+        options.model.pixel_response_width != 1.0) {
+      *error = "effect 'boundary_shift' needs integrated sampling with the whole pixel "
+               "collecting: boundaries move in the pixel integral, and the 2015 pixel_centre "
+               "model samples points";
+      return false;
+    }
+    if (options.HasEffect(model::EffectKind::kBrighterFatter)) {
+      *error = "effects 'boundary_shift' and 'brighter_fatter' are two descriptions of one "
+               "effect (the physics and the paper's empirical law): fit one";
+      return false;
+    }
+  }
   return true;
 }
 
@@ -74,7 +88,8 @@ bool FitModelOptions::HasEffect(model::EffectKind kind) const {
 std::string SignalDependenceModelled(const FitModelOptions& options) {
   std::string names;
   for (const model::EffectKind kind :
-       {model::EffectKind::kBrighterFatter, model::EffectKind::kNonlinearity}) {
+       {model::EffectKind::kBrighterFatter, model::EffectKind::kNonlinearity,
+        model::EffectKind::kBoundaryShift}) {
     if (!options.HasEffect(kind)) continue;
     names += (names.empty() ? "" : " and ") + model::ToString(kind);
   }
@@ -223,6 +238,11 @@ std::unique_ptr<FitModel> FitModel::Create(std::vector<Stamp> stamps,
     }
     m->centroid_x_.push_back(s.origin_x + wx / w);
     m->centroid_y_.push_back(s.origin_y + wy / w);
+    // boundary_shift's window around the spot, fixed per exposure so that the model stays
+    // smooth in theta (model/boundary_shift.h).
+    m->shift_window_.push_back(model::BoundaryShiftWindow(
+        static_cast<int>(std::lround(wx / w)), static_cast<int>(std::lround(wy / w)), s.nx(),
+        s.ny()));
     m->signal_per_stamp_e_.push_back(total);
     signal_sum += total;
   }
@@ -744,8 +764,9 @@ bool FitEvaluator::ModelImageColumns(const double* theta, int k, std::vector<dou
 
   // d image / d theta_column = sum_p d image / d spot_p x chain[p][column]; written into
   // the derivative channels of the image effects' dual image, or straight into the
-  // Jacobian.
-  const bool image_effects = effects.HasImageEffects();
+  // Jacobian. boundary_shift works on that dual image too.
+  const bool shift = effects.boundary_shift.has_value();
+  const bool image_effects = effects.HasImageEffects() || shift;
   const int stride = image_effects ? (want ? nc + 1 : 1) : nc;
   double* out = nullptr;
   if (image_effects) {
@@ -784,6 +805,31 @@ bool FitEvaluator::ModelImageColumns(const double* theta, int k, std::vector<dou
     }
   }
   if (!image_effects) return true;
+  if (shift) {
+    // The line densities along the pixel boundaries, drawn with the spot's parameters, with
+    // their derivatives chained to theta as the image's.
+    const model::PixelGrid grids[2] = {{grid.nx + 1, grid.ny, grid.x0 - 1.0, grid.y0},
+                                       {grid.nx, grid.ny + 1, grid.x0, grid.y0 - 1.0}};
+    for (int axis = 0; axis < 2; ++axis) {
+      const model::PixelGrid& g = grids[axis];
+      model::DualImage& d = boundary_density_[axis];
+      d.nx = g.nx;
+      d.ny = g.ny;
+      d.num_derivatives = want ? nc : 0;
+      d.data.assign(static_cast<size_t>(g.size()) * d.stride(), 0.0);
+      density_values_.resize(g.size());
+      if (want) density_jacobian_.resize(static_cast<size_t>(g.size()) * model::kNumSpotParams);
+      renderer_.RenderBoundaryDensity(spot, g, axis, density_values_.data(),
+                                      want ? density_jacobian_.data() : nullptr);
+      for (int q = 0; q < g.size(); ++q) {
+        double* row = d.data.data() + static_cast<size_t>(q) * d.stride();
+        row[0] = density_values_[q];
+        if (!want) continue;
+        const double* gq = &density_jacobian_[static_cast<size_t>(q) * model::kNumSpotParams];
+        for (const Link& l : links_) row[1 + l.column] += gq[l.spot_param] * l.value;
+      }
+    }
+  }
 
   // The halo's reference: the spot's flux and centre, with their derivatives. In
   // pixel_centre sampling the flux parameter is the 2015 peak meta-parameter m, not a flux:
@@ -813,6 +859,10 @@ bool FitEvaluator::ModelImageColumns(const double* theta, int k, std::vector<dou
         channels.Set(e.kind, p, 1 + column_of(fm.EffectIndex(e.kind) + p));
       }
     }
+  }
+  if (shift) {
+    model::ApplyBoundaryShift(*effects.boundary_shift, boundary_density_[0], boundary_density_[1],
+                              fm.ShiftWindow(k), channels, &dual_);
   }
   model::ApplyImageEffects(effects, grid, reference, want ? &reference_d : nullptr, channels,
                            &dual_);

@@ -261,14 +261,48 @@ void NodeDistances::Update(int new_rows, int new_cols, double new_hx, double new
 
 namespace {
 
+// The upper-edge kernel of ComputeAxisWeights: k(t, s) = phi(z) / s, z = (t + 1/2) / s, at
+// every node of the window, with dk/dcentre = z phi(z) / s^2 (t = pixel - centre - node) and
+// dk/ds = (z^2 - 1) phi(z) / s^2. Summed against the image it gives the line integral along
+// the boundary x = pixel + 1/2 [e- / px] instead of the pixel's integral.
+void ComputeUpperEdgeWeights(double pixel0, double centre, double h, int q, double half_width,
+                             double s, bool derivs, AxisWeights* aw,
+                             std::vector<double>* edge_scratch) {
+  aw->q = q;
+  aw->first = static_cast<int>(std::ceil((pixel0 - centre - half_width) * q));
+  const int last = static_cast<int>(std::floor((pixel0 - centre + half_width) * q));
+  const int size = last - aw->first + 1;
+  aw->w.resize(size, derivs ? 3 : 1);
+  edge_scratch->resize(3 * static_cast<size_t>(size));
+  double* z = edge_scratch->data();
+  double* tail = z + size;
+  double* density = tail + size;
+  for (int m = 0; m < size; ++m) z[m] = (pixel0 - centre - (aw->first + m) * h + 0.5) / s;
+  NormalTailsAndDensities(z, size, tail, density);
+  for (int m = 0; m < size; ++m) {
+    aw->w(m, 0) = h * density[m] / s;
+    if (derivs) {
+      aw->w(m, 1) = h * z[m] * density[m] / (s * s);
+      aw->w(m, 2) = h * (z[m] * z[m] - 1.0) * density[m] / (s * s);
+    }
+  }
+}
+
 // The pixel kernel k(t, s) times h at every node of the window, and when
 // derivs its derivatives by the centre and the width. A node's kernel is the normal
 // probability between its window's edges t +- w/2; the normal's tail and density are
 // evaluated once per edge. With the whole pixel collecting (w = 1 = q node spacings) node m's
 // lower edge is node m + q's upper edge, which halves the (erfc, exp) evaluations.
+// window <= 0 asks for the upper-edge kernel instead (AxisKernel::kUpperEdge): the normal's
+// density at the pixel's upper edge, k(t, s) = phi((t + 1/2) / s) / s, the limit of the
+// window's probability over its width as the window shrinks onto that edge.
 void ComputeAxisWeights(double pixel0, double centre, double h, int q, double half_width, double s,
                         double window, bool derivs, AxisWeights* aw,
                         std::vector<double>* edge_scratch) {
+  if (window <= 0.0) {
+    ComputeUpperEdgeWeights(pixel0, centre, h, q, half_width, s, derivs, aw, edge_scratch);
+    return;
+  }
   aw->q = q;
   aw->first = static_cast<int>(std::ceil((pixel0 - centre - half_width) * q));
   const int last = static_cast<int>(std::floor((pixel0 - centre + half_width) * q));
@@ -490,7 +524,7 @@ double QuadratureStep(double rho_c, double s, double tolerance) {
 
 void RenderIntegrated(const model::ModelOptions& options, const model::SpotParams& p,
                       const model::PixelGrid& grid, double* model_out, double* jacobian,
-                      IntegratedWorkspace* ws) {
+                      IntegratedWorkspace* ws, AxisKernel kernel_x, AxisKernel kernel_y) {
   const bool pillbox = options.defocus == model::DefocusKind::kPillbox;
   const double cx = p[kCentreX], cy = p[kCentreY];
   const double r = p[kAiryRadius];
@@ -516,12 +550,16 @@ void RenderIntegrated(const model::ModelOptions& options, const model::SpotParam
   AxisWeights& wx = ws->wx;
   AxisWeights& wy = ws->wy;
   // A collecting window narrower than the pixel (ModelOptions::pixel_response_width) only
-  // shortens the reach of each node; the error bound holds as it is (|sinc(w f)| <= 1).
+  // shortens the reach of each node; the error bound holds as it is (|sinc(w f)| <= 1). So
+  // does the upper-edge kernel (window 0 below): its transform is the Gaussian's times a phase.
   const double window = options.pixel_response_width;
-  ComputeAxisWeights(grid.x0, cx, hx, qx, 0.5 * window + tw * sx, sx, window, derivs, &wx,
-                     &ws->edges);
-  ComputeAxisWeights(grid.y0, cy, hy, qy, 0.5 * window + tw * sy, sy, window, derivs, &wy,
-                     &ws->edges);
+  const double window_x = kernel_x == AxisKernel::kUpperEdge ? 0.0 : window;
+  const double window_y = kernel_y == AxisKernel::kUpperEdge ? 0.0 : window;
+  // The edge kernel's nodes reach T s either side of the pixel's upper edge.
+  const double reach_x = 0.5 * (window_x > 0.0 ? window_x : 1.0) + tw * sx;
+  const double reach_y = 0.5 * (window_y > 0.0 ? window_y : 1.0) + tw * sy;
+  ComputeAxisWeights(grid.x0, cx, hx, qx, reach_x, sx, window_x, derivs, &wx, &ws->edges);
+  ComputeAxisWeights(grid.y0, cy, hy, qy, reach_y, sy, window_y, derivs, &wy, &ws->edges);
   // Node ranges: every node some pixel of the grid sees.
   const int i_lo = wx.first, i_hi = wx.first + qx * (grid.nx - 1) + wx.w.rows() - 1;
   const int j_lo = wy.first, j_hi = wy.first + qy * (grid.ny - 1) + wy.w.rows() - 1;

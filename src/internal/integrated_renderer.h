@@ -98,10 +98,18 @@ struct IntegratedWorkspace {
   NodeDistances distances;          // of the quadrant's nodes, for the fills
 };
 
+// What the integral along one axis collects per pixel: the pixel's extent (times the pixel
+// response window, ModelOptions::pixel_response_width), or the line at its upper edge, so
+// that a pixel's value is the line integral of the image along that edge [e- / px].
+enum class AxisKernel { kPixel, kUpperEdge };
+
 // Renders with unit flux semantics handled inside; see renderer.h for the output layout.
+// kernel_x = kUpperEdge gives, for pixel (i, j), the line integral along x = x0 + i + 1/2,
+// y in [y0 + j - 1/2, y0 + j + 1/2] (SpotRenderer::RenderBoundaryDensity); kernel_y likewise.
 void RenderIntegrated(const model::ModelOptions& options, const model::SpotParams& params,
                       const model::PixelGrid& grid, double* model, double* jacobian,
-                      IntegratedWorkspace* workspace);
+                      IntegratedWorkspace* workspace, AxisKernel kernel_x = AxisKernel::kPixel,
+                      AxisKernel kernel_y = AxisKernel::kPixel);
 
 // The quadrature node spacing [px] used along an axis whose total Gaussian width is s [px],
 // for an Airy pattern of cut-off frequency rho_c = Rz / r [cycles/px]. Exposed for tests.

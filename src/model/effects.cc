@@ -60,6 +60,14 @@ EffectParameterInfo Param(const std::string& name, const std::string& unit, doub
 //   the back, spreading a few % of the light over 2-3 px: fraction 3 %, sigma 2.5 px.
 // defocus_offset: a misaligned pinhole image (coma-like) shifting the defocus blur by a
 //   fraction of its width: 0.1 px along x.
+// boundary_shift: flat-field covariances of thick CCDs give a_00 ~ -1e-6 .. -2.5e-6 per e-
+//   (Astier et al. 2019: the variance of flats at 1e5 e- 10-25 % below the Poisson line) with
+//   the nearest neighbours holding most of the rest. The CCD273 (40 um of silicon, 12 um
+//   pixels) is thinner and coarser than the 100 um, 10 um devices measured there, so its
+//   coefficients sit at the lower end: a_10 = 1.5e-7, a_01 = 2e-7 (the parallel boundaries,
+//   made by clock barriers, move more than the serial ones, made by channel stops), a_11 =
+//   6e-8, a_far = 1.5e-8, so that a_00 = -1.2e-6 and flats at 1.5e5 e- lose ~17 % of their
+//   Poisson variance. The priors reach about 5x these.
 std::vector<EffectInfo> MakeCatalogue() {
   const DefocusEffectParams defocus;
   const BrighterFatterParams bf;
@@ -238,6 +246,32 @@ std::vector<EffectInfo> MakeCatalogue() {
                [](const double* v, ExposureEffects* e) {
                  e->defocus_offset = DefocusOffsetParams{v[0], v[1]};
                }});
+  const BoundaryShiftParams shift;
+  c.push_back(
+      {EffectKind::kBoundaryShift,
+       "boundary_shift",
+       "brighter-fatter: pixel boundaries moved by the charge already collected (a_ij)",
+       true,
+       true,
+       {Param("a_10", "1/e-", shift.a_10, 0.0, 1.5e-6, -1.0e-4, false, 1.0e-4, false,
+              "area gain of the pixel one column over per electron (x lag 1)", 1.0e-7, true),
+        Param("a_01", "1/e-", shift.a_01, 0.0, 1.5e-6, -1.0e-4, false, 1.0e-4, false,
+              "area gain of the pixel one row over per electron (y lag 1)", 1.0e-7, true),
+        Param("a_11", "1/e-", shift.a_11, 0.0, 6.0e-7, -1.0e-4, false, 1.0e-4, false,
+              "area gain of the diagonal pixel per electron", 3.0e-8, true),
+        Param("a_far", "1/e-", shift.a_far, 0.0, 1.5e-7, -1.0e-4, false, 1.0e-4, false,
+              "area gain at lag distance 2 per electron, falling as (2/r)^3 to lag 5", 1.0e-8,
+              true)},
+       {{1.0e-7, 1.0e-7, 3.0e-8, 1.0e-8}, {3.0e-7, 3.0e-7, 1.0e-7, 3.0e-8}},
+       "",
+       [](const ExposureEffects& e) { return e.boundary_shift.has_value(); },
+       [](const ExposureEffects& e) {
+         return std::vector<double>{e.boundary_shift->a_10, e.boundary_shift->a_01,
+                                    e.boundary_shift->a_11, e.boundary_shift->a_far};
+       },
+       [](const double* v, ExposureEffects* e) {
+         e->boundary_shift = BoundaryShiftParams{v[0], v[1], v[2], v[3]};
+       }});
   for (size_t i = 0; i < c.size(); ++i) {
     // DescribeEffect indexes the catalogue by kind.
     CHECK_EQ(static_cast<int>(c[i].kind), static_cast<int>(i)) << c[i].name;
@@ -509,15 +543,32 @@ void RenderSpotWithKernelEffects(const SpotRenderer& renderer, const ExposureEff
   const bool pc_offset = effects.defocus_offset && options.sampling == Sampling::kPixelCentre;
   const double odx = pc_offset ? effects.defocus_offset->dx_px : 0.0;
   const double ody = pc_offset ? effects.defocus_offset->dy_px : 0.0;
+  // With boundary_shift, the line densities along the pixel boundaries too, on the grid grown
+  // by one pixel below on their axis (ApplyBoundaryShift's layout).
+  const bool shift = effects.boundary_shift.has_value();
+  const PixelGrid grid_x{grid.nx + 1, grid.ny, grid.x0 - 1.0, grid.y0};
+  const PixelGrid grid_y{grid.nx, grid.ny + 1, grid.x0, grid.y0 - 1.0};
+  DualImage density_x, density_y;
+  if (shift) {
+    density_x = {grid_x.nx, grid_x.ny, 0, std::vector<double>(grid_x.size(), 0.0)};
+    density_y = {grid_y.nx, grid_y.ny, 0, std::vector<double>(grid_y.size(), 0.0)};
+  }
+  std::vector<double> one(shift ? std::max(grid_x.size(), grid_y.size()) : grid.size());
+  auto add_densities = [&](const SpotParams& p, double weight) {
+    renderer.RenderBoundaryDensity(p, grid_x, 0, one.data(), nullptr);
+    for (int q = 0; q < grid_x.size(); ++q) density_x.data[q] += weight * one[q];
+    renderer.RenderBoundaryDensity(p, grid_y, 1, one.data(), nullptr);
+    for (int q = 0; q < grid_y.size(); ++q) density_y.data[q] += weight * one[q];
+  };
   if (n == 1) {
     if (pc_offset) {
       renderer.RenderWithDefocusOffset(centre, odx, ody, grid, model, nullptr);
     } else {
       renderer.Render(centre, grid, model, nullptr);
     }
+    if (shift) add_densities(centre, 1.0);
   } else {
     std::fill(model, model + grid.size(), 0.0);
-    std::vector<double> one(grid.size());
     for (const MotionNode& node : MotionBlurNodes(*effects.jitter, n)) {
       SpotParams p = centre;
       p[kCentreX] += node.dx_px;
@@ -528,7 +579,16 @@ void RenderSpotWithKernelEffects(const SpotRenderer& renderer, const ExposureEff
         renderer.Render(p, grid, one.data(), nullptr);
       }
       for (int q = 0; q < grid.size(); ++q) model[q] += node.weight * one[q];
+      if (shift) add_densities(p, node.weight);
     }
+  }
+  if (shift) {
+    DualImage image{grid.nx, grid.ny, 0, std::vector<double>(model, model + grid.size())};
+    const int peak = static_cast<int>(std::max_element(model, model + grid.size()) - model);
+    ApplyBoundaryShift(*effects.boundary_shift, density_x, density_y,
+                       BoundaryShiftWindow(peak % grid.nx, peak / grid.nx, grid.nx, grid.ny),
+                       EffectChannels(), &image);
+    std::copy(image.data.begin(), image.data.end(), model);
   }
   if (details != nullptr) {
     details->peak_e = effects.brighter_fatter ? peak_e : 0.0;
@@ -637,7 +697,6 @@ bool ParseJitter(const json& object, int num_exposures, EffectsConfig* out,
 
 bool ParseEffectsConfig(const json& effects, int num_exposures, Sampling sampling,
                         EffectsConfig* out, std::string* error) {
-  (void)sampling;  // every effect renders in both samplings
   if (!effects.is_object()) {
     *error = "'effects' must be a JSON object of effects by catalogue name";
     return false;
@@ -661,6 +720,21 @@ bool ParseEffectsConfig(const json& effects, int num_exposures, Sampling samplin
     }
     if (!it.value().is_object()) {
       *error = "'" + path + "' must be a JSON object of parameters ({} for the defaults)";
+      return false;
+    }
+    if (kind == EffectKind::kBoundaryShift && sampling != Sampling::kIntegrated) {
+      *error = "'" + path + "' needs \"sampling\": \"integrated\": boundaries move in the pixel "
+               "integral, and the 2015 pixel_centre model samples points";
+      return false;
+    }
+    if (kind == EffectKind::kBoundaryShift && config.common.brighter_fatter) {
+      *error = "'" + path + "' and 'effects.brighter_fatter' are two descriptions of one effect: "
+               "inject one";
+      return false;
+    }
+    if (kind == EffectKind::kBrighterFatter && config.common.boundary_shift) {
+      *error = "'" + path + "' and 'effects.boundary_shift' are two descriptions of one effect: "
+               "inject one";
       return false;
     }
 

@@ -63,4 +63,20 @@ void SpotRenderer::RenderWithDefocusOffset(const SpotParams& params, double dx_p
   }
 }
 
+void SpotRenderer::RenderBoundaryDensity(const SpotParams& params, const PixelGrid& grid, int axis,
+                                         double* density, double* jacobian) const {
+  CHECK(options_.sampling == Sampling::kIntegrated)
+      << "boundary densities need integrated sampling";
+  CHECK_EQ(options_.pixel_response_width, 1.0) << "boundary densities need the whole pixel";
+  CHECK(axis == 0 || axis == 1) << axis;
+  std::string error;
+  CHECK(ValidSpotParams(options_, params, &error)) << error;
+  CHECK_GT(grid.nx, 0);
+  CHECK_GT(grid.ny, 0);
+  using internal::AxisKernel;
+  internal::RenderIntegrated(options_, params, grid, density, jacobian, &workspace_->integrated,
+                             axis == 0 ? AxisKernel::kUpperEdge : AxisKernel::kPixel,
+                             axis == 1 ? AxisKernel::kUpperEdge : AxisKernel::kPixel);
+}
+
 }  // namespace ccdpsf::model

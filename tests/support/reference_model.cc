@@ -188,9 +188,12 @@ long long Sweep(const ReferenceSpot& spot, const Plan& plan, int level, AngularR
       for (int q = 0; q < n; ++q) {
         const double u = rho * ang.c[q];
         const double v = rho * ang.s[q];
-        const double w = spot.pixel_window;
-        const double g =
-            std::exp(-(a_x * u * u + a_y * v * v)) * w * Sinc(w * u) * w * Sinc(w * v);
+        const double wx = spot.pixel_window_x > 0.0 ? spot.pixel_window_x : spot.pixel_window;
+        const double wy = spot.pixel_window_y > 0.0 ? spot.pixel_window_y : spot.pixel_window;
+        // A line along an axis has the transform 1 there (ReferenceSpot::line_x).
+        const double box_u = spot.line_x ? 1.0 : wx * Sinc(wx * u);
+        const double box_v = spot.line_y ? 1.0 : wy * Sinc(wy * v);
+        const double g = std::exp(-(a_x * u * u + a_y * v * v)) * box_u * box_v;
         accumulate(radial_weight * ang.w[q] * g, u, v);
       }
       nodes += n;

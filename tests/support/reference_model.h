@@ -63,6 +63,15 @@ struct ReferenceSpot {
   // Width of each pixel's collecting window [px] (1: the whole pixel). Its box transform is
   // w sinc(w u) per axis in place of sinc(u).
   double pixel_window = 1.0;
+  // Where positive, the window's width along x (y) alone, in place of pixel_window: the value
+  // is then the integral over a pixel_window_x x pixel_window_y rectangle centred at (X, Y).
+  double pixel_window_x = 0.0;
+  double pixel_window_y = 0.0;
+  // A line instead of the window along x (y): the value at (X, Y) is then the line integral
+  // of the image along x = X (y = Y) over the window's extent on the other axis [e- / px],
+  // what SpotRenderer::RenderBoundaryDensity gives for a pixel boundary.
+  bool line_x = false;
+  bool line_y = false;
 };
 
 // The spot of the renderer's SpotParams (integrated sampling), in the reference's terms.

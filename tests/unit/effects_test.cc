@@ -60,7 +60,8 @@ double MaxAbsDiff(const std::vector<double>& a, const std::vector<double>& b) {
 TEST(Effects, NamesAreTheCatalogueNamesAndRoundTrip) {
   const std::vector<std::string> names = {"defocus", "brighter_fatter", "serial_cti",
                                           "parallel_cti", "ipc", "jitter", "background",
-                                          "nonlinearity", "halo", "defocus_offset"};
+                                          "nonlinearity", "halo", "defocus_offset",
+                                          "boundary_shift"};
   ASSERT_EQ(AllEffectKinds().size(), names.size());
   ASSERT_EQ(EffectCatalogue().size(), names.size());
   for (size_t i = 0; i < names.size(); ++i) {
@@ -140,6 +141,11 @@ TEST(Effects, CatalogueDefaultsPriorsAndDomainsAgree) {
       case EffectKind::kDefocusOffset:
         want = {DefocusOffsetParams().dx_px, DefocusOffsetParams().dy_px};
         break;
+      case EffectKind::kBoundaryShift: {
+        const BoundaryShiftParams b;
+        want = {b.a_10, b.a_01, b.a_11, b.a_far};
+        break;
+      }
       case EffectKind::kDefocus: break;
     }
     EXPECT_EQ(GetEffectParameters(from_catalogue, info.kind), want) << info.name;

@@ -278,6 +278,8 @@ class FitModel {
   // and y axes, less the pixel and an Airy core of the given radius; not clamped): in focus
   // mode the quantity that grows as sigma_ccd^2 + rate^2 (z_k - z0)^2.
   std::vector<double> MomentGaussianVariances(double airy_radius_px) const;
+  // boundary_shift's window of stamp k (model/boundary_shift.h): around its centroid's pixel.
+  const model::PixelWindow& ShiftWindow(int k) const { return shift_window_[k]; }
   // Frame-coordinate centroid of stamp k [px] (the moment start's position).
   double CentroidX(int k) const { return centroid_x_[k]; }
   double CentroidY(int k) const { return centroid_y_[k]; }
@@ -291,6 +293,7 @@ class FitModel {
   std::vector<std::string> names_;
   std::vector<double> lower_, upper_;
   std::vector<double> centroid_x_, centroid_y_;  // frame coordinates, per stamp
+  std::vector<model::PixelWindow> shift_window_;  // ShiftWindow, per stamp
   std::vector<double> signal_per_stamp_e_;       // summed signal of each stamp
   std::vector<double> fixed_flux_scale_;         // FixedFluxScale
   std::array<int, model::kNumEffectKinds> effect_index_;  // EffectIndex
@@ -383,6 +386,10 @@ class FitEvaluator {
   // d image / d (defocus_offset dx, dy), pixels x 2: the image's and plain_'s.
   std::vector<double> offset_jacobian_, plain_offset_jacobian_;
   model::DualImage dual_;                         // image effects with derivatives
+  // boundary_shift: the line densities along the x and y boundaries, with derivatives, and
+  // the renderer's values and Jacobian of one of them.
+  model::DualImage boundary_density_[2];
+  std::vector<double> density_values_, density_jacobian_;
   std::vector<std::vector<double>> unit_models_;  // BestFluxLogLikelihood's renders
 };
 

@@ -19,6 +19,8 @@
 //   halo             a broad second component holding a fraction of the light (the
 //                    red-light diffusion tail).
 //   defocus_offset   the defocus kernel centred away from the Airy centre.
+//   boundary_shift   brighter-fatter as a CCD makes it: pixel boundaries moved by the charge
+//                    already collected (model/boundary_shift.h).
 //
 // Two kinds of effect, applied in this order (the order the simulator uses):
 //
@@ -36,6 +38,14 @@
 //                         L [px] at angle theta [deg, from +x towards +y], centred on the spot
 //                         (so the mean position does not move); Gauss-Legendre nodes, their
 //                         number chosen from an error bound (MotionBlurNodeCount).
+//        boundary_shift   after the spot is drawn with the effects above: the charge of
+//                         each pixel moves its neighbours' boundaries, and each boundary moves
+//                         1/2 shift x (the line integral of the spot's continuous image along
+//                         it) from one pixel to the other (model/boundary_shift.h, first
+//                         order, the shifts growing during the exposure). Integrated sampling
+//                         with the whole pixel collecting only: it needs the continuous image
+//                         along the pixel boundaries. Computed in a window around the spot
+//                         (BoundaryShiftWindow).
 //        defocus_offset   the defocus kernel centred at (x + dx, y + dy) instead of the Airy
 //                         centre (x, y). In integrated sampling a convolution with a shifted
 //                         kernel is exactly a shift of the whole image, so this is rendered as
@@ -80,6 +90,7 @@
 #include <string>
 #include <vector>
 
+#include "ccdpsf/model/boundary_shift.h"
 #include "ccdpsf/model/renderer.h"
 #include "ccdpsf/model/spot_model.h"
 #include "nlohmann/json.hpp"
@@ -97,12 +108,13 @@ enum class EffectKind {
   kNonlinearity,
   kHalo,
   kDefocusOffset,
+  kBoundaryShift,
 };
-constexpr int kNumEffectKinds = static_cast<int>(EffectKind::kDefocusOffset) + 1;
+constexpr int kNumEffectKinds = static_cast<int>(EffectKind::kBoundaryShift) + 1;
 
 // The catalogue names ("defocus", "brighter_fatter", "serial_cti", "parallel_cti", "ipc",
-// "jitter", "background", "nonlinearity", "halo", "defocus_offset"). ParseEffectKind returns
-// false on anything else and leaves the output untouched.
+// "jitter", "background", "nonlinearity", "halo", "defocus_offset", "boundary_shift").
+// ParseEffectKind returns false on anything else and leaves the output untouched.
 std::string ToString(EffectKind kind);
 bool ParseEffectKind(const std::string& text, EffectKind* kind);
 // Every kind, in the order above.
@@ -176,6 +188,7 @@ struct ExposureEffects {
   std::optional<CtiParams> serial_cti;
   std::optional<CtiParams> parallel_cti;
   std::optional<BackgroundParams> background;
+  std::optional<BoundaryShiftParams> boundary_shift;
 
   bool empty() const { return !HasKernelEffects() && !HasImageEffects(); }
   // Whether a kernel effect (an image effect) of the catalogue is present.
@@ -402,6 +415,16 @@ void ApplySerialCti(const CtiParams& cti, const EffectChannels& channels, DualIm
 void ApplyParallelCti(const CtiParams& cti, const EffectChannels& channels, DualImage* image);
 void AddBackground(const BackgroundParams& background, const EffectChannels& channels,
                    DualImage* image);
+// The boundary shifts' redistribution of a drawn spot (model/boundary_shift.h; implemented in
+// boundary_shift.cc): `image` holds the spot's pixels Q, `density_x` the line integrals along
+// the (nx + 1) x ny boundaries x = x0 - 1/2 + b (b = 0 .. nx) of each row, `density_y` along
+// the nx x (ny + 1) boundaries y = y0 - 1/2 + b, both with the image's derivative channels
+// (SpotRenderer::RenderBoundaryDensity on the grid grown by one pixel below). Only the charge
+// and the boundaries of `window` take part. The derivatives by a_10, a_01, a_11, a_far go to
+// the channels EffectChannels names for kBoundaryShift.
+void ApplyBoundaryShift(const BoundaryShiftParams& params, const DualImage& density_x,
+                        const DualImage& density_y, const PixelWindow& window,
+                        const EffectChannels& channels, DualImage* image);
 // halo -> nonlinearity -> ipc -> serial_cti -> parallel_cti: the charge effects, before
 // the Poisson step.
 void ApplyChargeEffects(const ExposureEffects& effects, const PixelGrid& grid,
@@ -441,8 +464,9 @@ struct EffectsConfig {
 };
 
 // Parses the "effects" object of a simulation config. `num_exposures` is the length any
-// per-exposure list must have; `sampling` is for checks that depend on it (none at present:
-// every effect renders in both samplings). Unknown
+// per-exposure list must have; `sampling` is for checks that depend on it (boundary_shift
+// needs integrated sampling; the other effects render in both). boundary_shift and
+// brighter_fatter describe one effect and are not injected together. Unknown
 // effect names and keys, wrong types and values outside the physical domain are one-line
 // errors naming the key (e.g. "'effects.ipc.alpha' must be in [0, 0.25) (got 0.3)"); "defocus"
 // is rejected with a pointer to "model.defocus". Missing parameters take the catalogue

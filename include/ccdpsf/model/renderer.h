@@ -44,6 +44,17 @@ class SpotRenderer {
                                const PixelGrid& grid, double* model, double* jacobian,
                                double* offset_jacobian = nullptr) const;
 
+  // The line integral of the spot's continuous image [e- / px] along each pixel's upper
+  // boundary on one axis: for axis 0, out[j * nx + i] is the integral along x = x0 + i + 1/2
+  // over y in [y0 + j - 1/2, y0 + j + 1/2] (the boundary between pixels (i, j) and (i + 1, j));
+  // for axis 1, along y = y0 + j + 1/2 over the pixel's x extent. What a boundary moved by a
+  // small d [px] adds to the pixel beyond it is d times this (model/boundary_shift.h). Same
+  // layout and Jacobian as Render. Integrated sampling only, with the whole pixel collecting
+  // (ModelOptions::pixel_response_width = 1): the 2015 pixel_centre model samples points and
+  // has no pixel boundaries.
+  void RenderBoundaryDensity(const SpotParams& params, const PixelGrid& grid, int axis,
+                             double* density, double* jacobian) const;
+
  private:
   struct Workspace;
   ModelOptions options_;
