@@ -28,6 +28,7 @@
 #include <vector>
 
 #include "ccdpsf/atomic_file.h"
+#include "ccdpsf/input_file.h"
 #include "internal/fits_screen.h"
 #include "internal/text.h"
 
@@ -449,22 +450,18 @@ bool CloseWritten(FitsFile* file, const std::string& path, std::string* error) {
 // nothing about the size of the data). Returns the file size in bytes, or -1 if it is not
 // known.
 std::optional<long long> CheckReadable(const std::string& path, bool* gzip, std::string* error) {
+  // A regular file only: a FIFO or a device would block or never end (input_file.h).
+  const int fd = OpenRegularFile(path, "", error);
+  if (fd < 0) {
+    if (error->rfind("cannot read ", 0) == 0) *error = "cannot open " + error->substr(12);
+    return std::nullopt;
+  }
   struct stat st;
-  if (::stat(path.c_str(), &st) != 0) {
-    if (errno == ENOENT || errno == ENOTDIR) {
-      *error = "cannot open " + Quoted(path) + ": no such file";
-    } else {
-      *error = "cannot open " + Quoted(path) + ": " + std::strerror(errno);
-    }
-    return std::nullopt;
-  }
-  if (S_ISDIR(st.st_mode)) {
-    *error = "cannot open " + Quoted(path) + ": it is a directory";
-    return std::nullopt;
-  }
-  std::FILE* stream = std::fopen(path.c_str(), "rb");
+  const bool have_size = ::fstat(fd, &st) == 0;
+  std::FILE* stream = ::fdopen(fd, "rb");
   if (stream == nullptr) {
     *error = "cannot open " + Quoted(path) + ": " + std::strerror(errno);
+    ::close(fd);
     return std::nullopt;
   }
   char start[10] = {0};
@@ -488,8 +485,7 @@ std::optional<long long> CheckReadable(const std::string& path, bool* gzip, std:
     *error = Quoted(path) + " is truncated or corrupt";
     return std::nullopt;
   }
-  // Only a regular file's size says how much data it holds (-1: unknown, e.g. a pipe).
-  return S_ISREG(st.st_mode) ? static_cast<long long>(st.st_size) : -1LL;
+  return have_size ? static_cast<long long>(st.st_size) : -1LL;
 }
 
 std::string Corrupt(const std::string& path, int status) {

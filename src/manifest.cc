@@ -2,10 +2,10 @@
 #include "ccdpsf/manifest.h"
 
 #include <filesystem>
-#include <fstream>
 #include <set>
 #include <sstream>
 
+#include "ccdpsf/input_file.h"
 #include "nlohmann/json.hpp"
 #include "internal/text.h"
 
@@ -322,23 +322,13 @@ const ManifestRow* Manifest::Find(const std::string& file) const {
 bool LoadManifest(const std::string& path, Manifest* manifest, std::string* error) {
   *manifest = Manifest();
   manifest->path = path;
-  std::error_code ec;
-  if (!fs::is_regular_file(path, ec)) {
-    *error = "cannot read manifest '" + path + "': no such file";
-    return false;
-  }
-  std::ifstream in(path, std::ios::binary);
-  if (!in) {
-    *error = "cannot read manifest '" + path + "'";
-    return false;
-  }
-  std::stringstream text;
-  text << in.rdbuf();
+  std::string text;
+  if (!ReadTextInput(path, "manifest", &text, error)) return false;
   const std::string name = fs::path(path).filename().string();
   const fs::path base = fs::path(path).parent_path();
   const std::string ext = fs::path(path).extension().string();
-  if (ext == ".json" || ext == ".JSON") return LoadJson(text.str(), name, base, manifest, error);
-  if (ext == ".csv" || ext == ".CSV") return LoadCsv(text.str(), name, base, manifest, error);
+  if (ext == ".json" || ext == ".JSON") return LoadJson(text, name, base, manifest, error);
+  if (ext == ".csv" || ext == ".CSV") return LoadCsv(text, name, base, manifest, error);
   *error = "manifest '" + path + "' must end in .csv or .json";
   return false;
 }

@@ -5,9 +5,10 @@
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
-#include <fstream>
 #include <limits>
 #include <sstream>
+
+#include "ccdpsf/input_file.h"
 
 #include "internal/text.h"
 
@@ -220,12 +221,12 @@ bool KeywordMap::OverlayText(const std::string& text, std::string* error) {
 }
 
 bool KeywordMap::OverlayFileOrText(const std::string& text, std::string* error) {
+  // A file of that name (whatever its type: a FIFO is refused, not taken for map text).
   std::error_code ec;
-  if (std::filesystem::is_regular_file(text, ec)) {
-    std::ifstream in(text);
-    std::stringstream content;
-    content << in.rdbuf();
-    const json j = json::parse(content.str(), nullptr, false, true);
+  if (std::filesystem::exists(text, ec)) {
+    std::string content;
+    if (!ReadTextInput(text, "keyword map", &content, error)) return false;
+    const json j = json::parse(content, nullptr, false, true);
     if (j.is_discarded()) {
       *error = "keyword map '" + text + "' is not valid JSON";
       return false;

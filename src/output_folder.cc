@@ -13,6 +13,7 @@
 #include <system_error>
 
 #include "ccdpsf/atomic_file.h"
+#include "ccdpsf/input_file.h"
 #include "nlohmann/json.hpp"
 
 namespace ccdpsf {
@@ -43,9 +44,11 @@ bool IsWithin(const fs::path& inner, const fs::path& outer) {
 }  // namespace
 
 bool IsCcdpsfOutput(const std::string& dir) {
-  std::ifstream in(fs::path(dir) / "run.json");
-  if (!in) return false;
-  const nlohmann::json record = nlohmann::json::parse(in, nullptr, /*allow_exceptions=*/false);
+  std::string text, error;
+  if (!ReadTextInput((fs::path(dir) / "run.json").string(), "run record", &text, &error)) {
+    return false;
+  }
+  const nlohmann::json record = nlohmann::json::parse(text, nullptr, /*allow_exceptions=*/false);
   return record.is_object() && record.contains("software") && record["software"].is_object() &&
          record["software"].contains("ccdpsf");
 }
