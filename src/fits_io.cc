@@ -571,6 +571,9 @@ struct OpenedFits {
   FileBytes bytes;
   std::vector<HduLayout> hdus;
   FitsFile file;
+  // CFITSIO's count of HDUs, taken once: fits_get_num_hdus walks every header from the
+  // current HDU to the end at each call, which made reading each of N segments O(N^2).
+  int num_hdus = 0;
 };
 
 // Checks the 2-D image of the current HDU (number `hdu`, 1-based absolute) before any pixel
@@ -724,7 +727,7 @@ bool OpenForReading(const std::string& path, OpenedFits* opened, std::string* er
     const CfitsioName name(path);
     fits_open_diskfile(opened->file.out(), name.c_str(), READONLY, &status);
   }
-  if (status != 0) {
+  if (status != 0 || fits_get_num_hdus(opened->file.get(), &opened->num_hdus, &status)) {
     *error = Corrupt(path, status);
     return false;
   }
@@ -745,11 +748,7 @@ bool SelectImageHdu(const OpenedFits& opened, const std::string& path,
                     const std::string& hdu_selector, int* hdu_number, std::string* error) {
   const FitsFile& file = opened.file;
   int status = 0;
-  int num_hdus = 0;
-  if (fits_get_num_hdus(file.get(), &num_hdus, &status)) {
-    *error = Corrupt(path, status);
-    return false;
-  }
+  const int num_hdus = opened.num_hdus;
 
   if (!hdu_selector.empty()) {
     // An extension by number (0 = primary, as astropy and DS9 count) or by EXTNAME.
@@ -894,17 +893,15 @@ bool FitsImageStream::ReadRows(int y_begin, int rows, double* out, std::string* 
   return ReadCurrentRows(opened_->fits.file.get(), path_, nx_, y_begin, rows, out, error);
 }
 
-std::vector<FitsHduInfo> ListFitsImageHdus(const std::string& path, std::string* error) {
+namespace {
+
+// The 2-D images of an opened file (ListFitsImageHdus).
+std::vector<FitsHduInfo> ListImages(const OpenedFits& opened, const std::string& path,
+                                    std::string* error) {
   std::vector<FitsHduInfo> out;
-  OpenedFits opened;
-  if (!OpenForReading(path, &opened, error)) return out;
   const FitsFile& file = opened.file;
   int status = 0;
-  int num_hdus = 0;
-  if (fits_get_num_hdus(file.get(), &num_hdus, &status)) {
-    *error = Corrupt(path, status);
-    return out;
-  }
+  const int num_hdus = opened.num_hdus;
   for (int h = 1; h <= num_hdus; ++h) {
     int type = 0;
     if (fits_movabs_hdu(file.get(), h, &type, &status)) {
@@ -925,6 +922,52 @@ std::vector<FitsHduInfo> ListFitsImageHdus(const std::string& path, std::string*
                    static_cast<long long>(naxes[1])});
   }
   return out;
+}
+
+}  // namespace
+
+std::vector<FitsHduInfo> ListFitsImageHdus(const std::string& path, std::string* error) {
+  OpenedFits opened;
+  if (!OpenForReading(path, &opened, error)) return {};
+  return ListImages(opened, path, error);
+}
+
+struct FitsImageFile::Opened {
+  OpenedFits fits;
+};
+
+FitsImageFile::FitsImageFile() = default;
+FitsImageFile::~FitsImageFile() = default;
+
+std::unique_ptr<FitsImageFile> FitsImageFile::Open(const std::string& path, std::string* error) {
+  std::unique_ptr<FitsImageFile> file(new FitsImageFile());
+  file->opened_ = std::make_unique<Opened>();
+  file->path_ = path;
+  if (!OpenForReading(path, &file->opened_->fits, error)) return nullptr;
+  // A file whose later HDUs cannot be listed can still be read (its primary image): the
+  // list is then empty, as ListFitsImageHdus's is, and Read says what fails.
+  std::string unlisted;
+  file->images_ = ListImages(file->opened_->fits, path, &unlisted);
+  return file;
+}
+
+std::optional<FitsImage> FitsImageFile::Read(const std::string& hdu_selector,
+                                             std::string* error) {
+  // An EXTNAME is found in the list (a name is looked for HDU by HDU otherwise, moving
+  // CFITSIO through every header before it); a number is used as it is.
+  std::string selector = hdu_selector;
+  int index = 0;
+  if (!selector.empty() && !ParseHduIndex(selector, &index)) {
+    for (const FitsHduInfo& info : images_) {
+      if (!info.extname.empty() && ToUpper(info.extname) == ToUpper(selector)) {
+        selector = std::to_string(info.index);
+        break;
+      }
+    }
+  }
+  int hdu = 0;
+  if (!SelectImageHdu(opened_->fits, path_, selector, &hdu, error)) return std::nullopt;
+  return ReadCurrentImage(opened_->fits, path_, hdu, error);
 }
 
 bool WriteFitsImageU16(const std::string& path, const Image& image, const FitsHeader& header,
