@@ -623,10 +623,7 @@ bool DescribeCurrentImage(const OpenedFits& opened, const std::string& path, int
     return false;
   }
   const HduLayout& layout = opened.hdus[hdu - 1];
-  if (compressed) {
-    // Every tile is checked before CFITSIO decompresses any.
-    if (!CheckTiles(opened.bytes, layout, where, error)) return false;
-  } else if (layout.data_start + layout.data_bytes > opened.bytes.size()) {
+  if (!compressed && layout.data_start + layout.data_bytes > opened.bytes.size()) {
     // The data must fit in the file: checking before reading gives a clear message and
     // avoids allocating for data that are not there.
     *error = Quoted(path) + " is truncated or corrupt (the image needs " +
@@ -634,6 +631,27 @@ bool DescribeCurrentImage(const OpenedFits& opened, const std::string& path, int
              std::to_string(opened.bytes.size()) + ")";
     return false;
   }
+  // CHECKSUM and DATASUM, where the HDU has them (FITS standard 4.0, section 4.4.2.7): a file
+  // damaged since they were written is refused, not fitted, since nothing says which of its
+  // pixels changed (one flipped bit in a compressed tile changes a whole tile). Checked
+  // before the tiles, so that damage is named as such. CFITSIO reads the HDU only when it
+  // has either card.
+  int data_sum = 0, hdu_sum = 0;
+  if (fits_verify_chksum(file, &data_sum, &hdu_sum, &status)) {
+    *error = Corrupt(path, status);
+    return false;
+  }
+  if (data_sum < 0) {
+    *error = where + " is damaged: its data do not match their DATASUM";
+    return false;
+  }
+  if (hdu_sum < 0) {
+    *error = where + " is damaged or was edited: its HDU does not match its CHECKSUM (after an "
+             "edit, update CHECKSUM or remove it)";
+    return false;
+  }
+  // Every tile is checked before CFITSIO decompresses any.
+  if (compressed && !CheckTiles(opened.bytes, layout, where, error)) return false;
   image->bitpix = bitpix;
   image->hdu = hdu;
   image->extname = ExtName(file);

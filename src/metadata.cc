@@ -329,6 +329,36 @@ json MetadataRecordJson(const MetadataRecord& record) {
   return out;
 }
 
+namespace {
+
+// Whether two cards hold the same value: as numbers when both are (2 and 2.0 agree).
+bool SameValue(const FitsKey& a, const FitsKey& b) {
+  const std::optional<double> x = FindNumber({a}, a.name), y = FindNumber({b}, b.name);
+  if (x && y) return *x == *y;
+  return a.value == b.value;
+}
+
+// A header that gives `keyword` twice with different values contradicts itself: which card
+// a reader believes is arbitrary (CFITSIO and this reader take the first). The message, or
+// "" if every card of that name agrees.
+std::string Contradiction(const FitsHeader& header, const std::string& keyword,
+                          const std::string& quantity) {
+  const std::string wanted = ToUpper(keyword);
+  const FitsKey* first = nullptr;
+  for (const FitsKey& key : header) {
+    if (ToUpper(key.name) != wanted) continue;
+    if (first == nullptr) {
+      first = &key;
+    } else if (!SameValue(key, *first)) {
+      return "keyword " + keyword + " (" + quantity +
+             ") is given twice with different values: the header contradicts itself";
+    }
+  }
+  return "";
+}
+
+}  // namespace
+
 bool ResolveNumber(const GivenMetadata& given, const KeywordMap& keywords,
                    const FitsHeader& header, const std::string& quantity,
                    std::optional<double>* value, std::string* source, std::string* error) {
@@ -340,6 +370,10 @@ bool ResolveNumber(const GivenMetadata& given, const KeywordMap& keywords,
   }
   const KeywordRule* rule = MappedKeyword(keywords, header, quantity);
   if (rule == nullptr) return true;
+  if (const std::string c = Contradiction(header, rule->keyword, quantity); !c.empty()) {
+    *error = c;
+    return false;
+  }
   const std::optional<double> number = FindNumber(header, rule->keyword);
   if (!number || !std::isfinite(*number)) {
     *error = "keyword " + rule->keyword + " (" + quantity + ") is not a finite number";
@@ -366,6 +400,10 @@ bool ResolveText(const GivenMetadata& given, const KeywordMap& keywords, const F
   }
   const KeywordRule* rule = MappedKeyword(keywords, header, quantity);
   if (rule == nullptr) return true;
+  if (const std::string c = Contradiction(header, rule->keyword, quantity); !c.empty()) {
+    *error = c;
+    return false;
+  }
   const std::optional<std::string> text = FindString(header, rule->keyword);
   if (!text) {
     *error = "keyword " + rule->keyword + " (" + quantity + ") is not a string";
