@@ -149,6 +149,10 @@ int FitInto(const std::string& dir, const std::string& shown, const std::string&
   for (const std::string& note : fitted.notes) {
     std::fprintf(stderr, "ccdpsf: note: %s\n", note.c_str());
   }
+  if (!fitted.result.chain.checkpoint_discarded.empty()) {
+    std::fprintf(stderr, "ccdpsf: note: %s: %s\n", shown.c_str(),
+                 fitted.result.chain.checkpoint_discarded.c_str());
+  }
   if (fitted.result.have_mcmc && fitted.result.chain.resumed_from_step > 0) {
     std::fprintf(stderr, "ccdpsf: note: %s: the MCMC resumed from its checkpoint at step %d\n",
                  shown.c_str(), fitted.result.chain.resumed_from_step);
