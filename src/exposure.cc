@@ -298,23 +298,10 @@ bool CalibrationOptions::IsValid(std::string* error) const {
     const GivenValue* v = given.Find(q);
     return v == nullptr || v->source.empty() ? std::string() : " (" + v->source + ")";
   };
-  struct Rule {
-    const char* quantity;
-    const char* need;  // "positive", "non-negative" or "" (any finite value)
-  };
-  const Rule rules[] = {{"gain_e_per_adu", "positive"},  {"read_noise_e", "non-negative"},
-                        {"bias_adu", ""},                {"saturation_adu", ""},
-                        {"pixel_um", "positive"},        {"wavelength_nm", "positive"},
-                        {"exptime_s", "non-negative"},   {"focus_position_um", ""},
-                        {"spot_x_px", ""},               {"spot_y_px", ""}};
-  for (const Rule& r : rules) {
-    const std::optional<double> v = number(r.quantity);
-    if (!v) continue;
-    const std::string need = r.need;
-    const bool ok = std::isfinite(*v) && (need.empty() || (need == "positive" ? *v > 0 : *v >= 0));
-    if (!ok) {
-      *error = std::string(r.quantity) + " must be " + (need.empty() ? "" : need + " and ") +
-               "finite, got " + FormatNumber(*v) + from(r.quantity);
+  for (const std::string& q : MetadataQuantities()) {
+    const std::optional<double> v = number(q.c_str());
+    if (v && !CheckQuantityValue(q, *v, error)) {
+      *error += from(q);
       return false;
     }
   }

@@ -17,6 +17,7 @@ namespace {
 
 using internal::Trim;
 using internal::ToUpper;
+using internal::FormatNumber;
 using internal::Printable;
 
 using nlohmann::json;
@@ -25,18 +26,30 @@ struct QuantityInfo {
   const char* name;
   bool numeric;
   const char* keyword;  // default keyword, "" for none
+  // A numeric quantity's range: [low, high], the low end excluded when `low_open` (a gain
+  // of 0). Wide enough for any lab's values, narrow enough that arithmetic on them stays
+  // finite (a bias of 1e300 ADU squared is not).
+  double low = 0, high = 0;
+  bool low_open = false;
 };
 
 // The table of metadata.h, in its order.
 const std::vector<QuantityInfo>& Table() {
   static const std::vector<QuantityInfo> table = {
-      {"gain_e_per_adu", true, "GAIN"},      {"read_noise_e", true, "RDNOISE"},
-      {"bias_adu", true, "BIASLVL"},         {"bias_section", false, "BIASSEC"},
-      {"data_section", false, "DATASEC"},    {"saturation_adu", true, "SATURATE"},
-      {"pixel_um", true, "PIXSIZE"},         {"wavelength_nm", true, "WAVELEN"},
-      {"exptime_s", true, "EXPTIME"},        {"focus_position_um", true, "FOCUSPOS"},
-      {"spot_x_px", true, ""},               {"spot_y_px", true, ""},
-      {"search_region", false, ""},          {"hdu", false, ""},
+      {"gain_e_per_adu", true, "GAIN", 0, 1e6, true},
+      {"read_noise_e", true, "RDNOISE", 0, 1e6},
+      {"bias_adu", true, "BIASLVL", -1e12, 1e12},
+      {"bias_section", false, "BIASSEC"},
+      {"data_section", false, "DATASEC"},
+      {"saturation_adu", true, "SATURATE", -1e12, 1e12},
+      {"pixel_um", true, "PIXSIZE", 0, 1e4, true},
+      {"wavelength_nm", true, "WAVELEN", 0, 1e6, true},
+      {"exptime_s", true, "EXPTIME", 0, 1e8},
+      {"focus_position_um", true, "FOCUSPOS", -1e9, 1e9},
+      {"spot_x_px", true, "", -1e9, 1e9},
+      {"spot_y_px", true, "", -1e9, 1e9},
+      {"search_region", false, ""},
+      {"hdu", false, ""},
       {"bad_pixel_mask", false, ""}};
   return table;
 }
@@ -285,6 +298,19 @@ void GivenMetadata::FillFrom(const GivenMetadata& lower) {
   for (const auto& [quantity, value] : lower.values_) {
     if (!Has(quantity) && value.has()) values_[quantity] = value;
   }
+}
+
+bool CheckQuantityValue(const std::string& quantity, double value, std::string* error) {
+  const QuantityInfo* q = Info(quantity);
+  if (q == nullptr || !q->numeric) return true;
+  if (std::isfinite(value) && (q->low_open ? value > q->low : value >= q->low) &&
+      value <= q->high) {
+    return true;
+  }
+  *error = quantity + " must be finite and in " + (q->low_open ? "(" : "[") +
+           FormatNumber(q->low) + ", " + FormatNumber(q->high) + "], got " +
+           FormatNumber(value);
+  return false;
 }
 
 bool GivenMetadata::SetFromText(const std::string& quantity, const std::string& text,
