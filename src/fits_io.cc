@@ -821,8 +821,13 @@ bool SelectImageHdu(const OpenedFits& opened, const std::string& path,
     return true;
   }
 
-  // The primary HDU, or the first image extension with data when the primary is empty.
+  // The primary HDU, or the first image extension with data when the primary is empty. The
+  // file may be at another HDU (FitsImageFile lists them all first).
   int naxis = 0;
+  if (fits_movabs_hdu(file.get(), 1, nullptr, &status)) {
+    *error = Corrupt(path, status);
+    return false;
+  }
   if (fits_get_img_dim(file.get(), &naxis, &status)) {
     *error = Corrupt(path, status);
     return false;

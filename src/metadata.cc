@@ -303,13 +303,18 @@ void GivenMetadata::FillFrom(const GivenMetadata& lower) {
 bool CheckQuantityValue(const std::string& quantity, double value, std::string* error) {
   const QuantityInfo* q = Info(quantity);
   if (q == nullptr || !q->numeric) return true;
-  if (std::isfinite(value) && (q->low_open ? value > q->low : value >= q->low) &&
-      value <= q->high) {
-    return true;
+  const bool above_low = q->low_open ? value > q->low : value >= q->low;
+  if (std::isfinite(value) && above_low && value <= q->high) return true;
+  const std::string got = ", got " + FormatNumber(value);
+  if (q->low != 0.0) {
+    *error = quantity + " must be finite and within [" + FormatNumber(q->low) + ", " +
+             FormatNumber(q->high) + "]" + got;
+  } else if (!std::isfinite(value) || !above_low) {
+    *error = quantity + " must be " + (q->low_open ? "positive" : "non-negative") +
+             " and finite" + got;
+  } else {
+    *error = quantity + " must be at most " + FormatNumber(q->high) + got;
   }
-  *error = quantity + " must be finite and in " + (q->low_open ? "(" : "[") +
-           FormatNumber(q->low) + ", " + FormatNumber(q->high) + "], got " +
-           FormatNumber(value);
   return false;
 }
 

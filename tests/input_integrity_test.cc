@@ -103,7 +103,7 @@ TEST(InputIntegrity, OnlyRegularFilesAreReadAndTheTypeIsNamed) {
   EXPECT_FALSE(ReadTextInput(fifo, "manifest", &text, &error));
   EXPECT_EQ(error, "manifest '" + fifo + "' is a FIFO, not a regular file");
   EXPECT_FALSE(ReadTextInput(dir, "fit config", &text, &error));
-  EXPECT_EQ(error, "fit config '" + dir + "' is a folder, not a regular file");
+  EXPECT_EQ(error, "fit config '" + dir + "' is a directory, not a regular file");
   EXPECT_FALSE(ReadTextInput("/dev/zero", "truth file", &text, &error));
   EXPECT_EQ(error, "truth file '/dev/zero' is a character device, not a regular file");
   EXPECT_FALSE(ReadTextInput(dir + "/absent.json", "manifest", &text, &error));
@@ -150,7 +150,7 @@ TEST(InputIntegrity, FifosAndDevicesAreRefusedAtOnce) {
       {"fit --nomcmc --truth=/dev/zero" + out + fits, "is a character device"},
       {"trend --nomcmc --requirements=/dev/zero" + out + fits, "is a character device"},
       {"simulate --config=/dev/zero" + out, "is a character device"},
-      {"fit --nomcmc --manifest=" + dir + out + fits, "is a folder, not a regular file"},
+      {"fit --nomcmc --manifest=" + dir + out + fits, "is a directory, not a regular file"},
       {"fit --nomcmc --manifest=" + fifo + out + fits, "is a FIFO, not a regular file"},
   };
   for (const Case& c : cases) {
@@ -345,10 +345,13 @@ TEST(InputIntegrity, GainRangeChecksItsValues) {
                             "/exposure_001.fits";
   for (const std::pair<std::string, std::string>& c :
        std::vector<std::pair<std::string, std::string>>{
-           {"--bias_adu=1e300", "bias_adu must be finite and in [-1e+12, 1e+12], got 1e+300"},
-           {"--exptime_s=nan", "exptime_s must be finite and in [0, 1e+08], got nan"},
-           {"--exptime_s=-1", "exptime_s must be finite and in [0, 1e+08], got -1"},
-           {"--saturation_adu=inf", "saturation_adu must be finite"}}) {
+           {"--bias_adu=1e300",
+            "bias_adu must be finite and within [-1e+12, 1e+12], got 1e+300"},
+           {"--exptime_s=nan", "exptime_s must be non-negative and finite, got nan"},
+           {"--exptime_s=-1", "exptime_s must be non-negative and finite, got -1"},
+           {"--exptime_s=1e9", "exptime_s must be at most 1e+08, got 1e+09"},
+           {"--saturation_adu=inf",
+            "saturation_adu must be finite and within [-1e+12, 1e+12], got inf"}}) {
     const RunResult r = RunCcdpsf("gain " + c.first + " --out=" + dir + "/o" + files);
     EXPECT_EQ(r.exit_code, 1) << c.first << "\n" << r.output;
     EXPECT_TRUE(Contains(r.output, c.second)) << c.first << "\n" << r.output;
@@ -358,7 +361,8 @@ TEST(InputIntegrity, GainRangeChecksItsValues) {
   const RunResult r = RunCcdpsf("fit --nomcmc --bias_adu=1e300 --out=" + dir + "/f " + DemoSet() +
                                 "/exposure_000.fits");
   EXPECT_EQ(r.exit_code, 1) << r.output;
-  EXPECT_TRUE(Contains(r.output, "bias_adu must be finite and in [-1e+12, 1e+12]")) << r.output;
+  EXPECT_TRUE(Contains(r.output, "bias_adu must be finite and within [-1e+12, 1e+12]"))
+      << r.output;
   EXPECT_FALSE(fs::exists(dir + "/o"));
 }
 
