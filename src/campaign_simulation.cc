@@ -3,11 +3,11 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
-#include <fstream>
 #include <random>
 #include <sstream>
 
 #include "ccdpsf/atomic_file.h"
+#include "ccdpsf/input_file.h"
 #include "ccdpsf/metrics.h"
 #include "ccdpsf/provenance.h"
 #include "ccdpsf/random.h"
@@ -555,14 +555,9 @@ std::optional<CampaignConfig> ParseCampaignConfig(const std::string& text, std::
 }
 
 std::optional<CampaignConfig> LoadCampaignConfig(const std::string& path, std::string* error) {
-  std::ifstream in(path);
-  if (!in) {
-    *error = "cannot read campaign config '" + path + "'";
-    return std::nullopt;
-  }
-  std::stringstream text;
-  text << in.rdbuf();
-  auto config = ParseCampaignConfig(text.str(), error);
+  std::string text;
+  if (!ReadTextInput(path, "campaign config", &text, error)) return std::nullopt;
+  auto config = ParseCampaignConfig(text, error);
   if (!config) *error = "'" + path + "': " + *error;
   return config;
 }

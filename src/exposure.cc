@@ -10,6 +10,7 @@
 #include <cmath>
 #include <cstdio>
 #include <limits>
+#include <memory>
 #include <string>
 #include <utility>
 #include <vector>
@@ -297,23 +298,10 @@ bool CalibrationOptions::IsValid(std::string* error) const {
     const GivenValue* v = given.Find(q);
     return v == nullptr || v->source.empty() ? std::string() : " (" + v->source + ")";
   };
-  struct Rule {
-    const char* quantity;
-    const char* need;  // "positive", "non-negative" or "" (any finite value)
-  };
-  const Rule rules[] = {{"gain_e_per_adu", "positive"},  {"read_noise_e", "non-negative"},
-                        {"bias_adu", ""},                {"saturation_adu", ""},
-                        {"pixel_um", "positive"},        {"wavelength_nm", "positive"},
-                        {"exptime_s", "non-negative"},   {"focus_position_um", ""},
-                        {"spot_x_px", ""},               {"spot_y_px", ""}};
-  for (const Rule& r : rules) {
-    const std::optional<double> v = number(r.quantity);
-    if (!v) continue;
-    const std::string need = r.need;
-    const bool ok = std::isfinite(*v) && (need.empty() || (need == "positive" ? *v > 0 : *v >= 0));
-    if (!ok) {
-      *error = std::string(r.quantity) + " must be " + (need.empty() ? "" : need + " and ") +
-               "finite, got " + FormatNumber(*v) + from(r.quantity);
+  for (const std::string& q : MetadataQuantities()) {
+    const std::optional<double> v = number(q.c_str());
+    if (v && !CheckQuantityValue(q, *v, error)) {
+      *error += from(q);
       return false;
     }
   }
@@ -1078,36 +1066,39 @@ std::optional<Exposure> LoadExposure(const std::string& path, const CalibrationO
     *error = "'" + path + "': " + problem;
     return std::nullopt;
   }
-  // The user's bad-pixel mask, read once.
+  // The user's bad-pixel mask, opened once (read per segment when it has several images).
+  std::unique_ptr<FitsImageFile> mask_file;
   std::optional<FitsImage> mask;
   auto load_mask = [&](const std::string& hdu) -> bool {
     const GivenValue* m = options.given.Find("bad_pixel_mask");
     if (m == nullptr || !m->text) return true;
     std::string why;
-    const std::vector<FitsHduInfo> images = ListFitsImageHdus(*m->text, &why);
-    if (images.empty()) {
+    if (!mask_file) mask_file = FitsImageFile::Open(*m->text, &why);
+    if (!mask_file || mask_file->images().empty()) {
       *error = "'" + path + "': bad-pixel mask: " + (why.empty() ? "'" + *m->text + "' holds no image" : why);
       return false;
     }
     // A mask with one image serves every segment; one with several is read per segment.
-    mask = ReadFitsImage(*m->text, images.size() > 1 ? hdu : "", &why);
+    mask = mask_file->Read(mask_file->images().size() > 1 ? hdu : "", &why);
     if (!mask) {
       *error = "'" + path + "': bad-pixel mask: " + why;
       return false;
     }
     return true;
   };
+  // The file is opened (and screened) once, whatever number of segments it holds.
+  const std::unique_ptr<FitsImageFile> file = FitsImageFile::Open(path, error);
+  if (!file) return std::nullopt;
   const GivenValue* hdu = options.given.Find("hdu");
   if (hdu != nullptr && hdu->text) {
-    std::optional<FitsImage> image = ReadFitsImage(path, *hdu->text, error);
+    std::optional<FitsImage> image = file->Read(*hdu->text, error);
     if (!image) return std::nullopt;
     if (!load_mask(*hdu->text)) return std::nullopt;
     return CalibrateExposure(*image, path, options, error, mask ? &mask->pixels : nullptr);
   }
-  std::string why;
-  const std::vector<FitsHduInfo> images = ListFitsImageHdus(path, &why);
+  const std::vector<FitsHduInfo>& images = file->images();
   if (images.size() <= 1) {
-    std::optional<FitsImage> image = ReadFitsImage(path, error);
+    std::optional<FitsImage> image = file->Read("", error);
     if (!image) return std::nullopt;
     if (!load_mask("")) return std::nullopt;
     return CalibrateExposure(*image, path, options, error, mask ? &mask->pixels : nullptr);
@@ -1119,7 +1110,7 @@ std::optional<Exposure> LoadExposure(const std::string& path, const CalibrationO
   for (const FitsHduInfo& info : images) {
     const std::string selector = info.extname.empty() ? std::to_string(info.index) : info.extname;
     std::string reason;
-    std::optional<FitsImage> image = ReadFitsImage(path, selector, &reason);
+    std::optional<FitsImage> image = file->Read(selector, &reason);
     std::optional<Exposure> e;
     if (image) {
       if (!load_mask(selector)) return std::nullopt;

@@ -8,10 +8,24 @@
 #include <functional>
 #include <numeric>
 
+#include "internal/fnv1a.h"
+
 namespace ccdpsf {
 namespace {
 
 namespace fs = std::filesystem;
+
+// A fingerprint of a stamp's recorded pixels (FNV-1a over the electrons' bytes and the
+// stamp's place), to tell the same exposure under two names.
+uint64_t Fingerprint(const Stamp& s) {
+  internal::Fnv1a h;
+  h.Add(s.electrons.data.data(), s.electrons.data.size() * sizeof(double));
+  h.Add(&s.origin_x, sizeof(s.origin_x));
+  h.Add(&s.origin_y, sizeof(s.origin_y));
+  return h.value();
+}
+
+}  // namespace
 
 std::string CanonicalPath(const std::string& path) {
   std::error_code ec;
@@ -19,22 +33,14 @@ std::string CanonicalPath(const std::string& path) {
   return ec ? path : c.string();
 }
 
-// A fingerprint of a stamp's recorded pixels (FNV-1a over the electrons' bytes and the
-// stamp's place), to tell the same exposure under two names.
-uint64_t Fingerprint(const Stamp& s) {
-  uint64_t h = 1469598103934665603ULL;
-  auto mix = [&](const void* data, size_t bytes) {
-    const unsigned char* p = static_cast<const unsigned char*>(data);
-    for (size_t i = 0; i < bytes; ++i) {
-      h ^= p[i];
-      h *= 1099511628211ULL;
-    }
-  };
-  mix(s.electrons.data.data(), s.electrons.data.size() * sizeof(double));
-  mix(&s.origin_x, sizeof(s.origin_x));
-  mix(&s.origin_y, sizeof(s.origin_y));
-  return h;
+std::string CountedTwice(const std::string& path, const std::string& earlier, bool same_file) {
+  return same_file ? "'" + path + "' is given twice (as '" + earlier +
+                         "' too): each exposure must count once"
+                   : "'" + path + "' and '" + earlier +
+                         "' hold identical pixels: the same exposure under two names counts once";
 }
+
+namespace {
 
 // Peak pixel, scaled to a spot centred on it (below), and 5 x 5 box around the stamp's
 // centre [e-]; false if the box has a masked or saturated (censored from above) pixel, where
@@ -204,14 +210,8 @@ bool LoadExposureSet(const std::vector<InputFile>& inputs, const ExposureSetOpti
         CanonicalPath(input.path), hdu == e->report.metadata.end() ? "" : hdu->second.text};
     const uint64_t print = Fingerprint(e->stamp);
     for (size_t k = 0; k < keys.size(); ++k) {
-      if (keys[k] == key) {
-        *error = "'" + input.path + "' is given twice (as '" + inputs[k].path +
-                 "' too): each exposure must count once";
-        return false;
-      }
-      if (prints[k] == print) {
-        *error = "'" + input.path + "' and '" + inputs[k].path +
-                 "' hold identical pixels: the same exposure under two names counts once";
+      if (keys[k] == key || prints[k] == print) {
+        *error = CountedTwice(input.path, inputs[k].path, keys[k] == key);
         return false;
       }
     }

@@ -28,6 +28,7 @@
 #include <vector>
 
 #include "ccdpsf/atomic_file.h"
+#include "ccdpsf/input_file.h"
 #include "internal/fits_screen.h"
 #include "internal/text.h"
 
@@ -449,22 +450,18 @@ bool CloseWritten(FitsFile* file, const std::string& path, std::string* error) {
 // nothing about the size of the data). Returns the file size in bytes, or -1 if it is not
 // known.
 std::optional<long long> CheckReadable(const std::string& path, bool* gzip, std::string* error) {
+  // A regular file only: a FIFO or a device would block or never end (input_file.h).
+  const int fd = OpenRegularFile(path, "", error);
+  if (fd < 0) {
+    if (error->rfind("cannot read ", 0) == 0) *error = "cannot open " + error->substr(12);
+    return std::nullopt;
+  }
   struct stat st;
-  if (::stat(path.c_str(), &st) != 0) {
-    if (errno == ENOENT || errno == ENOTDIR) {
-      *error = "cannot open " + Quoted(path) + ": no such file";
-    } else {
-      *error = "cannot open " + Quoted(path) + ": " + std::strerror(errno);
-    }
-    return std::nullopt;
-  }
-  if (S_ISDIR(st.st_mode)) {
-    *error = "cannot open " + Quoted(path) + ": it is a directory";
-    return std::nullopt;
-  }
-  std::FILE* stream = std::fopen(path.c_str(), "rb");
+  const bool have_size = ::fstat(fd, &st) == 0;
+  std::FILE* stream = ::fdopen(fd, "rb");
   if (stream == nullptr) {
     *error = "cannot open " + Quoted(path) + ": " + std::strerror(errno);
+    ::close(fd);
     return std::nullopt;
   }
   char start[10] = {0};
@@ -488,8 +485,7 @@ std::optional<long long> CheckReadable(const std::string& path, bool* gzip, std:
     *error = Quoted(path) + " is truncated or corrupt";
     return std::nullopt;
   }
-  // Only a regular file's size says how much data it holds (-1: unknown, e.g. a pipe).
-  return S_ISREG(st.st_mode) ? static_cast<long long>(st.st_size) : -1LL;
+  return have_size ? static_cast<long long>(st.st_size) : -1LL;
 }
 
 std::string Corrupt(const std::string& path, int status) {
@@ -575,6 +571,9 @@ struct OpenedFits {
   FileBytes bytes;
   std::vector<HduLayout> hdus;
   FitsFile file;
+  // CFITSIO's count of HDUs, taken once: fits_get_num_hdus walks every header from the
+  // current HDU to the end at each call, which made reading each of N segments O(N^2).
+  int num_hdus = 0;
 };
 
 // Checks the 2-D image of the current HDU (number `hdu`, 1-based absolute) before any pixel
@@ -624,10 +623,7 @@ bool DescribeCurrentImage(const OpenedFits& opened, const std::string& path, int
     return false;
   }
   const HduLayout& layout = opened.hdus[hdu - 1];
-  if (compressed) {
-    // Every tile is checked before CFITSIO decompresses any.
-    if (!CheckTiles(opened.bytes, layout, where, error)) return false;
-  } else if (layout.data_start + layout.data_bytes > opened.bytes.size()) {
+  if (!compressed && layout.data_start + layout.data_bytes > opened.bytes.size()) {
     // The data must fit in the file: checking before reading gives a clear message and
     // avoids allocating for data that are not there.
     *error = Quoted(path) + " is truncated or corrupt (the image needs " +
@@ -635,6 +631,27 @@ bool DescribeCurrentImage(const OpenedFits& opened, const std::string& path, int
              std::to_string(opened.bytes.size()) + ")";
     return false;
   }
+  // CHECKSUM and DATASUM, where the HDU has them (FITS standard 4.0, section 4.4.2.7): a file
+  // damaged since they were written is refused, not fitted, since nothing says which of its
+  // pixels changed (one flipped bit in a compressed tile changes a whole tile). Checked
+  // before the tiles, so that damage is named as such. CFITSIO reads the HDU only when it
+  // has either card.
+  int data_sum = 0, hdu_sum = 0;
+  if (fits_verify_chksum(file, &data_sum, &hdu_sum, &status)) {
+    *error = Corrupt(path, status);
+    return false;
+  }
+  if (data_sum < 0) {
+    *error = where + " is damaged: its data do not match their DATASUM";
+    return false;
+  }
+  if (hdu_sum < 0) {
+    *error = where + " is damaged or was edited: its HDU does not match its CHECKSUM (after an "
+             "edit, update CHECKSUM or remove it)";
+    return false;
+  }
+  // Every tile is checked before CFITSIO decompresses any.
+  if (compressed && !CheckTiles(opened.bytes, layout, where, error)) return false;
   image->bitpix = bitpix;
   image->hdu = hdu;
   image->extname = ExtName(file);
@@ -728,7 +745,7 @@ bool OpenForReading(const std::string& path, OpenedFits* opened, std::string* er
     const CfitsioName name(path);
     fits_open_diskfile(opened->file.out(), name.c_str(), READONLY, &status);
   }
-  if (status != 0) {
+  if (status != 0 || fits_get_num_hdus(opened->file.get(), &opened->num_hdus, &status)) {
     *error = Corrupt(path, status);
     return false;
   }
@@ -749,11 +766,7 @@ bool SelectImageHdu(const OpenedFits& opened, const std::string& path,
                     const std::string& hdu_selector, int* hdu_number, std::string* error) {
   const FitsFile& file = opened.file;
   int status = 0;
-  int num_hdus = 0;
-  if (fits_get_num_hdus(file.get(), &num_hdus, &status)) {
-    *error = Corrupt(path, status);
-    return false;
-  }
+  const int num_hdus = opened.num_hdus;
 
   if (!hdu_selector.empty()) {
     // An extension by number (0 = primary, as astropy and DS9 count) or by EXTNAME.
@@ -808,8 +821,13 @@ bool SelectImageHdu(const OpenedFits& opened, const std::string& path,
     return true;
   }
 
-  // The primary HDU, or the first image extension with data when the primary is empty.
+  // The primary HDU, or the first image extension with data when the primary is empty. The
+  // file may be at another HDU (FitsImageFile lists them all first).
   int naxis = 0;
+  if (fits_movabs_hdu(file.get(), 1, nullptr, &status)) {
+    *error = Corrupt(path, status);
+    return false;
+  }
   if (fits_get_img_dim(file.get(), &naxis, &status)) {
     *error = Corrupt(path, status);
     return false;
@@ -898,17 +916,15 @@ bool FitsImageStream::ReadRows(int y_begin, int rows, double* out, std::string* 
   return ReadCurrentRows(opened_->fits.file.get(), path_, nx_, y_begin, rows, out, error);
 }
 
-std::vector<FitsHduInfo> ListFitsImageHdus(const std::string& path, std::string* error) {
+namespace {
+
+// The 2-D images of an opened file (ListFitsImageHdus).
+std::vector<FitsHduInfo> ListImages(const OpenedFits& opened, const std::string& path,
+                                    std::string* error) {
   std::vector<FitsHduInfo> out;
-  OpenedFits opened;
-  if (!OpenForReading(path, &opened, error)) return out;
   const FitsFile& file = opened.file;
   int status = 0;
-  int num_hdus = 0;
-  if (fits_get_num_hdus(file.get(), &num_hdus, &status)) {
-    *error = Corrupt(path, status);
-    return out;
-  }
+  const int num_hdus = opened.num_hdus;
   for (int h = 1; h <= num_hdus; ++h) {
     int type = 0;
     if (fits_movabs_hdu(file.get(), h, &type, &status)) {
@@ -929,6 +945,52 @@ std::vector<FitsHduInfo> ListFitsImageHdus(const std::string& path, std::string*
                    static_cast<long long>(naxes[1])});
   }
   return out;
+}
+
+}  // namespace
+
+std::vector<FitsHduInfo> ListFitsImageHdus(const std::string& path, std::string* error) {
+  OpenedFits opened;
+  if (!OpenForReading(path, &opened, error)) return {};
+  return ListImages(opened, path, error);
+}
+
+struct FitsImageFile::Opened {
+  OpenedFits fits;
+};
+
+FitsImageFile::FitsImageFile() = default;
+FitsImageFile::~FitsImageFile() = default;
+
+std::unique_ptr<FitsImageFile> FitsImageFile::Open(const std::string& path, std::string* error) {
+  std::unique_ptr<FitsImageFile> file(new FitsImageFile());
+  file->opened_ = std::make_unique<Opened>();
+  file->path_ = path;
+  if (!OpenForReading(path, &file->opened_->fits, error)) return nullptr;
+  // A file whose later HDUs cannot be listed can still be read (its primary image): the
+  // list is then empty, as ListFitsImageHdus's is, and Read says what fails.
+  std::string unlisted;
+  file->images_ = ListImages(file->opened_->fits, path, &unlisted);
+  return file;
+}
+
+std::optional<FitsImage> FitsImageFile::Read(const std::string& hdu_selector,
+                                             std::string* error) {
+  // An EXTNAME is found in the list (a name is looked for HDU by HDU otherwise, moving
+  // CFITSIO through every header before it); a number is used as it is.
+  std::string selector = hdu_selector;
+  int index = 0;
+  if (!selector.empty() && !ParseHduIndex(selector, &index)) {
+    for (const FitsHduInfo& info : images_) {
+      if (!info.extname.empty() && ToUpper(info.extname) == ToUpper(selector)) {
+        selector = std::to_string(info.index);
+        break;
+      }
+    }
+  }
+  int hdu = 0;
+  if (!SelectImageHdu(opened_->fits, path_, selector, &hdu, error)) return std::nullopt;
+  return ReadCurrentImage(opened_->fits, path_, hdu, error);
 }
 
 bool WriteFitsImageU16(const std::string& path, const Image& image, const FitsHeader& header,

@@ -8,6 +8,7 @@
 #include <cctype>
 #include <cerrno>
 #include <climits>
+#include <cmath>
 #include <cstdint>
 #include <cstdio>
 #include <cstdlib>
@@ -201,7 +202,7 @@ bool IsScreenedKeyword(const std::string& name) {
   static const std::set<std::string> kNames = {
       "SIMPLE", "XTENSION", "BITPIX", "NAXIS",  "PCOUNT",   "GCOUNT",   "GROUPS",
       "THEAP",  "TFIELDS",  "ZIMAGE", "ZCMPTYPE", "ZBITPIX", "ZNAXIS", "ZVAL1",
-      "ZVAL2",  "ZDITHER0", "ZQUANTIZ"};
+      "ZVAL2",  "ZDITHER0", "ZQUANTIZ", "BSCALE", "BZERO"};
   // Any TTYPE name: CFITSIO takes "TTYPE+1" and "TTYPE0001" for column 1 (it reads the index
   // with strtol), so the column-name check below must see them all.
   return kNames.count(name) > 0 || IsIndexed(name, "NAXIS") || IsIndexed(name, "TFORM") ||
@@ -301,6 +302,26 @@ std::optional<long long> ParseStrictInteger(const CardValue& value) {
 
 
 // Bytes of one value of a FITS binary-table type (standard table 18); 0 if unknown.
+// A real number as a FITS card writes it ("1.5", "-2E3", "1.0D0"), finite; none for
+// anything else (quoted text, "NAN", "INF", a logical).
+std::optional<double> ParseFiniteReal(const CardValue& value) {
+  if (value.quoted || value.text.empty()) return std::nullopt;
+  std::string s = value.text;
+  for (char& c : s) {
+    if (c == 'D' || c == 'd') c = 'E';  // the standard's double-precision exponent
+  }
+  for (const char c : s) {
+    if (!std::isdigit(static_cast<unsigned char>(c)) && c != '+' && c != '-' && c != '.' &&
+        c != 'E' && c != 'e') {
+      return std::nullopt;
+    }
+  }
+  char* end = nullptr;
+  const double v = std::strtod(s.c_str(), &end);
+  if (end != s.c_str() + s.size() || !std::isfinite(v)) return std::nullopt;
+  return v;
+}
+
 long long TypeBytes(char type) {
   switch (type) {
     case 'L': case 'B': case 'A': return 1;
@@ -551,6 +572,26 @@ bool ScreenFile(const FileBytes& bytes, const std::string& path, std::vector<Hdu
       }
     }
     if (!cards.complete) return true;  // CFITSIO reports the truncation itself
+    // SIMPLE = F says the file does not conform to the standard (section 4.4.1.1): nothing
+    // in it can be read as the standard says.
+    if (number == 1) {
+      const auto simple = cards.values.find("SIMPLE");
+      if (simple == cards.values.end() || simple->second.text != "T") {
+        return corrupt("SIMPLE = " +
+                       Printable(simple == cards.values.end() ? "" : simple->second.text) +
+                       ": the file does not claim to conform to the FITS standard");
+      }
+    }
+    // The pixels' scaling: CFITSIO takes a BSCALE it cannot parse ("NAN") as 1 and goes on.
+    for (const char* name : {"BSCALE", "BZERO"}) {
+      const auto it = cards.values.find(name);
+      if (it == cards.values.end()) continue;
+      const std::optional<double> v = ParseFiniteReal(it->second);
+      if (!v || (*v == 0.0 && std::strcmp(name, "BSCALE") == 0)) {
+        return corrupt(std::string(name) + " = " + Printable(it->second.text) +
+                       (v ? " scales every pixel to 0" : " is not a finite number"));
+      }
+    }
     auto integer = [&](const std::string& name, std::optional<long long> fallback,
                        long long* out) -> bool {
       const auto it = cards.values.find(name);

@@ -2,10 +2,10 @@
 #include "ccdpsf/manifest.h"
 
 #include <filesystem>
-#include <fstream>
 #include <set>
 #include <sstream>
 
+#include "ccdpsf/input_file.h"
 #include "nlohmann/json.hpp"
 #include "internal/text.h"
 
@@ -64,11 +64,17 @@ std::string CanonicalKey(const std::string& file) {
   return ec ? fs::path(file).lexically_normal().string() : c.string();
 }
 
-bool AddRow(Manifest* m, ManifestRow row, const std::string& where, std::set<std::string>* seen,
-            std::string* error) {
+// Adds a row whose file is resolved already; its bad-pixel mask, a path too, is resolved
+// here against the manifest's folder `base` (as its file is, and as the README says).
+bool AddRow(Manifest* m, ManifestRow row, const fs::path& base, const std::string& where,
+            std::set<std::string>* seen, std::string* error) {
   if (row.file.empty()) {
     *error = where + ": no file";
     return false;
+  }
+  if (const GivenValue* mask = row.values.Find("bad_pixel_mask"); mask != nullptr && mask->text) {
+    const std::string resolved = Resolve(base, *mask->text), source = mask->source;
+    row.values.SetText("bad_pixel_mask", resolved, source);
   }
   if (!seen->insert(CanonicalKey(row.file)).second) {
     *error = where + ": file '" + Printable(row.file) + "' is listed twice";
@@ -142,7 +148,7 @@ bool LoadCsv(const std::string& text, const std::string& name, const fs::path& b
         }
       }
     }
-    if (!AddRow(m, std::move(row), where, &seen, error)) return false;
+    if (!AddRow(m, std::move(row), base, where, &seen, error)) return false;
   }
   if (header.empty()) {
     *error = "manifest " + name + " is empty (it needs a header row with a 'file' column)";
@@ -237,7 +243,7 @@ bool LoadJson(const std::string& text, const std::string& name, const fs::path& 
         row.setting = e["setting"].get<std::string>();
       }
       if (!JsonQuantities(e, where, {"file", "setting"}, &row.values, error)) return false;
-      if (!AddRow(m, std::move(row), where, &seen, error)) return false;
+      if (!AddRow(m, std::move(row), base, where, &seen, error)) return false;
     }
     return true;
   }
@@ -297,7 +303,7 @@ bool LoadJson(const std::string& text, const std::string& name, const fs::path& 
       row.file = Resolve(base, f.get<std::string>());
       row.setting = setting.name;
       row.values = shared;
-      if (!AddRow(m, std::move(row), where, &seen, error)) return false;
+      if (!AddRow(m, std::move(row), base, where, &seen, error)) return false;
     }
     m->settings.push_back(setting);
   }
@@ -322,23 +328,13 @@ const ManifestRow* Manifest::Find(const std::string& file) const {
 bool LoadManifest(const std::string& path, Manifest* manifest, std::string* error) {
   *manifest = Manifest();
   manifest->path = path;
-  std::error_code ec;
-  if (!fs::is_regular_file(path, ec)) {
-    *error = "cannot read manifest '" + path + "': no such file";
-    return false;
-  }
-  std::ifstream in(path, std::ios::binary);
-  if (!in) {
-    *error = "cannot read manifest '" + path + "'";
-    return false;
-  }
-  std::stringstream text;
-  text << in.rdbuf();
+  std::string text;
+  if (!ReadTextInput(path, "manifest", &text, error)) return false;
   const std::string name = fs::path(path).filename().string();
   const fs::path base = fs::path(path).parent_path();
   const std::string ext = fs::path(path).extension().string();
-  if (ext == ".json" || ext == ".JSON") return LoadJson(text.str(), name, base, manifest, error);
-  if (ext == ".csv" || ext == ".CSV") return LoadCsv(text.str(), name, base, manifest, error);
+  if (ext == ".json" || ext == ".JSON") return LoadJson(text, name, base, manifest, error);
+  if (ext == ".csv" || ext == ".CSV") return LoadCsv(text, name, base, manifest, error);
   *error = "manifest '" + path + "' must end in .csv or .json";
   return false;
 }

@@ -5,9 +5,10 @@
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
-#include <fstream>
 #include <limits>
 #include <sstream>
+
+#include "ccdpsf/input_file.h"
 
 #include "internal/text.h"
 
@@ -16,6 +17,7 @@ namespace {
 
 using internal::Trim;
 using internal::ToUpper;
+using internal::FormatNumber;
 using internal::Printable;
 
 using nlohmann::json;
@@ -24,18 +26,30 @@ struct QuantityInfo {
   const char* name;
   bool numeric;
   const char* keyword;  // default keyword, "" for none
+  // A numeric quantity's range: [low, high], the low end excluded when `low_open` (a gain
+  // of 0). Wide enough for any lab's values, narrow enough that arithmetic on them stays
+  // finite (a bias of 1e300 ADU squared is not).
+  double low = 0, high = 0;
+  bool low_open = false;
 };
 
 // The table of metadata.h, in its order.
 const std::vector<QuantityInfo>& Table() {
   static const std::vector<QuantityInfo> table = {
-      {"gain_e_per_adu", true, "GAIN"},      {"read_noise_e", true, "RDNOISE"},
-      {"bias_adu", true, "BIASLVL"},         {"bias_section", false, "BIASSEC"},
-      {"data_section", false, "DATASEC"},    {"saturation_adu", true, "SATURATE"},
-      {"pixel_um", true, "PIXSIZE"},         {"wavelength_nm", true, "WAVELEN"},
-      {"exptime_s", true, "EXPTIME"},        {"focus_position_um", true, "FOCUSPOS"},
-      {"spot_x_px", true, ""},               {"spot_y_px", true, ""},
-      {"search_region", false, ""},          {"hdu", false, ""},
+      {"gain_e_per_adu", true, "GAIN", 0, 1e6, true},
+      {"read_noise_e", true, "RDNOISE", 0, 1e6},
+      {"bias_adu", true, "BIASLVL", -1e12, 1e12},
+      {"bias_section", false, "BIASSEC"},
+      {"data_section", false, "DATASEC"},
+      {"saturation_adu", true, "SATURATE", -1e12, 1e12},
+      {"pixel_um", true, "PIXSIZE", 0, 1e4, true},
+      {"wavelength_nm", true, "WAVELEN", 0, 1e6, true},
+      {"exptime_s", true, "EXPTIME", 0, 1e8},
+      {"focus_position_um", true, "FOCUSPOS", -1e9, 1e9},
+      {"spot_x_px", true, "", -1e9, 1e9},
+      {"spot_y_px", true, "", -1e9, 1e9},
+      {"search_region", false, ""},
+      {"hdu", false, ""},
       {"bad_pixel_mask", false, ""}};
   return table;
 }
@@ -220,12 +234,12 @@ bool KeywordMap::OverlayText(const std::string& text, std::string* error) {
 }
 
 bool KeywordMap::OverlayFileOrText(const std::string& text, std::string* error) {
+  // A file of that name (whatever its type: a FIFO is refused, not taken for map text).
   std::error_code ec;
-  if (std::filesystem::is_regular_file(text, ec)) {
-    std::ifstream in(text);
-    std::stringstream content;
-    content << in.rdbuf();
-    const json j = json::parse(content.str(), nullptr, false, true);
+  if (std::filesystem::exists(text, ec)) {
+    std::string content;
+    if (!ReadTextInput(text, "keyword map", &content, error)) return false;
+    const json j = json::parse(content, nullptr, false, true);
     if (j.is_discarded()) {
       *error = "keyword map '" + text + "' is not valid JSON";
       return false;
@@ -286,6 +300,24 @@ void GivenMetadata::FillFrom(const GivenMetadata& lower) {
   }
 }
 
+bool CheckQuantityValue(const std::string& quantity, double value, std::string* error) {
+  const QuantityInfo* q = Info(quantity);
+  if (q == nullptr || !q->numeric) return true;
+  const bool above_low = q->low_open ? value > q->low : value >= q->low;
+  if (std::isfinite(value) && above_low && value <= q->high) return true;
+  const std::string got = ", got " + FormatNumber(value);
+  if (q->low != 0.0) {
+    *error = quantity + " must be finite and within [" + FormatNumber(q->low) + ", " +
+             FormatNumber(q->high) + "]" + got;
+  } else if (!std::isfinite(value) || !above_low) {
+    *error = quantity + " must be " + (q->low_open ? "positive" : "non-negative") +
+             " and finite" + got;
+  } else {
+    *error = quantity + " must be at most " + FormatNumber(q->high) + got;
+  }
+  return false;
+}
+
 bool GivenMetadata::SetFromText(const std::string& quantity, const std::string& text,
                                 const std::string& source, std::string* error) {
   const QuantityInfo* q = Info(quantity);
@@ -328,6 +360,36 @@ json MetadataRecordJson(const MetadataRecord& record) {
   return out;
 }
 
+namespace {
+
+// Whether two cards hold the same value: as numbers when both are (2 and 2.0 agree).
+bool SameValue(const FitsKey& a, const FitsKey& b) {
+  const std::optional<double> x = FindNumber({a}, a.name), y = FindNumber({b}, b.name);
+  if (x && y) return *x == *y;
+  return a.value == b.value;
+}
+
+// A header that gives `keyword` twice with different values contradicts itself: which card
+// a reader believes is arbitrary (CFITSIO and this reader take the first). The message, or
+// "" if every card of that name agrees.
+std::string Contradiction(const FitsHeader& header, const std::string& keyword,
+                          const std::string& quantity) {
+  const std::string wanted = ToUpper(keyword);
+  const FitsKey* first = nullptr;
+  for (const FitsKey& key : header) {
+    if (ToUpper(key.name) != wanted) continue;
+    if (first == nullptr) {
+      first = &key;
+    } else if (!SameValue(key, *first)) {
+      return "keyword " + keyword + " (" + quantity +
+             ") is given twice with different values: the header contradicts itself";
+    }
+  }
+  return "";
+}
+
+}  // namespace
+
 bool ResolveNumber(const GivenMetadata& given, const KeywordMap& keywords,
                    const FitsHeader& header, const std::string& quantity,
                    std::optional<double>* value, std::string* source, std::string* error) {
@@ -339,6 +401,10 @@ bool ResolveNumber(const GivenMetadata& given, const KeywordMap& keywords,
   }
   const KeywordRule* rule = MappedKeyword(keywords, header, quantity);
   if (rule == nullptr) return true;
+  if (const std::string c = Contradiction(header, rule->keyword, quantity); !c.empty()) {
+    *error = c;
+    return false;
+  }
   const std::optional<double> number = FindNumber(header, rule->keyword);
   if (!number || !std::isfinite(*number)) {
     *error = "keyword " + rule->keyword + " (" + quantity + ") is not a finite number";
@@ -365,6 +431,10 @@ bool ResolveText(const GivenMetadata& given, const KeywordMap& keywords, const F
   }
   const KeywordRule* rule = MappedKeyword(keywords, header, quantity);
   if (rule == nullptr) return true;
+  if (const std::string c = Contradiction(header, rule->keyword, quantity); !c.empty()) {
+    *error = c;
+    return false;
+  }
   const std::optional<std::string> text = FindString(header, rule->keyword);
   if (!text) {
     *error = "keyword " + rule->keyword + " (" + quantity + ") is not a string";

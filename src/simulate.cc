@@ -3,11 +3,11 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
-#include <fstream>
 #include <sstream>
 
 #include "ccdpsf/atomic_file.h"
 #include "ccdpsf/fits_io.h"
+#include "ccdpsf/input_file.h"
 #include "ccdpsf/model/renderer.h"
 #include "ccdpsf/provenance.h"
 #include "ccdpsf/random.h"
@@ -293,14 +293,9 @@ std::optional<SimulationConfig> ParseSimulationConfig(const std::string& text,
 
 std::optional<SimulationConfig> LoadSimulationConfig(const std::string& path,
                                                      std::string* error) {
-  std::ifstream in(path);
-  if (!in) {
-    *error = "cannot read simulation config '" + path + "'";
-    return std::nullopt;
-  }
-  std::stringstream text;
-  text << in.rdbuf();
-  auto config = ParseSimulationConfig(text.str(), error);
+  std::string text;
+  if (!ReadTextInput(path, "simulation config", &text, error)) return std::nullopt;
+  auto config = ParseSimulationConfig(text, error);
   if (!config) *error = "'" + path + "': " + *error;
   return config;
 }

@@ -2,10 +2,10 @@
 
 #include <cmath>
 #include <filesystem>
-#include <fstream>
 #include <limits>
 #include <map>
-#include <sstream>
+
+#include "ccdpsf/input_file.h"
 
 namespace ccdpsf {
 namespace {
@@ -16,14 +16,9 @@ using nlohmann::json;
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
 bool ReadTruth(const std::string& path, std::optional<TruthFile>* truth, std::string* error) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) {
-    *error = "cannot read the truth file '" + path + "'";
-    return false;
-  }
-  std::stringstream text;
-  text << in.rdbuf();
-  json document = json::parse(text.str(), nullptr, /*allow_exceptions=*/false);
+  std::string text;
+  if (!ReadTextInput(path, "the truth file", &text, error)) return false;
+  json document = json::parse(text, nullptr, /*allow_exceptions=*/false);
   if (!document.is_object()) {
     *error = "the truth file '" + path + "' is not a JSON object";
     return false;

@@ -110,4 +110,5 @@ fuzz() {  # harness, corpus, dictionary, seconds
   fi
   grep -E "^#[0-9]+ +DONE|^stat::number_of_executed_units|^stat::peak_rss_mb" "build-sanitize/$1.log"
 }
-fuzz fits_input_fuzzer fuzz/corpus fuzz/fits.dict 60
+fuzz fits_input_fuzzer fuzz/corpus fuzz/fits.dict 45
+fuzz text_input_fuzzer fuzz/text_corpus fuzz/text.dict 45

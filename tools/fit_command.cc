@@ -14,6 +14,7 @@
 #include "ccdpsf/output_folder.h"
 #include "ccdpsf/plot.h"
 #include "ccdpsf/provenance.h"
+#include "ccdpsf/safe_path.h"
 #include "ccdpsf/truth.h"
 #include "command.h"
 #include "gflags/gflags.h"
@@ -148,6 +149,10 @@ int FitInto(const std::string& dir, const std::string& shown, const std::string&
   for (const std::string& note : fitted.notes) {
     std::fprintf(stderr, "ccdpsf: note: %s\n", note.c_str());
   }
+  if (!fitted.result.chain.checkpoint_discarded.empty()) {
+    std::fprintf(stderr, "ccdpsf: note: %s: %s\n", shown.c_str(),
+                 fitted.result.chain.checkpoint_discarded.c_str());
+  }
   if (fitted.result.have_mcmc && fitted.result.chain.resumed_from_step > 0) {
     std::fprintf(stderr, "ccdpsf: note: %s: the MCMC resumed from its checkpoint at step %d\n",
                  shown.c_str(), fitted.result.chain.resumed_from_step);
@@ -185,7 +190,8 @@ int FitInto(const std::string& dir, const std::string& shown, const std::string&
 
 // Output folders of separate fits, one per file: the file's stem, made unique with its
 // parent folders' names when two files share a stem (a second exposure_000.fits from
-// another folder must not overwrite the first).
+// another folder must not overwrite the first), and made safe components (safe_path.h: the
+// stem of "...fits" is "..").
 std::vector<std::string> SeparateFolders(const std::vector<std::string>& files) {
   std::vector<std::string> stems, names;
   for (const std::string& f : files) stems.push_back(fs::path(f).stem().string());
@@ -206,13 +212,8 @@ std::vector<std::string> SeparateFolders(const std::vector<std::string>& files) 
     }
     names[i] = name;
   }
-  // Still equal (the same path given twice is refused earlier): number them.
-  for (size_t i = 0; i < names.size(); ++i) {
-    for (size_t j = i + 1; j < names.size(); ++j) {
-      if (names[i] == names[j]) names[j] += "_" + std::to_string(j);
-    }
-  }
-  return names;
+  // Still equal (the same path given twice is refused earlier): numbered.
+  return UniqueSafeComponents(names);
 }
 
 int RunFit(const std::vector<std::string>& files) {

@@ -1,6 +1,7 @@
 // ccdpsf grid: every spot of full-sensor frames fitted, and the PSF map across the sensor;
 // sharded across processes when started by mpirun.
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <map>
 #include <mutex>
@@ -91,10 +92,16 @@ int RunGridCommand(const std::vector<std::string>& inputs) {
           true);
     }
   }
-  if (FLAGS_match_radius_px <= 0 || !(FLAGS_match_radius_px < 1e6)) {
-    return fatal("--match_radius_px must be > 0", true);
+  // Values out of range are bad input (exit 1, README "Exit codes"), not usage errors. The
+  // match radius is at most 1e6 px, larger than any sensor.
+  if (!(FLAGS_match_radius_px > 0 && FLAGS_match_radius_px <= 1e6)) {
+    return fatal("--match_radius_px must be in (0, 1e6] px, got " +
+                 NumberText(FLAGS_match_radius_px));
   }
-  if (!(FLAGS_min_significance > 0)) return fatal("--min_significance must be > 0", true);
+  if (!(FLAGS_min_significance > 0 && std::isfinite(FLAGS_min_significance))) {
+    return fatal("--min_significance must be finite and > 0, got " +
+                 NumberText(FLAGS_min_significance));
+  }
   options.fit.seed = options.fit.config.fit.mcmc.seed;
   options.fit.flux_given = options.fit.config.flux_given;
   options.fit.parallel_groups = options.fit.config.fit.mcmc.num_threads;

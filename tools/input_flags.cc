@@ -253,8 +253,10 @@ bool ResolveTransferInputs(const std::vector<std::string>& args, const std::stri
     } else {
       t = row_number(row, "exptime_s", &source);
     }
-    if (!std::isnan(t) && !(std::isfinite(t) && t >= 0.0)) {
-      *error = "exposure time " + ShowNumber(t) + " s (" + source + ") must be >= 0";
+    // NaN stands for "unknown" here (then EXPTIME is read), so a value given as NaN is
+    // refused first: it is not unknown, it is wrong.
+    if ((FlagGiven("exptime_s") || !std::isnan(t)) && !CheckQuantityValue("exptime_s", t, error)) {
+      *error += " (" + source + ")";
       return false;
     }
     options->exptime_s.push_back(t);
@@ -270,12 +272,20 @@ bool ResolveTransferInputs(const std::vector<std::string>& args, const std::stri
     if (flag_given) {
       *value = flag_value;
       *source = std::string("flag --") + quantity;
+      if (!CheckQuantityValue(quantity, flag_value, error)) {
+        *error += " (" + *source + ")";
+        return false;
+      }
       return true;
     }
     for (const ManifestRow* row : rows) {
       std::string s;
       const double v = row_number(row, quantity, &s);
       if (std::isnan(v)) continue;
+      if (!CheckQuantityValue(quantity, v, error)) {
+        *error += " (" + s + ")";
+        return false;
+      }
       if (std::isfinite(*value) && v != *value) {
         *error = std::string("the manifest gives different values of ") + quantity + " (" +
                  ShowNumber(*value) + " and " + ShowNumber(v) + "); " + purpose + " needs one";

@@ -3,11 +3,10 @@
 // `ccdpsf <command> --config=OUT/config.json INPUTS` repeat a run of fit, trend or diagnose.
 #include <algorithm>
 #include <filesystem>
-#include <fstream>
 #include <map>
-#include <sstream>
 
 #include "ccdpsf/atomic_file.h"
+#include "ccdpsf/input_file.h"
 #include "ccdpsf/metadata.h"
 #include "command.h"
 #include "gflags/gflags.h"
@@ -176,10 +175,10 @@ std::string RunSignature(const std::vector<std::string>& inputs) {
   for (const char* flag : {"config", "manifest", "keywords", "requirements"}) {
     std::string path;
     if (!gflags::GetCommandLineOption(flag, &path) || path.empty()) continue;
-    std::ifstream in(path);
-    std::stringstream text;
-    text << in.rdbuf();
-    signature["files"][flag] = text.str();
+    // Unreadable here: the command itself reports it (this only identifies the run).
+    std::string text, error;
+    if (!ReadTextInput(path, flag, &text, &error)) text = error;
+    signature["files"][flag] = text;
   }
   return signature.dump();
 }

@@ -1,10 +1,9 @@
 // ccdpsf simulate: the paper's 9-step simulator, for one set of exposures or (a config whose
 // top level has the key "campaign") a whole characterisation campaign with a known truth.
 #include <cstdio>
-#include <fstream>
-#include <sstream>
 
 #include "ccdpsf/campaign_simulation.h"
+#include "ccdpsf/input_file.h"
 #include "ccdpsf/output_folder.h"
 #include "ccdpsf/provenance.h"
 #include "ccdpsf/simulate.h"
@@ -45,11 +44,9 @@ int RunSimulate(const std::vector<std::string>& args) {
   if (FLAGS_config.empty()) return Usage("simulate needs --config=SIM.json");
   if (FLAGS_out.empty()) return Usage("simulate needs --out=DIR");
   {
-    std::ifstream in(FLAGS_config);
-    if (!in) return Fail("cannot read simulation config '" + FLAGS_config + "'");
-    std::stringstream text;
-    text << in.rdbuf();
-    if (IsCampaignConfig(text.str())) return RunCampaignSimulation();
+    std::string text, error;
+    if (!ReadTextInput(FLAGS_config, "simulation config", &text, &error)) return Fail(error);
+    if (IsCampaignConfig(text)) return RunCampaignSimulation();
   }
   std::string error;
   auto config = LoadSimulationConfig(FLAGS_config, &error);

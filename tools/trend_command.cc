@@ -1,11 +1,10 @@
 // ccdpsf trend: a characterisation campaign in, the CCD PSF's relations with wavelength and
 // intensity, the combined model and the requirement checks out.
 #include <cstdio>
-#include <fstream>
 #include <map>
-#include <sstream>
 
 #include "ccdpsf/atomic_file.h"
+#include "ccdpsf/input_file.h"
 #include "ccdpsf/output_folder.h"
 #include "ccdpsf/plot.h"
 #include "ccdpsf/provenance.h"
@@ -117,11 +116,11 @@ int RunTrend(const std::vector<std::string>& inputs) {
     if (!requirements) return Fail("'" + FLAGS_config + "': flags.requirements: " + error);
     trend_options.requirements = *requirements;
   } else if (!FLAGS_requirements.empty()) {
-    std::ifstream in(FLAGS_requirements);
-    if (!in) return Fail("cannot read --requirements file " + FLAGS_requirements);
-    std::stringstream text;
-    text << in.rdbuf();
-    auto requirements = trend::ParseRequirementsText(text.str(), &error);
+    std::string text;
+    if (!ReadTextInput(FLAGS_requirements, "--requirements file", &text, &error)) {
+      return Fail(error);
+    }
+    auto requirements = trend::ParseRequirementsText(text, &error);
     if (!requirements) return Fail(FLAGS_requirements + ": " + error);
     trend_options.requirements = *requirements;
   }

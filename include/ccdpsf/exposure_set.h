@@ -48,6 +48,14 @@ struct ExposureSet {
   Quality quality;
 };
 
+// `path` made absolute with links resolved where they exist (to tell one file under two
+// names); as given when that fails.
+std::string CanonicalPath(const std::string& path);
+
+// The one-line refusal of an exposure counted twice: `path` names the same file and HDU as
+// `earlier` (`same_file`), or holds identical pixels. fit and grid refuse both alike.
+std::string CountedTwice(const std::string& path, const std::string& earlier, bool same_file);
+
 // Loads every input (LoadExposure) and runs the checks. False with a one-line reason when a
 // file cannot be calibrated, a file is given twice (the same path and HDU, or identical
 // pixels), a pixel size is missing, or wavelengths are mixed without leave.

@@ -121,6 +121,30 @@ struct FitsHduInfo {
 // Empty (with *error set) if the file cannot be read.
 std::vector<FitsHduInfo> ListFitsImageHdus(const std::string& path, std::string* error);
 
+// A FITS file opened once to read several of its images (a multi-extension file's
+// segments). ReadFitsImage and ListFitsImageHdus open and screen the whole file at each
+// call, so reading each of N segments through them costs O(N^2); through this, O(N).
+class FitsImageFile {
+ public:
+  // Null with a one-line reason in *error.
+  static std::unique_ptr<FitsImageFile> Open(const std::string& path, std::string* error);
+  ~FitsImageFile();
+  FitsImageFile(const FitsImageFile&) = delete;
+  FitsImageFile& operator=(const FitsImageFile&) = delete;
+
+  // The HDUs holding a 2-D image, as ListFitsImageHdus gives them.
+  const std::vector<FitsHduInfo>& images() const { return images_; }
+  // The image `hdu_selector` names, as ReadFitsImage(path, hdu_selector) reads it.
+  std::optional<FitsImage> Read(const std::string& hdu_selector, std::string* error);
+
+ private:
+  FitsImageFile();
+  struct Opened;
+  std::unique_ptr<Opened> opened_;
+  std::string path_;
+  std::vector<FitsHduInfo> images_;
+};
+
 // Writes `image` as 16-bit unsigned integers (BITPIX = 16, BZERO = 32768). Every value must
 // be an integer in [0, 65535]; anything else is an error (the caller rounds and clips).
 bool WriteFitsImageU16(const std::string& path, const Image& image, const FitsHeader& header,

@@ -52,6 +52,13 @@ namespace ccdpsf {
 const std::vector<std::string>& MetadataQuantities();
 bool IsNumericQuantity(const std::string& name);
 bool IsMetadataQuantity(const std::string& name);
+// Whether `value` is in the range of the numeric quantity (finite, a positive gain, pixel
+// size and wavelength, a non-negative read noise and exposure time, and each within a
+// bound no lab reaches, e.g. |bias| <= 1e12 ADU). False with a message that gives the
+// range: "bias_adu must be finite and within [-1e+12, 1e+12], got 1e+300", "gain_e_per_adu
+// must be positive and finite, got 0", "... must be at most 1e+06, got 2e+06". Text
+// quantities: always true.
+bool CheckQuantityValue(const std::string& quantity, double value, std::string* error);
 
 // Where a header keyword is read from for one quantity: the keyword's name and the factor
 // that converts its value to the quantity's unit (e.g. 1e-3 for an exposure time in ms).

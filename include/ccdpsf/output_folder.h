@@ -8,11 +8,17 @@
 //
 // Because --out is replaced, it must be a folder ccdpsf may replace: one that does not exist,
 // an empty one, or an earlier ccdpsf output (it holds a run.json naming ccdpsf). A folder
-// with other files, or one that holds an input of the run, is refused before any work.
+// with other files, or one that holds an input of the run, is refused before any work; so
+// is an --out that is a symbolic link (the link, not its target, would be replaced), that
+// belongs to another user, or that the user made read-only (it or a folder inside it), even
+// for root: it is left exactly as it was.
 //
-// The partial folder is locked (flock) while a run writes it: a second run into the same
-// --out is refused. A partial folder left by a killed run is taken over by the next run
-// (KeepResumable() says which of its files may be reused) and removed at Commit().
+// The partial folder is created exclusively (mkdir, mode 0700), so nothing planted at its
+// predictable name is ever followed: a symbolic link there is refused, not emptied. It is
+// locked (flock) while a run writes it: a second run into the same --out is refused. A
+// partial folder left by a killed run (a real folder of this user) is taken over by the
+// next run (`resumable` says which of its entries may be reused) and removed at Commit().
+// Every path the run writes or removes lies inside it (safe_path.h).
 #ifndef CCDPSF_OUTPUT_FOLDER_H_
 #define CCDPSF_OUTPUT_FOLDER_H_
 

@@ -6,6 +6,7 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <filesystem>
 #include <condition_variable>
 #include <cstdio>
 #include <limits>
@@ -847,11 +848,15 @@ bool RunEnsembleSampler(const BlockedTarget& target, int dim, const std::vector<
   const uint64_t fingerprint = RunFingerprint(target, dim, initial, options);
   if (!options.checkpoint_path.empty()) {
     SamplerCheckpoint saved;
-    std::string ignored;
+    std::string unreadable;
     // A checkpoint is taken right after a check: redoing that check (deterministic) restores
-    // the diagnostics the loop carries.
-    if (ReadSamplerCheckpoint(options.checkpoint_path, &saved, &ignored) &&
-        saved.fingerprint == fingerprint && saved.steps >= 1 &&
+    // the diagnostics the loop carries. One that is there but damaged is said, not resumed.
+    const bool read = ReadSamplerCheckpoint(options.checkpoint_path, &saved, &unreadable);
+    std::error_code ec;
+    if (!read && std::filesystem::exists(options.checkpoint_path, ec)) {
+      out.checkpoint_discarded = unreadable + ": discarded, the MCMC starts afresh";
+    }
+    if (read && saved.fingerprint == fingerprint && saved.steps >= 1 &&
         saved.steps < options.max_steps &&
         saved.chain.size() == static_cast<size_t>(saved.steps) * state_size &&
         saved.chain_log_prob.size() == static_cast<size_t>(saved.steps) * num_walkers &&

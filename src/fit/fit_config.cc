@@ -1,7 +1,8 @@
 #include "ccdpsf/fit/fit_config.h"
 
-#include <fstream>
 #include <sstream>
+
+#include "ccdpsf/input_file.h"
 
 #include "internal/json_reader.h"
 
@@ -346,14 +347,9 @@ bool ParseFitConfig(const std::string& text, FitConfig* c, std::string* error) {
 }
 
 bool LoadFitConfig(const std::string& path, FitConfig* config, std::string* error) {
-  std::ifstream in(path);
-  if (!in) {
-    *error = "cannot read fit config '" + path + "'";
-    return false;
-  }
-  std::stringstream text;
-  text << in.rdbuf();
-  if (!ParseFitConfig(text.str(), config, error)) {
+  std::string text;
+  if (!ReadTextInput(path, "fit config", &text, error)) return false;
+  if (!ParseFitConfig(text, config, error)) {
     *error = "'" + path + "': " + *error;
     return false;
   }

@@ -6,39 +6,48 @@
 #include <type_traits>
 
 #include "ccdpsf/atomic_file.h"
+#include "internal/fnv1a.h"
 
 namespace ccdpsf::fit {
 namespace {
 
 constexpr char kMagic[8] = {'C', 'C', 'D', 'P', 'S', 'F', 'M', 'C'};
 // 2: the independence move's per-walker counts after `accepted`.
-constexpr uint32_t kVersion = 2;
+// 3: a checksum of everything before it at the end of the file.
+constexpr uint32_t kVersion = 3;
+
+// The checksum at the end of a checkpoint, over every byte before it (damage, not forgery).
+uint64_t Checksum(const char* data, size_t size) {
+  internal::Fnv1a h;
+  h.Add(data, size);
+  return h.value();
+}
 
 class Writer {
  public:
-  explicit Writer(std::ofstream* out) : out_(out) {}
+  explicit Writer(std::string* out) : out_(out) {}
   template <typename T>
   void Value(const T& v) {
     static_assert(std::is_trivially_copyable_v<T>);
-    out_->write(reinterpret_cast<const char*>(&v), sizeof(T));
+    out_->append(reinterpret_cast<const char*>(&v), sizeof(T));
   }
   template <typename T>
   void Vector(const std::vector<T>& v) {
     Value<uint64_t>(v.size());
-    if (!v.empty()) out_->write(reinterpret_cast<const char*>(v.data()), sizeof(T) * v.size());
+    if (!v.empty()) out_->append(reinterpret_cast<const char*>(v.data()), sizeof(T) * v.size());
   }
   void Text(const std::string& s) {
     Value<uint64_t>(s.size());
-    out_->write(s.data(), static_cast<std::streamsize>(s.size()));
+    out_->append(s);
   }
 
  private:
-  std::ofstream* out_;
+  std::string* out_;
 };
 
 class Reader {
  public:
-  Reader(std::ifstream* in, uint64_t file_size) : in_(in), left_(file_size) {}
+  Reader(const char* data, uint64_t size) : data_(data), left_(size) {}
   template <typename T>
   bool Value(T* v) {
     return Bytes(reinterpret_cast<char*>(v), sizeof(T));
@@ -57,15 +66,17 @@ class Reader {
     s->resize(n);
     return n == 0 || Bytes(s->data(), n);
   }
+  bool AtEnd() const { return left_ == 0; }
 
  private:
   bool Bytes(char* to, uint64_t n) {
     if (n > left_) return false;
-    in_->read(to, static_cast<std::streamsize>(n));
+    std::memcpy(to, data_, n);
+    data_ += n;
     left_ -= n;
-    return static_cast<bool>(*in_);
+    return true;
   }
-  std::ifstream* in_;
+  const char* data_;
   uint64_t left_;
 };
 
@@ -73,28 +84,30 @@ class Reader {
 
 bool WriteSamplerCheckpoint(const std::string& path, const SamplerCheckpoint& c,
                             std::string* error) {
+  std::string bytes(kMagic, sizeof(kMagic));
+  Writer w(&bytes);
+  w.Value(kVersion);
+  w.Value(c.fingerprint);
+  w.Value(c.steps);
+  w.Value(c.next_check);
+  w.Value(c.previous_max_tau);
+  w.Vector(c.positions);
+  w.Vector(c.log_prob);
+  w.Vector(c.accepted);
+  w.Vector(c.independence_proposed);
+  w.Vector(c.independence_accepted);
+  w.Vector(c.conditional_acceptance);
+  w.Vector(c.aux);
+  w.Value<uint64_t>(c.engines.size());
+  for (const std::string& e : c.engines) w.Text(e);
+  w.Vector(c.chain);
+  w.Vector(c.chain_log_prob);
+  w.Value(Checksum(bytes.data(), bytes.size()));
   return WriteAtomically(
       path,
-      [&c](const std::string& temp, std::string* err) {
+      [&bytes](const std::string& temp, std::string* err) {
         std::ofstream out(temp, std::ios::binary);
-        Writer w(&out);
-        out.write(kMagic, sizeof(kMagic));
-        w.Value(kVersion);
-        w.Value(c.fingerprint);
-        w.Value(c.steps);
-        w.Value(c.next_check);
-        w.Value(c.previous_max_tau);
-        w.Vector(c.positions);
-        w.Vector(c.log_prob);
-        w.Vector(c.accepted);
-        w.Vector(c.independence_proposed);
-        w.Vector(c.independence_accepted);
-        w.Vector(c.conditional_acceptance);
-        w.Vector(c.aux);
-        w.Value<uint64_t>(c.engines.size());
-        for (const std::string& e : c.engines) w.Text(e);
-        w.Vector(c.chain);
-        w.Vector(c.chain_log_prob);
+        out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
         out.close();
         if (!out) {
           *err = "cannot write the MCMC checkpoint '" + temp + "'";
@@ -113,7 +126,19 @@ bool ReadSamplerCheckpoint(const std::string& path, SamplerCheckpoint* c, std::s
   }
   const auto size = static_cast<uint64_t>(in.tellg());
   in.seekg(0);
-  Reader r(&in, size);
+  std::string bytes(size, '\0');
+  if (!in.read(bytes.data(), static_cast<std::streamsize>(size))) {
+    *error = "cannot read the MCMC checkpoint '" + path + "'";
+    return false;
+  }
+  uint64_t stored = 0;
+  const size_t body = size >= sizeof(stored) ? size - sizeof(stored) : 0;
+  if (size >= sizeof(stored)) std::memcpy(&stored, bytes.data() + body, sizeof(stored));
+  if (size < sizeof(kMagic) + sizeof(stored) || Checksum(bytes.data(), body) != stored) {
+    *error = "'" + path + "' is damaged (its checksum does not match its contents)";
+    return false;
+  }
+  Reader r(bytes.data(), body);
   char magic[sizeof(kMagic)] = {};
   uint32_t version = 0;
   uint64_t engines = 0;
@@ -129,7 +154,7 @@ bool ReadSamplerCheckpoint(const std::string& path, SamplerCheckpoint* c, std::s
     read.engines.emplace_back();
     ok = r.Text(&read.engines.back());
   }
-  ok = ok && r.Vector(&read.chain) && r.Vector(&read.chain_log_prob);
+  ok = ok && r.Vector(&read.chain) && r.Vector(&read.chain_log_prob) && r.AtEnd();
   if (!ok) {
     *error = "'" + path + "' is not a complete MCMC checkpoint of this version";
     return false;

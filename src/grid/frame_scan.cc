@@ -10,6 +10,7 @@
 #include <memory>
 
 #include "ccdpsf/metadata.h"
+#include "internal/fnv1a.h"
 #include "internal/text.h"
 
 namespace ccdpsf::grid {
@@ -111,6 +112,7 @@ bool ScanFrame(const std::string& path, const CalibrationOptions& calibration,
 
   // The window holds rows [w0, w1) of the frame; the rows of the strip in hand are
   // [core_begin, core_end), with up to `margin` rows on either side.
+  internal::Fnv1a digest;  // of the rows in the order read (each once)
   Image window(nx, 0);
   window.data.reserve(static_cast<size_t>(nx) * (strip + 2 * margin));
   int w0 = 0, w1 = 0;
@@ -119,10 +121,9 @@ bool ScanFrame(const std::string& path, const CalibrationOptions& calibration,
     const int need = std::min(ny, core_end + margin);
     if (need > w1) {
       window.data.resize(static_cast<size_t>(nx) * (need - w0));
-      if (!stream->ReadRows(w1, need - w1, window.data.data() + static_cast<size_t>(nx) * (w1 - w0),
-                            error)) {
-        return false;
-      }
+      double* rows = window.data.data() + static_cast<size_t>(nx) * (w1 - w0);
+      if (!stream->ReadRows(w1, need - w1, rows, error)) return false;
+      digest.Add(rows, static_cast<size_t>(nx) * (need - w1) * sizeof(double));
       w1 = need;
       window.ny = w1 - w0;
     }
@@ -240,6 +241,7 @@ bool ScanFrame(const std::string& path, const CalibrationOptions& calibration,
                      return a.shape.peak_y != b.shape.peak_y ? a.shape.peak_y < b.shape.peak_y
                                                              : a.shape.peak_x < b.shape.peak_x;
                    });
+  out->pixel_digest = digest.value();
   return true;
 }
 

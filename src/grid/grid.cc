@@ -11,6 +11,7 @@
 #include "ccdpsf/exposure_set.h"
 #include "ccdpsf/grid/spot_relations.h"
 #include "ccdpsf/trend/group_store.h"
+#include "internal/text.h"
 #include "nlohmann/json.hpp"
 
 namespace ccdpsf::grid {
@@ -106,6 +107,14 @@ bool RunGrid(const std::vector<trend::CampaignGroup>& settings, const GridOption
   result->settings = settings;
   std::vector<SpotEntry> mine;
   int next_spot = 0;
+  // Every frame scanned so far, to refuse one counted twice (as fit does): the same file
+  // and HDU, or identical pixels under another name. Each would count as an exposure of its
+  // own, and its spots' intervals would shrink by 1/sqrt(2) for nothing.
+  struct Seen {
+    std::string key, path;
+    uint64_t digest;
+  };
+  std::vector<Seen> seen;
   for (size_t s = 0; s < settings.size(); ++s) {
     const trend::CampaignGroup& setting = settings[s];
     std::vector<ScannedFrame> frames(setting.files.size());
@@ -118,6 +127,16 @@ bool RunGrid(const std::vector<trend::CampaignGroup>& settings, const GridOption
                      options.scan, &frames[e], error)) {
         return false;
       }
+      const Seen frame = {CanonicalPath(setting.files[e]) + "[" +
+                              std::to_string(frames[e].hdu_number) + "]",
+                          setting.files[e], frames[e].pixel_digest};
+      for (const Seen& earlier : seen) {
+        if (earlier.key == frame.key || earlier.digest == frame.digest) {
+          *error = CountedTwice(frame.path, earlier.path, earlier.key == frame.key);
+          return false;
+        }
+      }
+      seen.push_back(frame);
       if (options.progress) {
         int fittable = 0;
         for (const FrameSource& src : frames[e].sources) fittable += src.refused.empty();
@@ -178,6 +197,14 @@ bool RunGrid(const std::vector<trend::CampaignGroup>& settings, const GridOption
     result->frames.push_back(std::move(frames));
   }
 
+  if (next_spot == 0) {
+    // Every process scanned every frame: they all stop here alike.
+    *error = "no source found in the " + std::to_string(seen.size()) +
+             " frame(s) (at --min_significance=" +
+             internal::FormatNumber(options.scan.finder.min_significance) +
+             "): there is no spot to fit and no map to make";
+    return false;
+  }
   if (options.size <= 1) {
     result->spots = std::move(mine);
     return true;

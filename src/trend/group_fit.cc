@@ -15,6 +15,7 @@
 #include "ccdpsf/fit/fit_report.h"
 #include "ccdpsf/provenance.h"
 #include "ccdpsf/random.h"
+#include "ccdpsf/safe_path.h"
 #include "ccdpsf/trend/group_store.h"
 #include "ccdpsf/trend/intensity_series.h"
 #include "glog/logging.h"
@@ -23,7 +24,9 @@
 namespace ccdpsf::trend {
 namespace {
 
-GroupResult FitOne(const CampaignGroup& group, int position, int index,
+// `folder` is the group's report folder's name in options.reports_dir: its name made safe
+// (safe_path.h), since a group is named after a manifest's setting or a file's stem.
+GroupResult FitOne(const CampaignGroup& group, int position, int index, const std::string& folder,
                    const GroupFitOptions& options) {
   const auto start = std::chrono::steady_clock::now();
   GroupResult out;
@@ -169,7 +172,7 @@ GroupResult FitOne(const CampaignGroup& group, int position, int index,
   }
 
   if (!options.reports_dir.empty()) {
-    out.report_dir = options.reports_dir + "/" + group.name;
+    out.report_dir = options.reports_dir + "/" + folder;
     nlohmann::json run = {{"command", "trend (group fit)"},
                           {"group", group.name},
                           {"files", group.files},
@@ -208,6 +211,9 @@ std::vector<GroupResult> FitGroups(const std::vector<CampaignGroup>& groups,
   const int total = static_cast<int>(groups.size());
   std::vector<GroupResult> results(total);
   if (total == 0) return results;
+  std::vector<std::string> names;
+  for (const CampaignGroup& g : groups) names.push_back(g.name);
+  const std::vector<std::string> folders = UniqueSafeComponents(names);
   const bool with_schedule = schedule != nullptr && !schedule->after.empty();
   if (with_schedule) CHECK_EQ(static_cast<int>(schedule->after.size()), total);
   auto after = [&](int g) -> const std::vector<int>& {
@@ -276,11 +282,13 @@ std::vector<GroupResult> FitGroups(const std::vector<CampaignGroup>& groups,
       }
       if (!r.resumed) {
         // A report folder left by an interrupted fit of this group goes first.
-        if (!options.reports_dir.empty()) {
+        const std::string report = options.reports_dir + "/" + folders[pick];
+        std::string outside;
+        if (!options.reports_dir.empty() && IsInsideFolder(options.reports_dir, report, &outside)) {
           std::error_code ec;
-          std::filesystem::remove_all(options.reports_dir + "/" + group.name, ec);
+          std::filesystem::remove_all(report, ec);
         }
-        r = FitOne(group, pick, index, options);
+        r = FitOne(group, pick, index, folders[pick], options);
         std::string error;
         // A group that cannot be stored is only refitted by a resumed run.
         if (!stored.empty() && !SaveGroupResult(stored, r, &error)) r.warnings.push_back(error);

@@ -4,10 +4,11 @@
 
 #include <cmath>
 #include <cstdio>
-#include <fstream>
 #include <limits>
 
 #include "ccdpsf/atomic_file.h"
+#include "ccdpsf/input_file.h"
+#include "internal/fnv1a.h"
 #include "nlohmann/json.hpp"
 
 namespace ccdpsf::trend {
@@ -17,13 +18,10 @@ using nlohmann::json;
 
 constexpr int kFormat = 4;
 
-uint64_t Fnv1a(const std::string& text) {
-  uint64_t h = 1469598103934665603ULL;
-  for (unsigned char c : text) {
-    h ^= c;
-    h *= 1099511628211ULL;
-  }
-  return h;
+uint64_t Hash(const std::string& text) {
+  internal::Fnv1a h;
+  h.Add(text.data(), text.size());
+  return h.value();
 }
 
 // JSON has no NaN or infinity: those go as strings; every other double as a number, which
@@ -78,7 +76,7 @@ std::string GroupStoreName(const std::string& run_signature, const CampaignGroup
   }
   char name[32];
   std::snprintf(name, sizeof(name), "%016llx.json",
-                static_cast<unsigned long long>(Fnv1a(key.dump())));
+                static_cast<unsigned long long>(Hash(key.dump())));
   return name;
 }
 
@@ -121,9 +119,9 @@ bool SaveGroupResult(const std::string& path, const GroupResult& r, std::string*
 }
 
 bool LoadGroupResult(const std::string& path, GroupResult* result) {
-  std::ifstream in(path);
-  if (!in) return false;
-  return GroupResultFromJson(json::parse(in, nullptr, /*allow_exceptions=*/false), result);
+  std::string text, error;
+  if (!ReadTextInput(path, "group result", &text, &error)) return false;
+  return GroupResultFromJson(json::parse(text, nullptr, /*allow_exceptions=*/false), result);
 }
 
 bool GroupResultFromJson(const nlohmann::json& j, GroupResult* result) {

@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <fstream>
 #include <thread>
 
 #include "gtest/gtest.h"
@@ -35,6 +36,12 @@ int RunCcdpsf(const std::string& args, std::string* output) {
   RunResult r = RunCcdpsf(args);
   *output = std::move(r.output);
   return r.exit_code;
+}
+
+void Touch(const std::string& path, const std::string& text) { std::ofstream(path) << text; }
+
+void WriteRunRecord(const std::string& dir) {
+  Touch(dir + "/run.json", R"({"command": "fit", "software": {"ccdpsf": "0"}})");
 }
 
 std::string FreshDir(const std::string& suite, const std::string& name) {

@@ -31,6 +31,12 @@ bool RunAndKill(const std::string& args, const std::function<bool()>& ready);
 // <test temp dir>/ccdpsf_<suite>_<pid>_<name>.
 std::string FreshDir(const std::string& suite, const std::string& name);
 
+// Writes `text` to the file `path` (a test's small input or stand-in file).
+void Touch(const std::string& path, const std::string& text = "x");
+
+// A run record as ccdpsf writes it in `dir` (the mark of a folder it may replace).
+void WriteRunRecord(const std::string& dir);
+
 // The folder of testdata/demo_simulation.json's five exposures (exposure_000.fits ...),
 // simulated by the binary once per process.
 const std::string& DemoSet();

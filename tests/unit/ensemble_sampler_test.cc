@@ -18,6 +18,7 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <fstream>
 #include <functional>
 #include <limits>
 #include <optional>
@@ -377,6 +378,20 @@ TEST(EnsembleSampler, ResumesFromACheckpointToTheSameChain) {
     SamplerResult after_damage;
     ASSERT_TRUE(RunEnsembleSampler(PerThread(g, 1), 2, initial, options, &after_damage, &error));
     EXPECT_EQ(after_damage.resumed_from_step, 0);
+    EXPECT_TRUE(after_damage.chain == whole.chain);
+    // Nor one with a single bit flipped in its chain (its checksum fails), and it is said.
+    ASSERT_TRUE(RunEnsembleSampler(PerThread(g, 1), 2, initial, options, &first, &error));
+    {
+      std::fstream file(path, std::ios::in | std::ios::out | std::ios::binary);
+      file.seekg(static_cast<std::streamoff>(std::filesystem::file_size(path) / 2));
+      const char byte = static_cast<char>(file.get() ^ 0x04);
+      file.seekp(static_cast<std::streamoff>(std::filesystem::file_size(path) / 2));
+      file.put(byte);
+    }
+    ASSERT_TRUE(RunEnsembleSampler(PerThread(g, 1), 2, initial, options, &after_damage, &error));
+    EXPECT_EQ(after_damage.resumed_from_step, 0);
+    EXPECT_NE(after_damage.checkpoint_discarded.find("damaged"), std::string::npos)
+        << after_damage.checkpoint_discarded;
     EXPECT_TRUE(after_damage.chain == whole.chain);
     std::remove(path.c_str());
   }

@@ -22,28 +22,21 @@ using testing_support::DemoSet;
 using testing_support::FreshDir;
 using testing_support::RunCcdpsf;
 using testing_support::RunResult;
-
-void Touch(const std::string& path, const std::string& text = "x") {
-  std::ofstream(path) << text;
-}
-
-// A run record as ccdpsf writes it (the mark of a folder it may replace).
-void RunRecord(const std::string& dir) {
-  Touch(dir + "/run.json", R"({"command": "fit", "software": {"ccdpsf": "0"}})");
-}
+using testing_support::Touch;
+using testing_support::WriteRunRecord;
 
 TEST(OutputFolder, ReplacesAnEarlierRunAsAWhole) {
   const std::string root = FreshDir("outdir", "replace");
   const std::string out = root + "/out";
   fs::create_directories(out);
-  RunRecord(out);
+  WriteRunRecord(out);
   Touch(out + "/chain.fits");  // of the earlier run only
   OutputFolder folder;
   std::string error;
   ASSERT_TRUE(folder.Begin(out, {}, {}, &error)) << error;
   EXPECT_NE(folder.partial(), out);
   EXPECT_TRUE(fs::exists(out + "/chain.fits"));  // untouched until Commit
-  RunRecord(folder.partial());
+  WriteRunRecord(folder.partial());
   Touch(folder.partial() + "/fit.json");
   ASSERT_TRUE(folder.Commit({}, &error)) << error;
   EXPECT_TRUE(fs::exists(out + "/fit.json"));
@@ -58,7 +51,7 @@ TEST(OutputFolder, AFailedRunLeavesTheEarlierResultsAndNoPartialFolder) {
   const std::string root = FreshDir("outdir", "failed");
   const std::string out = root + "/out";
   fs::create_directories(out);
-  RunRecord(out);
+  WriteRunRecord(out);
   Touch(out + "/fit.json", "earlier");
   std::string partial;
   {
@@ -88,7 +81,7 @@ TEST(OutputFolder, RefusesFoldersItMayNotReplace) {
   }
   // A folder (even an earlier output) holding an input of the run, also through "..".
   fs::create_directories(root + "/sim");
-  RunRecord(root + "/sim");
+  WriteRunRecord(root + "/sim");
   Touch(root + "/sim/exposure_000.fits");
   {
     OutputFolder folder;
@@ -135,7 +128,7 @@ TEST(OutputFolder, AKilledRunsPartialFolderIsTakenOverAndASecondWriterRefused) {
   EXPECT_EQ(next.partial(), partial);
   EXPECT_FALSE(fs::exists(partial + "/stale.dat"));
   EXPECT_TRUE(fs::exists(partial + "/resume/group_a.json"));
-  RunRecord(partial);
+  WriteRunRecord(partial);
   ASSERT_TRUE(next.Commit({"resume"}, &error)) << error;
   EXPECT_TRUE(fs::exists(out + "/run.json"));
   EXPECT_FALSE(fs::exists(out + "/resume"));

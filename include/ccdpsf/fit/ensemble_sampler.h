@@ -219,6 +219,8 @@ struct SamplerResult {
   std::string stop_reason;
   double seconds = 0.0;  // wall-clock duration of the run [s]
   int resumed_from_step = 0;  // the checkpoint's step when the run resumed from one, else 0
+  // Why a checkpoint that was there was not resumed (damaged: its checksum fails), else "".
+  std::string checkpoint_discarded;
 
   // The chain's states after burn-in, evenly thinned to at most max_states (>= 1): state
   // indices s (positions at chain[s * dim]), s = burn_in x walkers + t x kept / n for

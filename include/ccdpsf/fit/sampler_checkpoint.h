@@ -40,7 +40,8 @@ struct SamplerCheckpoint {
 bool WriteSamplerCheckpoint(const std::string& path, const SamplerCheckpoint& checkpoint,
                             std::string* error);
 
-// False with a reason if the file is missing, not a checkpoint, or cut short.
+// False with a reason if the file is missing, not a checkpoint, cut short, or damaged (the
+// checksum at its end, over every byte before it, does not match).
 bool ReadSamplerCheckpoint(const std::string& path, SamplerCheckpoint* checkpoint,
                            std::string* error);
 

@@ -26,6 +26,7 @@
 #ifndef CCDPSF_GRID_FRAME_SCAN_H_
 #define CCDPSF_GRID_FRAME_SCAN_H_
 
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -73,6 +74,7 @@ struct ScannedFrame {
   PixelRegion data_region;           // the data section (DATASEC or flag), else the whole frame
   std::vector<FrameSource> sources;  // every source found, by peak row then column
   std::vector<FrameCutout> cutouts;
+  uint64_t pixel_digest = 0;  // FNV-1a of every pixel read: the same frame under two names
 };
 
 // Scans one frame. `calibration` gives the HDU, the keyword map and given values (a data
