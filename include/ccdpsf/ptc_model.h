@@ -24,7 +24,7 @@
 //
 // Expanded in powers of mu this is Astier et al.'s eq. (20): K = mu [delta + a mu
 // + 2/3 (a (*) a + ab) mu^2 + 1/6 (2 a (*) a (*) a + 5 a (*) ab) mu^3 + ...] (checked term
-// by term in tests/ptc_test.cc); with b = 0 and a_00 alone, K_00 = (exp(2 a_00 mu) - 1) /
+// by term in tests/unit/ptc_test.cc); with b = 0 and a_00 alone, K_00 = (exp(2 a_00 mu) - 1) /
 // (2 a_00), their eq. (16). Evaluated exactly (not truncated at mu^4), the model stays right
 // at a_00 mu ~ -0.2 and beyond, where the truncated series errs by ~2 (a mu)^4 / 15.
 //

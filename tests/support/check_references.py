@@ -3,7 +3,7 @@
 
 Usage: check_references.py [REPOSITORY_ROOT]   (default: the current folder)
 
-Three rules, over the files git tracks (every file below the root, .git and build folders
+Four rules, over the files git tracks (every file below the root, .git and build folders
 aside, when the root is not a git checkout):
 
 1. No file names the design notes, the style notes or the shared folder outside the
@@ -15,6 +15,9 @@ aside, when the root is not a git checkout):
 3. Every mention of a documentation page by its path from the root, docs/<name>.md, in
    any file names a page that exists (source comments and report texts point readers
    there; a longer relative path such as ../docs/<name>.md is a link, rule 2).
+4. Every mention of a test file by its path from the root, tests/<folder>/<name>_test.cc (or
+   .py), names a file that exists: the tests live in tiers (tests/README.md), and a comment
+   pointing to where a case was before it moved sends a reader nowhere.
 
 Prints one line per problem (file:line: what) and exits 1 if there is any, else 0.
 Standard library only.
@@ -30,6 +33,7 @@ ALLOWED = (".." + "/shared/realdata",)
 SKIPPED_FOLDERS = {".git", "build"}
 MARKDOWN_LINK = re.compile(r"\[[^\]]*\]\(([^)\s]+)\)")
 DOCS_MENTION = re.compile(r"(?<![\w./-])docs/[A-Za-z0-9_-]+\.md")
+TEST_MENTION = re.compile(r"(?<![\w./-])tests/[A-Za-z0-9_/-]*_test\.(?:cc|py)")
 
 
 def tracked_files(root):
@@ -95,7 +99,7 @@ def check(root):
                 if name in allowed_free:
                     problems.append(f"{rel}:{number}: refers to '{name}', which is not in the "
                                     "repository")
-            for mention in DOCS_MENTION.findall(line):
+            for mention in DOCS_MENTION.findall(line) + TEST_MENTION.findall(line):
                 if not os.path.isfile(os.path.join(root, mention)):
                     problems.append(f"{rel}:{number}: names '{mention}', which does not exist")
         if not rel.endswith(".md"):

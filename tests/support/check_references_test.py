@@ -73,6 +73,14 @@ def test_a_mention_of_a_missing_docs_page_is_caught(tmp_path):
     assert problems == [f"src/d.cc:1: names '{MISSING_PAGE}', which does not exist"]
 
 
+def test_a_mention_of_a_missing_test_file_is_caught(tmp_path):
+    files = dict(CLEAN)
+    files["tests/unit/a_test.cc"] = "// a test\n"
+    files["src/e.cc"] = "// checked in tests/unit/a_test.cc and tests/a_test.cc\n"
+    problems = check_references.check(make_tree(tmp_path, files))
+    assert problems == ["src/e.cc:1: names 'tests/a_test.cc', which does not exist"]
+
+
 def test_code_examples_are_not_links(tmp_path):
     files = dict(CLEAN)
     files["docs/README.md"] = ("# Index\n\n    x = a[0](missing.md)\n\n```\n"
