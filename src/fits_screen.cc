@@ -37,13 +37,19 @@ int uncompress2mem_from_mem(char* inmemptr, size_t inmemsize, char** buffptr, si
 
 namespace ccdpsf {
 namespace {
-// The memory ceiling (SetMaxImageBytes), shared by every thread.
+// The memory ceiling (SetMaxImageBytes) and what a pixel costs against it, shared by every
+// thread.
 std::atomic<long long> g_max_image_bytes{kDefaultMaxImageBytes};
+std::atomic<double> g_bytes_per_pixel{kImageBytesPerPixel};
 }  // namespace
 
-void SetMaxImageBytes(long long bytes) { g_max_image_bytes.store(std::max(bytes, 1LL)); }
+void SetMaxImageBytes(long long bytes, double bytes_per_pixel) {
+  g_max_image_bytes.store(std::max(bytes, 1LL));
+  g_bytes_per_pixel.store(std::max(bytes_per_pixel, 1.0));
+}
 
 long long MaxImageBytes() { return g_max_image_bytes.load(); }
+double ImageBytesPerPixel() { return g_bytes_per_pixel.load(); }
 
 namespace internal {
 namespace {
@@ -51,7 +57,6 @@ namespace {
 constexpr long long kBlock = 2880;  // FITS block [bytes]
 constexpr long long kCard = 80;     // header card [bytes]
 constexpr int kMaxCompressDim = 6;  // CFITSIO's MAX_COMPRESS_DIM
-constexpr double kBytesPerPixel = sizeof(double);  // images are read as doubles
 
 
 }  // namespace
@@ -77,9 +82,11 @@ std::string HduWhere(const std::string& path, int hdu) {
   return hdu == 1 ? Quoted(path) : Quoted(path) + " HDU " + std::to_string(hdu - 1);
 }
 
-// The memory-ceiling check for an image of the given axes, read as doubles. Empty if it fits.
+// The memory-ceiling check for an image of the given axes, at ImageBytesPerPixel(). Empty if
+// it fits.
 std::string CheckImageSize(const std::string& where, const std::vector<long long>& axes) {
-  double bytes = kBytesPerPixel;  // a double holds any product of axes without overflow
+  const double per_pixel = ImageBytesPerPixel();
+  double bytes = per_pixel;  // a double holds any product of axes without overflow
   std::string shape;
   for (long long n : axes) {
     bytes *= static_cast<double>(n);
@@ -87,8 +94,12 @@ std::string CheckImageSize(const std::string& where, const std::vector<long long
   }
   const long long limit = MaxImageBytes();
   if (bytes <= static_cast<double>(limit)) return "";
-  return where + ": the image is " + shape + " (" + FormatBytes(bytes) + " as doubles), above the " +
-         FormatBytes(static_cast<double>(limit)) + " limit (--max_image_mb)";
+  const std::string counted =
+      per_pixel == kImageBytesPerPixel
+          ? "as doubles"
+          : "as the run holds it, " + FormatNumber(per_pixel) + " bytes a pixel";
+  return where + ": the image is " + shape + " (" + FormatBytes(bytes) + " " + counted +
+         "), above the " + FormatBytes(static_cast<double>(limit)) + " limit (--max_image_mb)";
 }
 
 namespace {

@@ -80,7 +80,7 @@ int RunGain(const std::vector<std::string>& args) {
     return Usage("gain needs FITS files (or --manifest)");
   }
   if (FLAGS_max_image_mb < 1) return Fail("--max_image_mb must be at least 1");
-  SetMaxImageBytes(static_cast<long long>(FLAGS_max_image_mb) << 20);
+  SetMaxImageBytes(static_cast<long long>(FLAGS_max_image_mb) << 20, kWholeImageBytesPerPixel);
   std::vector<std::string> files;
   PhotonTransferOptions options;
   std::string error;

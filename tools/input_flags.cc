@@ -37,8 +37,9 @@ namespace ccdpsf::tools {
 
 Option MaxImageMbOption() {
   return {"max_image_mb", std::to_string(kDefaultMaxImageBytes >> 20),
-          "Largest image to read [MB = 2^20 bytes], as doubles (8 bytes a pixel); larger images, "
-          "and gzip files decompressing to more, are refused before reading"};
+          "Most memory one image may take [MB = 2^20 bytes], at 18 bytes a pixel (the image, a "
+          "smoothed copy, masks); larger images, and gzip files decompressing to more, are "
+          "refused before reading"};
 }
 
 std::vector<Option> InputOptions() {
@@ -93,7 +94,7 @@ bool InputFlags(GivenMetadata* given, KeywordMap* keywords, std::string* error) 
     *error = "--max_image_mb must be at least 1";
     return false;
   }
-  SetMaxImageBytes(static_cast<long long>(FLAGS_max_image_mb) << 20);
+  SetMaxImageBytes(static_cast<long long>(FLAGS_max_image_mb) << 20, kWholeImageBytesPerPixel);
   struct NumberFlag {
     const char* name;
     double value;

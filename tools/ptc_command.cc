@@ -65,7 +65,7 @@ int RunPtc(const std::vector<std::string>& args) {
   }
   if (FLAGS_out.empty()) return Usage("ptc needs --out=DIR");
   if (FLAGS_max_image_mb < 1) return Fail("--max_image_mb must be at least 1");
-  SetMaxImageBytes(static_cast<long long>(FLAGS_max_image_mb) << 20);
+  SetMaxImageBytes(static_cast<long long>(FLAGS_max_image_mb) << 20, kWholeImageBytesPerPixel);
   std::vector<std::string> files;
   PtcOptions options;
   std::string error;

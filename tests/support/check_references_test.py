@@ -74,11 +74,12 @@ def test_a_mention_of_a_missing_docs_page_is_caught(tmp_path):
 
 
 def test_a_mention_of_a_missing_test_file_is_caught(tmp_path):
+    present, moved = "tests/" + "unit/a_test.cc", "tests/" + "a_test.cc"  # assembled: rule 4
     files = dict(CLEAN)
-    files["tests/unit/a_test.cc"] = "// a test\n"
-    files["src/e.cc"] = "// checked in tests/unit/a_test.cc and tests/a_test.cc\n"
+    files[present] = "// a test\n"
+    files["src/e.cc"] = f"// checked in {present} and {moved}\n"
     problems = check_references.check(make_tree(tmp_path, files))
-    assert problems == ["src/e.cc:1: names 'tests/a_test.cc', which does not exist"]
+    assert problems == [f"src/e.cc:1: names '{moved}', which does not exist"]
 
 
 def test_code_examples_are_not_links(tmp_path):

@@ -469,7 +469,9 @@ TEST(FitEffects, BoundaryShiftCoefficientsAreRecoveredFromAnIntensitySeries) {
     EXPECT_LT(std::fabs(r.map.theta[i] - truth[p]), 4.0 * sd)
         << r.names[i] << ": " << r.map.theta[i] << " against " << truth[p] << ", pull "
         << (r.map.theta[i] - truth[p]) / sd;
-    if (p < 2) EXPECT_LT(sd, 0.3 * truth[p]) << r.names[i] << " is measured";
+    if (p < 2) {
+      EXPECT_LT(sd, 0.3 * truth[p]) << r.names[i] << " is measured";
+    }
   }
   const double dof = r.map.dof;
   EXPECT_LT(std::fabs(r.map.chi2 / dof - 1.0), 4.0 * std::sqrt(2.0 / dof));
