@@ -234,6 +234,10 @@ std::string AlternativeNotApplicable(const EffectModel& current, AlternativeKind
       if (mo.pixel_response_width < 1.0) {
         return "the model's pixel response is already narrower than the pixel";
       }
+      if (current.spec().Has(model::EffectKind::kBoundaryShift)) {
+        return "the model has boundary_shift, whose boundaries move in the integral over the "
+               "whole pixel (a narrower collecting window would need its own boundary physics)";
+      }
       return "";
   }
   return "";

@@ -18,6 +18,10 @@ const std::vector<std::string>& SignatureStatistics(const std::string& name) {
       {"jitter", {"chi2_per_dof", "width_scatter", "ring_z", "core_z"}},
       {"nonlinearity", {"chi2_per_dof", "peak_trend_z", "core_z", "peak_z"}},
       {"brighter_fatter", {"chi2_per_dof", "peak_trend_z", "width_scatter", "core_z", "ring_z"}},
+      // A boundary moved by the charge: the core flattens with the signal and the four edge
+      // neighbours gain more than the diagonals (model/boundary_shift.h).
+      {"boundary_shift",
+       {"chi2_per_dof", "peak_trend_z", "width_scatter", "core_z", "neighbour_z"}},
       {"defocus", {"chi2_per_dof", "core_z", "ring_z", "radial_chi2", "peak_z"}},
       {"defocus_offset", {"chi2_per_dof", "odd_x_z", "odd_y_z"}},
       {"pillbox_defocus", {"chi2_per_dof", "core_z", "ring_z", "radial_chi2", "peak_z"}},
@@ -35,6 +39,17 @@ std::string SeparatingData(const std::string& a, const std::string& b) {
     return pair == std::set<std::string>{x, y};
   };
   const auto has = [&](const std::string& x) { return pair.count(x) > 0; };
+  if (is("boundary_shift", "brighter_fatter")) {
+    return "flat fields (ccdpsf ptc): moved boundaries correlate neighbouring pixels of a flat "
+           "as a_ij mu^2, the empirical width law predicts nothing there; and brighter spots: "
+           "moved boundaries give the edge neighbours more than the diagonals, a wider "
+           "Gaussian gives both alike";
+  }
+  if (is("nonlinearity", "boundary_shift")) {
+    return "a wider range of intensities, with exposure times known: moved boundaries keep "
+           "the charge, nonlinearity compresses the peak and loses signal against exposure "
+           "time";
+  }
   if (is("nonlinearity", "brighter_fatter")) {
     return "a wider range of intensities, with exposure times known: brighter-fatter widens the "
            "whole profile and keeps the charge, nonlinearity compresses the peak and loses "
@@ -43,10 +58,11 @@ std::string SeparatingData(const std::string& a, const std::string& b) {
   if (is("halo", "background")) {
     return "a larger stamp: a halo falls off with distance from the spot, a pedestal does not";
   }
-  if (has("ipc") && (has("brighter_fatter") || has("nonlinearity"))) {
+  if (has("ipc") &&
+      (has("brighter_fatter") || has("boundary_shift") || has("nonlinearity"))) {
     return "a second intensity: interpixel capacitance does not change with the signal";
   }
-  if (has("jitter") && has("brighter_fatter")) {
+  if (has("jitter") && (has("brighter_fatter") || has("boundary_shift"))) {
     return "exposures at one intensity: jitter still changes the widths, brighter-fatter does "
            "not";
   }
