@@ -32,6 +32,8 @@ double OffCentre(int p, int i, int j) {
       const double r2 = static_cast<double>(ai * ai + aj * aj);
       return r2 >= 4.0 ? std::pow(4.0 / r2, 0.5 * kBoundaryShiftFarExponent) : 0.0;
     }
+    case kBoundaryShiftAnisotropy:
+      return 0.0;  // moves boundaries, changes no area
   }
   LOG(FATAL) << "boundary_shift has no parameter " << p;
   return 0.0;
@@ -40,7 +42,7 @@ double OffCentre(int p, int i, int j) {
 }  // namespace
 
 std::array<double, kNumBoundaryShiftParams> BoundaryShiftValues(const BoundaryShiftParams& p) {
-  return {p.a_10, p.a_01, p.a_11, p.a_far};
+  return {p.a_10, p.a_01, p.a_11, p.a_far, p.anisotropy};
 }
 
 double BoundaryShiftBasisCoefficient(int parameter, int i, int j) {
@@ -55,7 +57,7 @@ double BoundaryShiftBasisCoefficient(int parameter, int i, int j) {
 double BoundaryShiftCoefficient(const BoundaryShiftParams& p, int i, int j) {
   const auto values = BoundaryShiftValues(p);
   double a = 0.0;
-  for (int q = 0; q < kNumBoundaryShiftParams; ++q) {
+  for (int q = 0; q < kNumBoundaryShiftCoefficients; ++q) {
     a += values[q] * BoundaryShiftBasisCoefficient(q, i, j);
   }
   return a;
@@ -65,6 +67,8 @@ double BoundaryShiftCoefficient(const BoundaryShiftParams& p, int i, int j) {
 // discrete Fourier transform is the cosine sum a^(u, v) = sum_ij a_ij cos(w u i) cos(w v j),
 // w = 2 pi / N; the Laplacian's eigenvalue there is 2 cos(w u) + 2 cos(w v) - 4, and the mean
 // (u = v = 0, where a^ = 0 by the sum rule) is set to 0: only differences of K are used.
+// The anisotropy's K1 = -lap^-1 (dxx - dyy) K0 has the spectrum
+// -(2 cos(w u) - 2 cos(w v)) a^ / eigenvalue^2 (dxx's eigenvalue 2 cos(w u) - 2, dyy's 2 cos(w v) - 2).
 BoundaryShiftBasis::BoundaryShiftBasis() {
   constexpr int n = kLattice, side = kSide, reach_k = kReach + 1;
   std::vector<double> cosine(static_cast<size_t>(n) * n);  // cos(w u m), m taken mod n
@@ -74,27 +78,16 @@ BoundaryShiftBasis::BoundaryShiftBasis() {
     }
   }
   auto c = [&](int u, int m) { return cosine[static_cast<size_t>(u) * n + ((m % n) + n) % n]; };
-  dx_.assign(static_cast<size_t>(kNumBoundaryShiftParams) * side * side, 0.0);
+  dx_.assign(static_cast<size_t>(kNumBoundaryShiftCoefficients) * side * side, 0.0);
   dy_.assign(dx_.size(), 0.0);
+  ex_.assign(dx_.size(), 0.0);
+  ey_.assign(dx_.size(), 0.0);
   const int kside = 2 * reach_k + 1;
   std::vector<double> spectrum(static_cast<size_t>(n) * n), half(static_cast<size_t>(n) * kside);
-  std::vector<double> potential(static_cast<size_t>(kside) * kside);
-  for (int p = 0; p < kNumBoundaryShiftParams; ++p) {
-    // a^(u, v), then K^ = a^ / eigenvalue.
-    for (int u = 0; u < n; ++u) {
-      for (int v = 0; v < n; ++v) {
-        double sum = 0.0;
-        for (int j = -kLag; j <= kLag; ++j) {
-          double row = 0.0;
-          for (int i = -kLag; i <= kLag; ++i)
-            row += BoundaryShiftBasisCoefficient(p, i, j) * c(u, i);
-          sum += row * c(v, j);
-        }
-        const double eigenvalue = 2.0 * c(u, 1) + 2.0 * c(v, 1) - 4.0;
-        spectrum[static_cast<size_t>(u) * n + v] = (u == 0 && v == 0) ? 0.0 : sum / eigenvalue;
-      }
-    }
-    // K(i, j) = (1 / n^2) sum_uv K^(u, v) cos(w u i) cos(w v j), for |i|, |j| <= reach + 1.
+  // K0 and K1 on |i|, |j| <= reach + 1.
+  std::vector<double> k0(static_cast<size_t>(kside) * kside), k1(k0.size());
+  // K(i, j) = (1 / n^2) sum_uv K^(u, v) cos(w u i) cos(w v j), for |i|, |j| <= reach + 1.
+  auto transform = [&](std::vector<double>* potential) {
     for (int u = 0; u < n; ++u) {
       for (int j = -reach_k; j <= reach_k; ++j) {
         double sum = 0.0;
@@ -107,18 +100,56 @@ BoundaryShiftBasis::BoundaryShiftBasis() {
         double sum = 0.0;
         for (int u = 0; u < n; ++u)
           sum += half[static_cast<size_t>(u) * kside + (j + reach_k)] * c(u, i);
-        potential[static_cast<size_t>(j + reach_k) * kside + (i + reach_k)] =
+        (*potential)[static_cast<size_t>(j + reach_k) * kside + (i + reach_k)] =
             sum / (static_cast<double>(n) * n);
       }
     }
-    auto k = [&](int i, int j) {
-      return potential[static_cast<size_t>(j + reach_k) * kside + (i + reach_k)];
+  };
+  std::vector<double> coefficient_spectrum(static_cast<size_t>(n) * n);
+  for (int p = 0; p < kNumBoundaryShiftCoefficients; ++p) {
+    // a^(u, v), then K0^ = a^ / eigenvalue and K1^.
+    for (int u = 0; u < n; ++u) {
+      for (int v = 0; v < n; ++v) {
+        double sum = 0.0;
+        for (int j = -kLag; j <= kLag; ++j) {
+          double row = 0.0;
+          for (int i = -kLag; i <= kLag; ++i)
+            row += BoundaryShiftBasisCoefficient(p, i, j) * c(u, i);
+          sum += row * c(v, j);
+        }
+        coefficient_spectrum[static_cast<size_t>(u) * n + v] = sum;
+      }
+    }
+    for (int u = 0; u < n; ++u) {
+      for (int v = 0; v < n; ++v) {
+        const double eigenvalue = 2.0 * c(u, 1) + 2.0 * c(v, 1) - 4.0;
+        const double a_hat = coefficient_spectrum[static_cast<size_t>(u) * n + v];
+        spectrum[static_cast<size_t>(u) * n + v] =
+            (u == 0 && v == 0) ? 0.0 : a_hat / eigenvalue;
+      }
+    }
+    transform(&k0);
+    for (int u = 0; u < n; ++u) {
+      for (int v = 0; v < n; ++v) {
+        const double eigenvalue = 2.0 * c(u, 1) + 2.0 * c(v, 1) - 4.0;
+        const double a_hat = coefficient_spectrum[static_cast<size_t>(u) * n + v];
+        spectrum[static_cast<size_t>(u) * n + v] =
+            (u == 0 && v == 0)
+                ? 0.0
+                : -(2.0 * c(u, 1) - 2.0 * c(v, 1)) * a_hat / (eigenvalue * eigenvalue);
+      }
+    }
+    transform(&k1);
+    auto at_k = [&](const std::vector<double>& k, int i, int j) {
+      return k[static_cast<size_t>(j + reach_k) * kside + (i + reach_k)];
     };
     for (int j = -kReach; j <= kReach; ++j) {
       for (int i = -kReach; i <= kReach; ++i) {
         const size_t at = (static_cast<size_t>(p) * side + (j + kReach)) * side + (i + kReach);
-        dx_[at] = k(i + 1, j) - k(i, j);
-        dy_[at] = k(i, j + 1) - k(i, j);
+        dx_[at] = at_k(k0, i + 1, j) - at_k(k0, i, j);
+        dy_[at] = at_k(k0, i, j + 1) - at_k(k0, i, j);
+        ex_[at] = dx_[at] + at_k(k1, i + 1, j) - at_k(k1, i, j);
+        ey_[at] = -dy_[at] + at_k(k1, i, j + 1) - at_k(k1, i, j);
       }
     }
   }
@@ -129,9 +160,12 @@ const BoundaryShiftBasis& BoundaryShiftBasis::Get() {
   return *basis;
 }
 
-BoundaryShiftKernel MakeBoundaryShiftKernel(const BoundaryShiftParams& p) {
+namespace {
+
+// sum_q weight_q (potential_scale Dx(q) + anisotropy_scale Ex(q)), likewise along y.
+BoundaryShiftKernel CombineKernels(const std::array<double, kNumBoundaryShiftCoefficients>& weight,
+                                   double potential_scale, double anisotropy_scale) {
   const BoundaryShiftBasis& basis = BoundaryShiftBasis::Get();
-  const auto values = BoundaryShiftValues(p);
   constexpr int side = BoundaryShiftBasis::kSide;
   BoundaryShiftKernel kernel;
   kernel.dx.assign(static_cast<size_t>(side) * side, 0.0);
@@ -139,13 +173,35 @@ BoundaryShiftKernel MakeBoundaryShiftKernel(const BoundaryShiftParams& p) {
   for (int j = -kReach; j <= kReach; ++j) {
     for (int i = -kReach; i <= kReach; ++i) {
       const size_t at = static_cast<size_t>(j + kReach) * side + (i + kReach);
-      for (int q = 0; q < kNumBoundaryShiftParams; ++q) {
-        kernel.dx[at] += values[q] * basis.Dx(q, i, j);
-        kernel.dy[at] += values[q] * basis.Dy(q, i, j);
+      for (int q = 0; q < kNumBoundaryShiftCoefficients; ++q) {
+        if (weight[q] == 0.0) continue;
+        kernel.dx[at] += weight[q] * (potential_scale * basis.Dx(q, i, j) +
+                                      anisotropy_scale * basis.Ex(q, i, j));
+        kernel.dy[at] += weight[q] * (potential_scale * basis.Dy(q, i, j) +
+                                      anisotropy_scale * basis.Ey(q, i, j));
       }
     }
   }
   return kernel;
+}
+
+std::array<double, kNumBoundaryShiftCoefficients> Coefficients(const BoundaryShiftParams& p) {
+  return {p.a_10, p.a_01, p.a_11, p.a_far};
+}
+
+}  // namespace
+
+BoundaryShiftKernel MakeBoundaryShiftKernel(const BoundaryShiftParams& p) {
+  return CombineKernels(Coefficients(p), 1.0, p.anisotropy);
+}
+
+BoundaryShiftKernel MakeBoundaryShiftDerivativeKernel(const BoundaryShiftParams& p,
+                                                      int parameter) {
+  CHECK(parameter >= 0 && parameter < kNumBoundaryShiftParams) << parameter;
+  if (parameter == kBoundaryShiftAnisotropy) return CombineKernels(Coefficients(p), 0.0, 1.0);
+  std::array<double, kNumBoundaryShiftCoefficients> unit{};
+  unit[parameter] = 1.0;
+  return CombineKernels(unit, 1.0, p.anisotropy);
 }
 
 PixelWindow BoundaryShiftWindow(int centre_i, int centre_j, int nx, int ny) {
@@ -160,8 +216,8 @@ PixelWindow BoundaryShiftWindow(int centre_i, int centre_j, int nx, int ny) {
 // window's charges of the shift kernel, and moves shift x density of charge from pixel b to
 // pixel b - 1 (a positive shift enlarges pixel b - 1). For axis 0 the lines are rows j and the
 // boundary densities `density` are laid out (nx + 1) x ny; for axis 1 columns i, nx x (ny + 1).
-// Derivative channels by the chain rule; the coefficients' own channels add the shifts of
-// their unit kernels (`basis`, null when no channel asks).
+// Derivative channels by the chain rule; the parameters' own channels add the shifts of
+// their derivative kernels (`basis`, null when no channel asks).
 namespace {
 
 void AddMovesAlongAxis(int axis, const BoundaryShiftKernel& kernel,
@@ -238,14 +294,12 @@ void ApplyBoundaryShift(const BoundaryShiftParams& params, const DualImage& dens
     parameter_channels[p] = channels.Get(EffectKind::kBoundaryShift, p);
     any = any || parameter_channels[p] >= 0;
   }
-  // The coefficients' own kernels, for their derivative channels: S is linear in them.
+  // The kernels' derivatives by each parameter, for their channels: the shifts are linear in
+  // the a's at fixed eta, and in eta at fixed a's.
   std::array<BoundaryShiftKernel, kNumBoundaryShiftParams> basis;
   if (any) {
     for (int p = 0; p < kNumBoundaryShiftParams; ++p) {
-      BoundaryShiftParams unit{0.0, 0.0, 0.0, 0.0};
-      double* v[] = {&unit.a_10, &unit.a_01, &unit.a_11, &unit.a_far};
-      *v[p] = 1.0;
-      basis[p] = MakeBoundaryShiftKernel(unit);
+      if (parameter_channels[p] >= 0) basis[p] = MakeBoundaryShiftDerivativeKernel(params, p);
     }
   }
   // S(Q): the rate of moves at charge Q (the line densities are the incident light's, fixed).

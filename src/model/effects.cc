@@ -67,7 +67,8 @@ EffectParameterInfo Param(const std::string& name, const std::string& unit, doub
 //   coefficients sit at the lower end: a_10 = 1.5e-7, a_01 = 2e-7 (the parallel boundaries,
 //   made by clock barriers, move more than the serial ones, made by channel stops), a_11 =
 //   6e-8, a_far = 1.5e-8, so that a_00 = -1.2e-6 and flats at 1.5e5 e- lose ~17 % of their
-//   Poisson variance. The priors reach about 5x these.
+//   Poisson variance. The priors reach about 5x these. anisotropy: 0 (the potential field);
+//   the prior [-0.6, 0.6] lets one kind of boundary yield 4x as much as the other.
 std::vector<EffectInfo> MakeCatalogue() {
   const DefocusEffectParams defocus;
   const BrighterFatterParams bf;
@@ -261,20 +262,25 @@ std::vector<EffectInfo> MakeCatalogue() {
               "area gain of the diagonal pixel per electron", 3.0e-8, true),
         Param("a_far", "1/e-", shift.a_far, 0.0, 1.5e-7, -1.0e-4, false, 1.0e-4, false,
               "area gain at lag distance 2 per electron, falling as (2/r)^3 to lag 5", 1.0e-8,
-              true)},
-       {{1.0e-7, 1.0e-7, 3.0e-8, 1.0e-8}, {3.0e-7, 3.0e-7, 1.0e-7, 3.0e-8}},
+              true),
+        Param("anisotropy", "", shift.anisotropy, -0.6, 0.6, -1.0, true, 1.0, true,
+              "column boundaries yield (1 + eta), row boundaries (1 - eta); moves no area",
+              0.0, false)},
+       {{1.0e-7, 1.0e-7, 3.0e-8, 1.0e-8, 0.0}, {3.0e-7, 3.0e-7, 1.0e-7, 3.0e-8, 0.0}},
        "",
        [](const ExposureEffects& e) { return e.boundary_shift.has_value(); },
        [](const ExposureEffects& e) {
          return std::vector<double>{e.boundary_shift->a_10, e.boundary_shift->a_01,
-                                    e.boundary_shift->a_11, e.boundary_shift->a_far};
+                                    e.boundary_shift->a_11, e.boundary_shift->a_far,
+                                    e.boundary_shift->anisotropy};
        },
        [](const double* v, ExposureEffects* e) {
-         e->boundary_shift = BoundaryShiftParams{v[0], v[1], v[2], v[3]};
+         e->boundary_shift = BoundaryShiftParams{v[0], v[1], v[2], v[3], v[4]};
        }});
   for (size_t i = 0; i < c.size(); ++i) {
     // DescribeEffect indexes the catalogue by kind.
     CHECK_EQ(static_cast<int>(c[i].kind), static_cast<int>(i)) << c[i].name;
+    CHECK_LE(static_cast<int>(c[i].parameters.size()), kMaxEffectParameters) << c[i].name;
     for (const std::vector<double>& start : c[i].search_starts) {
       CHECK_EQ(start.size(), c[i].parameters.size()) << c[i].name;
     }

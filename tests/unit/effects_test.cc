@@ -143,7 +143,7 @@ TEST(Effects, CatalogueDefaultsPriorsAndDomainsAgree) {
         break;
       case EffectKind::kBoundaryShift: {
         const BoundaryShiftParams b;
-        want = {b.a_10, b.a_01, b.a_11, b.a_far};
+        want = {b.a_10, b.a_01, b.a_11, b.a_far, b.anisotropy};
         break;
       }
       case EffectKind::kDefocus: break;

@@ -26,6 +26,23 @@
 // outward moves of pixel (i, j)'s four sides then add up to exactly a_ij. K is linear in the
 // coefficients, so each coefficient's K (and Dx, Dy) is computed once (Basis()).
 //
+// Stiffness. The areas do not fix the shifts: a pattern of shifts without divergence moves
+// boundaries without changing any area, so flats cannot see it, while a spot, whose light
+// crosses the boundaries, does. A CCD makes its column boundaries with channel stops and its
+// row boundaries with gate potentials, which yield differently to the same field: a field
+// E = -grad phi moves them by s_x d phi / dx and s_y d phi / dy. With s_x = 1 + eta and
+// s_y = 1 - eta (eta = `anisotropy`, dimensionless) and the areas kept at a_ij, K solves
+//   (1 + eta) dxx K + (1 - eta) dyy K = a,  Dx = (1 + eta) dx+ K,  Dy = (1 - eta) dy+ K,
+// and the model keeps this to first order in eta:
+//   Dx = Dx0 + eta Ex,  Dy = Dy0 + eta Ey,  (Ex, Ey) = (dx+ (K0 + K1), dy+ (-K0 + K1)),
+//   K1 = -lap^-1 (dxx - dyy) K0,
+// whose divergence is exactly 0 for every eta: the areas stay a_ij, the sum rule holds, and
+// flats (C_ij = a_ij mu^2) are unchanged. eta = 0 is the potential field above; a sensor whose
+// column boundaries yield 0.78 times as much as its rows (B_x / B_y of the reference sensor) has
+// eta = (0.78 - 1) / (0.78 + 1) = -0.12, where the second-order term is ~eta^2 = 1.5 % of the
+// shifts. Spots measure eta only together with the areas; with the flats' a_ij as a prior
+// (`--ptc`) the spots measure it well.
+//
 // The charge arrives during the exposure, so the first electrons see the undistorted pixels
 // and the last the full distortion. With a constant illumination the charge collected by time
 // t is (t / T) of the final charge Q, the shifts grow in proportion, and to first order in
@@ -63,19 +80,26 @@ struct BoundaryShiftParams {
   double a_01 = 2.0e-7;   // [1/e-] ... one row over (parallel boundaries)
   double a_11 = 6.0e-8;   // [1/e-] ... diagonal
   double a_far = 1.5e-8;  // [1/e-] at lag distance 2, falling as (2 / r)^kFarExponent
+  double anisotropy = 0.0;  // eta: column boundaries yield (1 + eta), rows (1 - eta) (above)
 };
-constexpr int kNumBoundaryShiftParams = 4;  // a_10, a_01, a_11, a_far: the order of every vector
+// a_10, a_01, a_11, a_far, anisotropy: the order of every vector. The first
+// kNumBoundaryShiftCoefficients are the area coefficients.
+constexpr int kNumBoundaryShiftParams = 5;
+constexpr int kNumBoundaryShiftCoefficients = 4;
+constexpr int kBoundaryShiftAnisotropy = 4;  // the index of anisotropy
 
 // The coefficients of `p` as an array of values in parameter order.
 std::array<double, kNumBoundaryShiftParams> BoundaryShiftValues(const BoundaryShiftParams& p);
 
-// a_ij of one parameter at unit value (its lag pattern, a_00 included by the sum rule) and of
-// a parameter set; lag (i, j) with |i|, |j| <= kBoundaryShiftLagRange.
+// a_ij of one parameter at unit value (its lag pattern, a_00 included by the sum rule; 0 for
+// the anisotropy, which changes no area) and of a parameter set; lag (i, j) with |i|, |j| <=
+// kBoundaryShiftLagRange.
 double BoundaryShiftBasisCoefficient(int parameter, int i, int j);
 double BoundaryShiftCoefficient(const BoundaryShiftParams& p, int i, int j);
 
-// The boundary shifts per electron of each parameter at unit value: Dx(p, i, j) and
-// Dy(p, i, j) for |i|, |j| <= kBoundaryShiftReach (0 beyond), from K solved once per process
+// The boundary shifts per electron of each area coefficient at unit value: Dx(p, i, j) and
+// Dy(p, i, j) (the potential field), and its anisotropy pattern Ex(p, i, j), Ey(p, i, j) (the
+// shifts per unit eta), for |i|, |j| <= kBoundaryShiftReach (0 beyond), from K solved once per process
 // on a 128 x 128 periodic lattice (the images of a charge-neutral pattern 128 px away change
 // the shifts by < 1e-6 of the nearest one).
 class BoundaryShiftBasis {
@@ -84,6 +108,8 @@ class BoundaryShiftBasis {
   static constexpr int kSide = 2 * kBoundaryShiftReach + 1;
   double Dx(int parameter, int i, int j) const { return At(dx_, parameter, i, j); }
   double Dy(int parameter, int i, int j) const { return At(dy_, parameter, i, j); }
+  double Ex(int parameter, int i, int j) const { return At(ex_, parameter, i, j); }
+  double Ey(int parameter, int i, int j) const { return At(ey_, parameter, i, j); }
 
  private:
   BoundaryShiftBasis();
@@ -95,10 +121,12 @@ class BoundaryShiftBasis {
     return table[(static_cast<size_t>(parameter) * kSide + (j + kBoundaryShiftReach)) * kSide +
                  (i + kBoundaryShiftReach)];
   }
-  std::vector<double> dx_, dy_;  // [parameter][j][i]
+  std::vector<double> dx_, dy_, ex_, ey_;  // [coefficient][j][i]
 };
 
-// The shift kernels of a parameter set: Dx(i, j) = sum_p value_p Dx(p, i, j), likewise Dy.
+// The shift kernels of a parameter set: Dx(i, j) = sum_p a_p (Dx(p, i, j) + eta Ex(p, i, j)),
+// likewise Dy; and their derivatives by parameter `parameter` (the kernel of a unit a_p at
+// the set's eta, or sum_p a_p Ex(p, i, j) for eta).
 struct BoundaryShiftKernel {
   std::vector<double> dx, dy;  // [j + reach][i + reach], kSide x kSide
   double Dx(int i, int j) const { return Get(dx, i, j); }
@@ -112,6 +140,7 @@ struct BoundaryShiftKernel {
   }
 };
 BoundaryShiftKernel MakeBoundaryShiftKernel(const BoundaryShiftParams& p);
+BoundaryShiftKernel MakeBoundaryShiftDerivativeKernel(const BoundaryShiftParams& p, int parameter);
 
 // The pixels whose charge moves boundaries, and whose boundaries move, in a render: a square
 // of side 2 kBoundaryShiftWindowHalf + 1 around the spot, clipped to the image (pixel indices,

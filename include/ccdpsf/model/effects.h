@@ -386,7 +386,7 @@ struct DualImage {
 
 // Which derivative channel (1 .. num_derivatives) receives the derivative with respect to
 // parameter p (EffectParameters order) of an effect; -1 (the default) when none does.
-constexpr int kMaxEffectParameters = 4;
+constexpr int kMaxEffectParameters = 5;  // boundary_shift's (MakeCatalogue checks every entry)
 class EffectChannels {
  public:
   EffectChannels();
@@ -420,8 +420,8 @@ void AddBackground(const BackgroundParams& background, const EffectChannels& cha
 // the (nx + 1) x ny boundaries x = x0 - 1/2 + b (b = 0 .. nx) of each row, `density_y` along
 // the nx x (ny + 1) boundaries y = y0 - 1/2 + b, both with the image's derivative channels
 // (SpotRenderer::RenderBoundaryDensity on the grid grown by one pixel below). Only the charge
-// and the boundaries of `window` take part. The derivatives by a_10, a_01, a_11, a_far go to
-// the channels EffectChannels names for kBoundaryShift.
+// and the boundaries of `window` take part. The derivatives by a_10, a_01, a_11, a_far and
+// anisotropy go to the channels EffectChannels names for kBoundaryShift.
 void ApplyBoundaryShift(const BoundaryShiftParams& params, const DualImage& density_x,
                         const DualImage& density_y, const PixelWindow& window,
                         const EffectChannels& channels, DualImage* image);
