@@ -17,8 +17,7 @@ bool WriteIntensityPlot(const std::string& dir, const std::string& stem,
   const int first = points.ccd_identified ? 0 : 2;
   const char* kind = points.ccd_identified ? "CCD kernel width" : "total width sqrt(defocus^2 + sigma^2)";
   XyPlotInput in;
-  in.title = std::string("widths against signal (") + points.effect +
-             "): predicted by the joint fit, each exposure alone, the intrinsic width";
+  in.title = std::string("widths against signal (") + points.effect + ")";
   in.x_label = "peak pixel [e-]";
   in.y_label = std::string(kind) + " [px]";
   in.dodge_fraction = 0.005;
