@@ -101,9 +101,10 @@ TEST(BoundaryShiftTrend, GivesTheAffectedAndTheIntrinsicRelations) {
     EXPECT_GT(affected["slope"]["lo68"].get<double>(), 0.0) << affected["slope"];
     EXPECT_LE(std::fabs(intrinsic["slope"]["lo68"].get<double>()), 1e-15) << intrinsic["slope"];
     EXPECT_LE(std::fabs(intrinsic["slope"]["hi68"].get<double>()), 1e-15) << intrinsic["slope"];
-    // At zero signal the two relations meet: the affected intercept (its line's value at I =
-    // 0) within its 95 % interval of the intrinsic one, a line through points that bend
-    // slightly upward (Delta var has a small second-order term) aside.
+    // At zero signal the affected kernel is the intrinsic one, but sqrt(sigma^2 + k I) is
+    // concave, so the straight line through the settings meets I = 0 above it (8.77 against
+    // 8.28 um in FWHM x when measured): the check is only that the intrinsic value lies within
+    // the affected intercept's 95 % interval, widened by 1 %.
     const double zero = intrinsic["intercept"]["median"].get<double>();
     EXPECT_LE(affected["intercept"]["lo95"].get<double>(), zero + 0.01 * zero);
     EXPECT_GE(affected["intercept"]["hi95"].get<double>(), zero - 0.01 * zero);
