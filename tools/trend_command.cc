@@ -89,17 +89,10 @@ int RunTrend(const std::vector<std::string>& inputs) {
     return Fail("--group_plots must be all, flagged or none (got \"" + FLAGS_group_plots + "\")");
   }
   if (!ResolveFitConfig(&fit_options.config, &error)) return Fail(error);
-  // A setting at one intensity cannot fit the brighter-fatter slope (it is exactly a change
-  // of the CCD widths there): it goes to the intensity series (intensity_series.h).
-  std::vector<fit::FitEffect>& effects = fit_options.config.model.effects;
-  for (auto it = effects.begin(); it != effects.end();) {
-    if (it->kind == model::EffectKind::kBrighterFatter) {
-      fit_options.intensity_series_effects.push_back(*it);
-      it = effects.erase(it);
-    } else {
-      ++it;
-    }
-  }
+  // A setting at one intensity cannot fit a signal-dependent effect: it goes to the intensity
+  // series (intensity_series.h).
+  fit_options.intensity_series_effects =
+      trend::TakeIntensitySeriesEffects(&fit_options.config.model.effects);
   fit_options.seed = fit_options.config.fit.mcmc.seed;
   fit_options.flux_given = fit_options.config.flux_given;
   // --threads (or FIT.json's mcmc.threads): groups fitted at a time, each MCMC as many.
@@ -108,6 +101,10 @@ int RunTrend(const std::vector<std::string>& inputs) {
 
   trend::TrendOptions trend_options;
   trend_options.reference_intensity_e = FLAGS_reference_intensity_e;
+  if (!fit_options.intensity_series_effects.empty()) {
+    trend_options.intensity_series_effect =
+        model::ToString(fit_options.intensity_series_effects.front().kind);
+  }
   trend_options.relation.seed = fit_options.seed;
   const nlohmann::json& config_flags = fit_options.config.flags;
   if (!FlagGiven("requirements") && config_flags.contains("requirements")) {
@@ -145,7 +142,8 @@ int RunTrend(const std::vector<std::string>& inputs) {
         trend::IntensitySeries(groups, !fit::CcdSplitUnidentified(fit_options.config.model));
     if (series.empty()) {
       return Fail(
-          "brighter_fatter needs an intensity series: two or more through-focus "
+          model::ToString(fit_options.intensity_series_effects.front().kind) +
+          " needs an intensity series: two or more through-focus "
           "series at one wavelength, or two or more single-focus settings at one "
           "wavelength and stage position (FOCUSPOS; without one only where one focus "
           "identifies the CCD widths: pillbox defocus or pixel_centre sampling)");
@@ -283,8 +281,8 @@ Command TrendCommand() {
        "Effects of the catalogue fitted with every group's spot, comma-separated (serial_cti, "
        "parallel_cti, brighter_fatter, ipc, background, nonlinearity, halo; `ccdpsf effects` "
        "lists them), with the catalogue's priors (FIT.json \"effects\" sets others); "
-       "brighter_fatter is fitted by an intensity series per wavelength, every other setting "
-       "without it (docs/trust.md)"},
+       "brighter_fatter and boundary_shift are fitted by an intensity series per wavelength, "
+       "every other setting without them (docs/trust.md)"},
       {"requirements", "",
        "JSON list of requirements (not given: the Euclid VIS ones: FWHM <= 10.8 um and e <= "
        "0.156 at 800 nm and I0, alpha of FWHM(lambda) <= -0.2)"},

@@ -425,6 +425,7 @@ bool FitExposures(const std::vector<Exposure>& exposures, const Quality& set_qua
   }
   AssessFit(*model, out->result, options.quality, &out->quality);
   out->focus_points = FitEachFocusPosition(*model, options.config.fit.map);
+  out->intensity_points = MeasureIntensityPoints(*model, out->result, options.config.fit.map);
   out->model = std::move(model);
   return true;
 }

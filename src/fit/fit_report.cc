@@ -10,6 +10,7 @@
 #include "ccdpsf/atomic_file.h"
 #include "ccdpsf/column_units.h"
 #include "ccdpsf/fit/focus_plot.h"
+#include "ccdpsf/fit/intensity_plot.h"
 #include "ccdpsf/fits_io.h"
 #include "ccdpsf/plot.h"
 #include "ccdpsf/provenance.h"
@@ -27,6 +28,43 @@ json SummaryJson(const Summary& s) {
   return {{"map", Num(s.map)},       {"laplace_sd", Num(s.laplace_sd)}, {"median", Num(s.median)},
           {"lo68", Num(s.lo68)},     {"hi68", Num(s.hi68)},             {"lo997", Num(s.lo997)},
           {"hi997", Num(s.hi997)}};
+}
+
+// The intensity check's block (intensity_points.h): what the joint posterior predicts for
+// each exposure's widths at its signal, what the exposure alone measures, and the intrinsic
+// (zero-signal) widths.
+json IntensityWidthsJson(const IntensityPoints& ip) {
+  const char* names[4] = {"ccd_sigma_x_px", "ccd_sigma_y_px", "total_sigma_x_px",
+                          "total_sigma_y_px"};
+  auto predicted = [](const Summary& s) {
+    return json{{"map", Num(s.map)},
+                {"median", Num(s.median)},
+                {"lo68", Num(s.lo68)},
+                {"hi68", Num(s.hi68)}};
+  };
+  json intrinsic = json::object();
+  for (int i = 0; i < 4; ++i) intrinsic[names[i]] = SummaryJson(WidthAt(ip.intrinsic, i));
+  json exposures = json::array();
+  for (const IntensityPoint& p : ip.points) {
+    json e = {{"exposure", p.exposure}, {"peak_e", Num(p.peak_e)}};
+    json pr = json::object(), me = json::object();
+    for (int i = 0; i < 4; ++i) {
+      pr[names[i]] = predicted(WidthAt(p.predicted, i));
+      const Summary& m = WidthAt(p.measured, i);
+      me[names[i]] = {{"map", Num(m.map)}, {"laplace_sd", Num(m.laplace_sd)}};
+    }
+    if (ip.effect == "boundary_shift") {
+      pr["delta_var_x_px2"] = predicted(p.delta_var_x_px2);
+      pr["delta_var_y_px2"] = predicted(p.delta_var_y_px2);
+    }
+    e["predicted"] = pr;
+    e["measured"] = p.failure.empty() ? me : json{{"failure", p.failure}};
+    exposures.push_back(e);
+  }
+  return {{"effect", ip.effect},
+          {"compare", ip.ccd_identified ? "ccd" : "total"},
+          {"intrinsic", intrinsic},
+          {"exposures", exposures}};
 }
 
 // MAP/Laplace against MCMC: centres, widths (Laplace sd vs half the 68 % interval) and their
@@ -258,6 +296,9 @@ json FitJson(const ExposuresFit& fit) {
     exposures.push_back(e);
   }
   j["exposures"] = exposures;
+  if (!fit.intensity_points.effect.empty()) {
+    j["intensity_widths"] = IntensityWidthsJson(fit.intensity_points);
+  }
   return j;
 }
 
@@ -542,11 +583,68 @@ bool WriteFitReport(const std::string& out_dir, const ExposuresFit& fit, const j
     }
   }
 
+  // The intensity plot and section: predicted widths against each exposure alone.
+  bool intensity_plot = false;
+  if (!fit.intensity_points.effect.empty()) {
+    PlotResult intensity;
+    std::string why;
+    if (WriteIntensityPlot(out.staging_dir(), "intensity", fit.intensity_points, options.plot,
+                           &intensity, &why)) {
+      intensity_plot = true;
+      if (!intensity.image_written && options.plot.draw) {
+        warnings->push_back("intensity" + extension + " not made: " + intensity.message);
+      }
+    } else {
+      warnings->push_back("intensity" + extension + " not made: " + why);
+    }
+    const IntensityPoints& ip = fit.intensity_points;
+    const bool ccd = ip.ccd_identified;
+    const int first = ccd ? 0 : 2;
+    md << "## Widths against signal (" << ip.effect << ")\n\n"
+       << "The fitted CCD widths are the intrinsic kernel, the one at zero collected signal. Each "
+          "exposure's own charge widens it: "
+       << (ip.effect == "boundary_shift"
+               ? "predicted here as sqrt(sigma^2 + Delta var), Delta var the change of the "
+                 "exposure's second central moment that the boundary shifts make (the image "
+                 "drawn with and without them at the fitted parameters; docs/conventions.md, "
+                 "boundary shifts)"
+               : "predicted here as sigma_0 + b x the exposure's peak pixel (the paper's "
+                 "empirical law)")
+       << ", and measured by fitting the exposure alone without the effect (MAP +- Laplace sd). "
+       << (ccd ? "CCD widths"
+               : "Total widths sqrt(defocus^2 + sigma^2) (at one focus with a Gaussian defocus "
+                 "only these are identified)")
+       << " [px]; predicted as posterior median [68 %] ("
+       << (r.have_mcmc ? "MCMC" : "no MCMC: the MAP") << ").\n\n";
+    const Summary& ix = WidthAt(ip.intrinsic, first);
+    const Summary& iy = WidthAt(ip.intrinsic, first + 1);
+    auto centre = [](const Summary& s) { return std::isfinite(s.median) ? s.median : s.map; };
+    md << "Intrinsic (zero signal): x " << Fmt(centre(ix), 4) << " [" << Fmt(ix.lo68, 4) << ", "
+       << Fmt(ix.hi68, 4) << "], y " << Fmt(centre(iy), 4) << " [" << Fmt(iy.lo68, 4) << ", "
+       << Fmt(iy.hi68, 4) << "] px.\n\n"
+       << "| exposure | peak [e-] | predicted x | measured x | predicted y | measured y |\n"
+       << "|---|---|---|---|---|---|\n";
+    for (const IntensityPoint& p : ip.points) {
+      md << "| " << p.exposure << " | " << Fmt(p.peak_e, 4);
+      for (int a = 0; a < 2; ++a) {
+        const Summary& pr = WidthAt(p.predicted, first + a);
+        const Summary& me = WidthAt(p.measured, first + a);
+        md << " | " << Fmt(centre(pr), 4);
+        if (std::isfinite(pr.lo68)) md << " [" << Fmt(pr.lo68, 4) << ", " << Fmt(pr.hi68, 4) << "]";
+        md << " | " << (p.failure.empty() ? Fmt(me.map, 4) + " +- " + Fmt(me.laplace_sd, 2)
+                                          : std::string("failed"));
+      }
+      md << " |\n";
+    }
+    md << "\n";
+  }
+
   md << "## Plots\n\n";
   if (!options.plot.draw) {
     md << "The pictures were not drawn (" << options.plot_reason
        << "). Their data and gnuplot scripts are in this folder: `gnuplot residuals.gp`"
        << (r.have_mcmc ? ", `gnuplot corner.gp`" : "") << (focus_plot ? ", `gnuplot focus.gp`" : "")
+       << (intensity_plot ? ", `gnuplot intensity.gp`" : "")
        << " there make them"
        << (options.plot.format == PlotFormat::kPng
                ? ""
@@ -571,6 +669,14 @@ bool WriteFitReport(const std::string& out_dir, const ExposuresFit& fit, const j
        << " beside each exposure fitted alone (MAP +- Laplace sd; free of the law)"
        << (focus_truth ? ", true widths in black" : "") << ".\n\n![focus](focus" << extension
        << ")\n\n";
+  }
+  if (intensity_plot) {
+    md << "Widths against signal: the predicted width (the brightest exposure's spot with its "
+          "flux scaled; "
+       << (r.have_mcmc ? "posterior median and 68 % band" : "at the MAP")
+       << "), each exposure fitted alone without the effect (MAP +- Laplace sd) and the "
+          "intrinsic width at zero signal.\n\n![intensity](intensity"
+       << extension << ")\n\n";
   }
   if (options.truth) {
     md << "Truth file: " << options.truth->path << " ("

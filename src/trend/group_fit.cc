@@ -69,7 +69,11 @@ GroupResult FitOne(const CampaignGroup& group, int position, int index, const st
                               "sharing the CCD kernel and the focus law"
                             : "the single-focus settings at this wavelength and stage "
                               "position fitted jointly, sharing the CCD kernel and the defocus") +
-        ", with the brighter-fatter slope: the CCD-only intensity relations are this fit's");
+        ", with " +
+        (options.intensity_series_effects.empty()
+             ? std::string("no signal-dependent effect")
+             : model::ToString(options.intensity_series_effects.front().kind)) +
+        ": the CCD-only intensity relations are this fit's");
   }
   if (group.defocus_anchor && !group.focus_series) {
     // defocus_anchor.h: the series' 99.73 % interval of the defocus at this stage position.

@@ -16,7 +16,9 @@ namespace {
 
 using nlohmann::json;
 
-constexpr int kFormat = 4;
+// 5: an intensity series' draws hold the intrinsic kernel too (SettingIntrinsicDrawKey), and
+// its affected kernel with boundary_shift: a store of an earlier format is refitted.
+constexpr int kFormat = 5;
 
 uint64_t Hash(const std::string& text) {
   internal::Fnv1a h;

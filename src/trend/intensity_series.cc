@@ -7,6 +7,7 @@
 #include <set>
 #include <utility>
 
+#include "ccdpsf/fit/affected_widths.h"
 #include "ccdpsf/metrics.h"
 #include "ccdpsf/trend/relations.h"
 #include "internal/text.h"
@@ -43,6 +44,20 @@ CampaignGroup Series(const std::vector<const CampaignGroup*>& members, bool thro
 }
 
 }  // namespace
+
+std::vector<fit::FitEffect> TakeIntensitySeriesEffects(std::vector<fit::FitEffect>* effects) {
+  std::vector<fit::FitEffect> taken;
+  for (auto it = effects->begin(); it != effects->end();) {
+    if (it->kind == model::EffectKind::kBrighterFatter ||
+        it->kind == model::EffectKind::kBoundaryShift) {
+      taken.push_back(*it);
+      it = effects->erase(it);
+    } else {
+      ++it;
+    }
+  }
+  return taken;
+}
 
 std::vector<CampaignGroup> IntensitySeries(const std::vector<CampaignGroup>& groups,
                                            bool one_focus_identifies) {
@@ -107,6 +122,10 @@ std::string SettingDrawKey(const std::string& setting, const std::string& metric
   return metric + "@" + setting;
 }
 
+std::string SettingIntrinsicDrawKey(const std::string& setting, const std::string& metric) {
+  return "intrinsic:" + metric + "@" + setting;
+}
+
 bool SettingKernelDraws(const fit::FitModel& model, const fit::FitResult& result,
                         const std::vector<std::string>& settings,
                         const std::vector<std::string>& focus_series, int num_draws,
@@ -148,23 +167,29 @@ bool SettingKernelDraws(const fit::FitModel& model, const fit::FitResult& result
       // The setting's widths: the mean over its exposures (one intensity, nearly one width).
       double sx = 0.0, sy = 0.0;
       for (int k : exposures) {
-        double x, y;
-        if (!evaluator->KernelWidths(theta, k, &x, &y)) {
+        fit::AffectedWidths w;
+        if (!fit::AffectedKernelWidths(model, evaluator.get(), theta, k, &w)) {
           *error = "a chain state's spot of exposure " + std::to_string(k) + " cannot be drawn";
           return false;
         }
-        sx += x / exposures.size();
-        sy += y / exposures.size();
+        sx += w.ccd_sigma_x_px / exposures.size();
+        sy += w.ccd_sigma_y_px / exposures.size();
       }
-      const PsfMetrics m = GaussianMetrics(sx, sy, pixel_um);
-      const std::map<std::string, double> values = {{"fwhm_um", m.fwhm_um},
-                                                    {"fwhm_x_um", m.fwhm_x_um},
-                                                    {"fwhm_y_um", m.fwhm_y_um},
-                                                    {"r2_px2", m.r2_px2},
-                                                    {"ellipticity", m.ellipticity}};
+      const PsfMetrics affected = GaussianMetrics(sx, sy, pixel_um);
+      const PsfMetrics intrinsic =
+          GaussianMetrics(theta[fit::kCcdSigmaXPx], theta[fit::kCcdSigmaYPx], pixel_um);
+      auto values = [](const PsfMetrics& m) {
+        return std::map<std::string, double>{{"fwhm_um", m.fwhm_um},
+                                             {"fwhm_x_um", m.fwhm_x_um},
+                                             {"fwhm_y_um", m.fwhm_y_um},
+                                             {"r2_px2", m.r2_px2},
+                                             {"ellipticity", m.ellipticity}};
+      };
+      const std::map<std::string, double> at_signal = values(affected), at_zero = values(intrinsic);
       for (const std::string& metric : TrendMetricNames()) {
         if (!IsCcdOnlyMetric(metric)) continue;
-        (*draws)[SettingDrawKey(setting, metric)].push_back(values.at(metric));
+        (*draws)[SettingDrawKey(setting, metric)].push_back(at_signal.at(metric));
+        (*draws)[SettingIntrinsicDrawKey(setting, metric)].push_back(at_zero.at(metric));
       }
     }
   }

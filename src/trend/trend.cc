@@ -142,7 +142,7 @@ const GroupResult* NearestReference(const std::vector<const GroupResult*>& list,
 // series that holds it (intensity_series.h): the series' draws at the setting, at the
 // setting's own intensity, resampled jointly with the series' other points.
 RelationPoint SeriesPoint(const GroupResult& series, const std::string& label, double abscissa,
-                          const std::string& metric) {
+                          const std::string& metric, bool intrinsic = false) {
   if (!series.ok) {
     return RelationPoint::Missing(label, abscissa,
                                   "its intensity series failed: " + series.failure);
@@ -158,7 +158,8 @@ RelationPoint SeriesPoint(const GroupResult& series, const std::string& label, d
         "CCD widths not identified: the intensity series is at one focus with a Gaussian "
         "defocus and no through-focus series anchors it (docs/trust.md)");
   }
-  auto draws = series.draws.find(SettingDrawKey(label, metric));
+  auto draws = series.draws.find(intrinsic ? SettingIntrinsicDrawKey(label, metric)
+                                           : SettingDrawKey(label, metric));
   if (draws == series.draws.end()) {
     return RelationPoint::Missing(label, abscissa, "no draws of its intensity series (MCMC off)");
   }
@@ -223,6 +224,7 @@ bool ComputeTrend(std::vector<GroupResult> groups, const TrendOptions& options,
     main_wavelength = options.reference_wavelength_nm;
   }
   result->intensity_wavelength_nm = main_wavelength;
+  result->intensity_series_effect = options.intensity_series_effect;
   for (const auto& [wavelength, all_here] : by_wavelength) {
     const bool main = wavelength == main_wavelength;
     for (const std::string& metric : metrics) {
@@ -243,6 +245,24 @@ bool ComputeTrend(std::vector<GroupResult> groups, const TrendOptions& options,
       auto fit = FitRelation(RelationKind::kLinear, points, options.relation, error);
       if (!fit) return false;
       const std::string name = RelationName(metric, RelationKind::kLinear);
+      if (main && !members.empty()) {
+        // The intrinsic kernel's relation: the same settings, their points the series' kernel
+        // at zero signal (settings outside the series have no intrinsic kernel: gaps).
+        std::vector<RelationPoint> intrinsic;
+        for (const GroupResult* g : list) {
+          const bool in_series =
+              std::find(members.begin(), members.end(), g->group.name) != members.end();
+          intrinsic.push_back(
+              in_series ? SeriesPoint(*series->second, g->group.name, NominalOrMeasuredPeak(*g),
+                                      metric, true)
+                        : RelationPoint::Missing(g->group.name, NominalOrMeasuredPeak(*g),
+                                                 "not in the intensity series: its fit has no "
+                                                 "kernel at zero signal"));
+        }
+        auto zero = FitRelation(RelationKind::kLinear, intrinsic, options.relation, error);
+        if (!zero) return false;
+        result->relations_intrinsic[name] = std::move(*zero);
+      }
       if (main) {
         result->relations[name] = std::move(*fit);
       } else {

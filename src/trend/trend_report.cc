@@ -338,6 +338,28 @@ json TrendJson(const TrendResult& r, const std::string& out_dir) {
   j["relations"] = json::object();
   for (const auto& [name, fit] : r.relations) j["relations"][name] = ToJson(fit);
   j["intensity_relations_wavelength_nm"] = Number(r.intensity_wavelength_nm);
+  // With intensity series (intensity_series.h): the intrinsic kernel's relations, and what
+  // the CCD-only relations in "relations" are.
+  j["relations_intrinsic"] = json::object();
+  for (const auto& [name, fit] : r.relations_intrinsic) j["relations_intrinsic"][name] = ToJson(fit);
+  if (r.intensity_series_effect.empty()) {
+    j["intensity_kernel"] = nullptr;
+  } else {
+    const bool paper = r.intensity_series_effect == "brighter_fatter";
+    j["intensity_kernel"] = {
+        {"effect", r.intensity_series_effect},
+        {"relations", paper ? "paper" : "boundary_shift_affected"},
+        {"description",
+         paper ? "relations.<CCD-only metric>_vs_intensity are the paper's relation: the kernel "
+                 "sigma_0 + b I (its empirical brighter-fatter law) at each setting's "
+                 "intensity; relations_intrinsic.<metric>_vs_intensity the kernel at zero "
+                 "signal, sigma_0"
+               : "relations.<CCD-only metric>_vs_intensity are the brighter-fatter-affected "
+                 "kernel at each setting's intensity (sqrt(sigma^2 + Delta var), Delta var the "
+                 "change of the second central moment the boundary shifts make; "
+                 "docs/conventions.md); relations_intrinsic.<metric>_vs_intensity the kernel "
+                 "at zero signal"}};
+  }
   j["intensity_relations_by_wavelength"] = json::object();
   for (const auto& [wavelength, fits] : r.intensity_by_wavelength) {
     json w = json::object();
@@ -537,6 +559,25 @@ bool WriteTrendReport(const std::string& out_dir, const TrendResult& r, const js
       md << ")\n";
     }
   }
+  if (!r.relations_intrinsic.empty()) {
+    md << "\nThe CCD-only intensity relations above are the "
+       << (r.intensity_series_effect == "brighter_fatter"
+               ? "paper's relation (the kernel sigma_0 + b I of its empirical brighter-fatter "
+                 "law at each setting's intensity)"
+               : "brighter-fatter-affected kernel at each setting's intensity (boundary "
+                 "shifts; sqrt(sigma^2 + Delta var), docs/conventions.md)")
+       << ". The intrinsic kernel (at zero signal, shared by the series' settings: its slope "
+          "is 0 by the model's construction), trend.json's relations_intrinsic:\n\n"
+       << "| relation | intercept | slope | value at pivot |\n|---|---|---|---|\n";
+    for (const auto& [name, fit] : r.relations_intrinsic) {
+      const Coefficient* intercept = fit.Find("intercept");
+      const Coefficient* slope = fit.Find("slope");
+      const Coefficient* pivot = fit.Find("value_at_pivot");
+      md << "| " << name << " | " << (intercept ? Interval(intercept->estimate) : "-") << " | "
+         << (slope ? Interval(slope->estimate) : "-") << " | "
+         << (pivot ? Interval(pivot->estimate) : "-") << " |\n";
+    }
+  }
   if (!r.intensity_by_wavelength.empty()) {
     md << "\nIntensity relations at other wavelengths (FWHM):\n\n";
     for (const auto& [wavelength, fits] : r.intensity_by_wavelength) {
@@ -624,15 +665,23 @@ bool WriteTrendReport(const std::string& out_dir, const TrendResult& r, const js
   for (const GroupResult& g : r.groups)
     any_series = any_series || (g.ok && g.group.intensity_series);
   if (any_series) {
+    const bool shift = r.intensity_series_effect == "boundary_shift";
     md << "\n## Intensity series (brighter-fatter)\n\n"
-          "The settings of one wavelength fitted jointly with the brighter-fatter slope "
-          "(docs/trust.md, the brighter-fatter slope in a campaign): the CCD kernel at zero "
-          "signal, sigma(I) = sigma_0 + b I with I the peak pixel before the growth. The "
-          "CCD-only intensity relations above are its settings' kernels at their measured "
-          "peaks:\n\n"
-          "| group | nm | settings | sigma_0 x px | sigma_0 y px | b_x px/e- | b_y px/e- | "
-          "chi2/dof | MCMC |\n"
-          "|---|---|---|---|---|---|---|---|---|\n";
+       << (shift ? "The settings of one wavelength fitted jointly with the boundary shifts "
+                   "(a_ij [1/e-]; docs/conventions.md): the CCD kernel at zero signal sigma_0, "
+                   "widened at each setting's signal by the charge it collects. The CCD-only "
+                   "intensity relations above are its settings' affected kernels at their "
+                   "measured peaks:\n\n"
+                   "| group | nm | settings | sigma_0 x px | sigma_0 y px | a_10 1/e- | a_01 1/e- | "
+                   "chi2/dof | MCMC |\n"
+                 : "The settings of one wavelength fitted jointly with the brighter-fatter slope "
+                   "(docs/trust.md, the brighter-fatter slope in a campaign): the CCD kernel at "
+                   "zero signal, sigma(I) = sigma_0 + b I with I the peak pixel before the "
+                   "growth. The CCD-only intensity relations above are its settings' kernels at "
+                   "their measured peaks:\n\n"
+                   "| group | nm | settings | sigma_0 x px | sigma_0 y px | b_x px/e- | b_y px/e- | "
+                   "chi2/dof | MCMC |\n")
+       << "|---|---|---|---|---|---|---|---|---|\n";
     for (const GroupResult& g : r.groups) {
       if (!g.ok || !g.group.intensity_series) continue;
       auto metric = [&](const std::string& m) {
@@ -642,8 +691,9 @@ bool WriteTrendReport(const std::string& out_dir, const TrendResult& r, const js
       const std::vector<std::string> settings = SeriesMembers(g.group);
       md << "| " << g.group.name << " | " << Fmt(g.group.wavelength_nm) << " | " << settings.size()
          << " | " << metric("ccd_sigma_x_px") << " | " << metric("ccd_sigma_y_px") << " | "
-         << metric("brighter_fatter.slope_x_px_per_e") << " | "
-         << metric("brighter_fatter.slope_y_px_per_e") << " | " << Fmt(g.chi2_per_dof, 3) << " | "
+         << metric(shift ? "boundary_shift.a_10" : "brighter_fatter.slope_x_px_per_e") << " | "
+         << metric(shift ? "boundary_shift.a_01" : "brighter_fatter.slope_y_px_per_e") << " | "
+         << Fmt(g.chi2_per_dof, 3) << " | "
          << (!g.mcmc_ran   ? "not run"
              : g.converged ? "converged"
                            : "NOT converged")

@@ -8,7 +8,10 @@
 //   4. the verdict (quality.h): calibration's and the set checks' findings, the masking's,
 //      and the fit's own (fit_quality.h);
 //   5. for a through-focus series, each exposure fitted alone (focus_points.h), the points the
-//      report's through-focus plot sets beside the fitted law.
+//      report's through-focus plot sets beside the fitted law;
+//   6. for a joint fit with brighter_fatter or boundary_shift, each exposure's widths as the
+//      joint posterior predicts them at its signal and as it alone measures them
+//      (intensity_points.h), the points of the report's intensity plot.
 //
 // Outliers. A pixel is masked when its normalised residual |z| >= threshold_sd (8: a
 // Gaussian pixel goes there once in 10^15) and it is a transient or a spike, not part of a
@@ -44,6 +47,7 @@
 #include "ccdpsf/fit/fit_config.h"
 #include "ccdpsf/fit/fit_quality.h"
 #include "ccdpsf/fit/focus_points.h"
+#include "ccdpsf/fit/intensity_points.h"
 #include "ccdpsf/quality.h"
 
 namespace ccdpsf::fit {
@@ -81,6 +85,7 @@ struct ExposuresFit {
   Quality quality;                  // the verdict
   std::vector<std::string> notes;   // choices made from the data, for the terminal and report
   std::vector<FocusPoint> focus_points;  // step 5; empty unless through-focus
+  IntensityPoints intensity_points;      // step 6; effect "" unless it applies
 };
 
 // The flux model for a joint set, from the light outside each stamp's 3 x 3 core over the
@@ -92,7 +97,7 @@ struct ExposuresFit {
 // one exposure time and get one each otherwise. *why says what the data showed.
 FluxMode ChooseFluxMode(const std::vector<Stamp>& stamps, std::string* why);
 
-// Steps 1-4 above. `set_quality` holds the set checks' findings (exposure_set.h). False
+// Steps 1-6 above. `set_quality` holds the set checks' findings (exposure_set.h). False
 // with a one-line reason when the model cannot be built or no MAP is found.
 bool FitExposures(const std::vector<Exposure>& exposures, const Quality& set_quality,
                   const ExposuresFitOptions& options, ExposuresFit* out, std::string* error);

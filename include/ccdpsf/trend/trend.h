@@ -68,6 +68,9 @@ struct TrendOptions {
   bool correct_to_reference_intensity = true;
   RelationOptions relation;
   std::vector<Requirement> requirements = DefaultRequirements();
+  // The signal-dependent effect the intensity series were fitted with ("brighter_fatter",
+  // "boundary_shift"; "" without series): names what the CCD-only intensity relations are.
+  std::string intensity_series_effect;
 };
 
 struct TrendResult {
@@ -76,6 +79,10 @@ struct TrendResult {
   // intensity_wavelength_nm).
   std::map<std::string, RelationFit> relations;
   double intensity_wavelength_nm = NAN;
+  // With an intensity series at intensity_wavelength_nm: the CCD-only <metric>_vs_intensity
+  // relations of the intrinsic kernel (intensity_series.h), beside `relations`' affected ones.
+  std::map<std::string, RelationFit> relations_intrinsic;
+  std::string intensity_series_effect;  // TrendOptions::intensity_series_effect
   // Intensity relations at the other wavelengths with >= 2 settings: wavelength -> name -> fit.
   std::map<double, std::map<std::string, RelationFit>> intensity_by_wavelength;
   // The groups used for a wavelength relation of at least one metric, in wavelength order.
