@@ -4,7 +4,7 @@
 Each seed is one byte choosing the reader (the harness's enum Reader, in its order) and the
 text: a FIT.json, CSV and JSON manifests (rows and groups, a bad-pixel mask), the testdata
 simulation and campaign configs, a requirements list, keyword maps as text and as JSON, an
-effect list, IRAF sections, a truth file and a stored group result. Deterministic, standard
+effect list, IRAF sections, a truth file, a stored group result and a ptc.json (--ptc). Deterministic, standard
 library only:
     /usr/bin/python3 fuzz/make_text_corpus.py
 """
@@ -16,7 +16,7 @@ OUT = os.path.join(HERE, "text_corpus")
 TESTDATA = os.path.join(HERE, "..", "testdata")
 
 (FIT_CONFIG, MANIFEST_CSV, MANIFEST_JSON, SIMULATION, CAMPAIGN, REQUIREMENTS, KEYWORDS_TEXT,
- KEYWORDS_FILE, EFFECTS, SECTION, TRUTH, GROUP_RESULT) = range(12)
+ KEYWORDS_FILE, EFFECTS, SECTION, TRUTH, GROUP_RESULT, PTC_PRIOR) = range(13)
 
 
 def testdata(name):
@@ -59,6 +59,11 @@ a.fits,s800,1.5,2.0,mask.fits
  "failure": "", "exposures": 3, "seconds": 1.5, "summaries": {"sigma_x_px":
  [0.4, 0.01, 0.4, 0.39, 0.41, 0.37, 0.43]}, "draws": {"sigma_x_px": [0.4, "nan"]},
  "report_dir": "groups/g1"}"""),
+    "ptc.json": (PTC_PRIOR, """{"a": {"a_00": {"median": -1.2e-6, "sd": 5e-8},
+ "a_10": {"median": 1.5e-7, "sd": 2e-8}, "a_01": {"median": 2e-7, "sd": 2e-8},
+ "a_11": {"median": 6e-8, "sd": 1e-8}},
+ "a_covariance": {"names": ["a_00", "a_10", "a_01", "a_11"], "matrix": [[2.5e-15, 0, 0, 0],
+ [0, 4e-16, 1.2e-16, 0], [0, 1.2e-16, 4e-16, 0], [0, 0, 0, 1e-16]], "unit": "1/e-^2"}}"""),
 }
 
 

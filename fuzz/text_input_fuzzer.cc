@@ -1,6 +1,7 @@
 // libFuzzer harness for the text inputs: whatever bytes arrive as FIT.json, a manifest (CSV
 // or JSON), a simulation or campaign config, a requirements list, a keyword map, an effect
-// list, an IRAF section, a truth file or a stored group result must be parsed into a value
+// list, an IRAF section, a truth file, a stored group result or a ptc.json taken as a prior
+// (--ptc) must be parsed into a value
 // or refused with a one-line error, never crash, hang or allocate without bound. The first
 // byte chooses the reader; the rest is the text. Built with -DCCDPSF_FUZZ=ON (clang); see
 // the README's "Fuzzing" section for the runs, fuzz/text_corpus/ for the seeds and
@@ -21,6 +22,7 @@
 #include "ccdpsf/input_file.h"
 #include "ccdpsf/manifest.h"
 #include "ccdpsf/metadata.h"
+#include "ccdpsf/ptc_prior.h"
 #include "ccdpsf/simulate.h"
 #include "ccdpsf/trend/group_store.h"
 #include "ccdpsf/trend/requirements.h"
@@ -59,6 +61,7 @@ enum Reader : uint8_t {
   kSection,
   kTruth,
   kGroupResult,
+  kPtcPrior,
   kNumReaders
 };
 
@@ -120,6 +123,11 @@ void Parse(Reader reader, const std::string& text) {
       const nlohmann::json j = nlohmann::json::parse(text, nullptr, /*allow_exceptions=*/false);
       if (j.is_object()) result.group.name = j.value("group", std::string());
       (void)ccdpsf::trend::GroupResultFromJson(j, &result);
+      break;
+    }
+    case kPtcPrior: {
+      ccdpsf::fit::GaussianPrior prior;
+      (void)ccdpsf::ParsePtcPrior(text, "ptc.json", &prior, &error);
       break;
     }
     case kNumReaders:

@@ -65,6 +65,9 @@ Command EffectsCommand();
 // given (defined in fit_command.cc). False with a one-line reason on bad values.
 bool ResolveFitConfig(fit::FitConfig* config, std::string* error);
 
+// --ptc, the flats' boundary-shift prior, as fit's and trend's help shows it.
+Option PtcOption();
+
 // The options of a run as FIT.json (fit_config.h) holding every option it resolved: `config`
 // with the --keywords flag's names merged into "keywords", and under "flags" every other
 // option of the current command that decides what the run computes (the metadata flags only

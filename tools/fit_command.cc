@@ -14,6 +14,7 @@
 #include "ccdpsf/output_folder.h"
 #include "ccdpsf/plot.h"
 #include "ccdpsf/provenance.h"
+#include "ccdpsf/ptc_prior.h"
 #include "ccdpsf/safe_path.h"
 #include "ccdpsf/truth.h"
 #include "command.h"
@@ -46,6 +47,7 @@ DEFINE_bool(strict, false, "");
 DEFINE_bool(resume, false, "");
 DEFINE_double(checkpoint_s, 30, "");
 DEFINE_bool(outliers, true, "");
+DEFINE_string(ptc, "", "");
 
 namespace ccdpsf::tools {
 
@@ -98,6 +100,23 @@ bool ApplyFitFlags(bool given_only, fit::FitConfig* c, std::string* error) {
   return true;
 }
 
+// --ptc=DIR/ptc.json (fit, trend; also from a config's "flags"): the flats' a_ij as the
+// Gaussian prior of boundary_shift's (ptc_prior.h). Checked before any input is read.
+bool ApplyPtcPrior(fit::FitConfig* c, std::string* error) {
+  c->model.gaussian_prior = fit::GaussianPrior();
+  if (CurrentCommand().Find("ptc") == nullptr || FLAGS_ptc.empty()) return true;
+  if (!c->model.HasEffect(model::EffectKind::kBoundaryShift)) {
+    *error = "--ptc is a prior on boundary_shift's a_ij: add --effects=boundary_shift";
+    return false;
+  }
+  if (!ReadPtcPrior(FLAGS_ptc, &c->model.gaussian_prior, error)) return false;
+  // Recorded absolute, as config.json records the flag (run_config.cc), so that a run
+  // repeated from it names the same file.
+  c->model.gaussian_prior.source =
+      std::filesystem::absolute(std::filesystem::path(FLAGS_ptc)).lexically_normal().string();
+  return true;
+}
+
 }  // namespace
 
 // The command's defaults <- FIT.json (with its "flags") <- flags given on the command line.
@@ -121,7 +140,8 @@ bool ResolveFitConfig(fit::FitConfig* c, std::string* error) {
     *error = "pixel_centre sampling has only the Gaussian defocus of the 2015 code";
     return false;
   }
-  return fit::EffectsFitInSampling(c->model, error);
+  if (!fit::EffectsFitInSampling(c->model, error)) return false;
+  return ApplyPtcPrior(c, error);
 }
 
 namespace {
@@ -336,6 +356,14 @@ int RunFit(const std::vector<std::string>& files) {
 
 }  // namespace
 
+Option PtcOption() {
+  return {"ptc", "",
+          "DIR/ptc.json of `ccdpsf ptc` on flats of this sensor: its a_10, a_01, a_11 (with their "
+          "covariance) become a Gaussian prior on boundary_shift's (needs "
+          "--effects=boundary_shift); fit.json then also holds the spots' own a_ij against the "
+          "flats' (boundary_shift_vs_flats)"};
+}
+
 Command FitCommand() {
   const fit::FitConfig d;  // the library's defaults, which fit's flags default to
   std::vector<Option> options = {
@@ -393,7 +421,8 @@ Command FitCommand() {
       {"resume", "false",
        "Continue a run that was killed, into the same --out with the same inputs and options: "
        "each MCMC from its last checkpoint, ending with the chain of an uninterrupted run"},
-      {"checkpoint_s", "30", "Seconds between MCMC checkpoints (for --resume)"}};
+      {"checkpoint_s", "30", "Seconds between MCMC checkpoints (for --resume)"},
+      PtcOption()};
   for (const Option& o : InputOptions()) options.push_back(o);
   return {"fit", "ccdpsf fit --out=DIR [--joint] [--config=FIT.json] [options] FILE.fits...",
           "Fit the spot model: MAP (Ceres), Laplace covariance, MCMC credible intervals.", options,

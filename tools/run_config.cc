@@ -47,7 +47,7 @@ bool AboutTheInvocation(const std::string& name) {
 
 // Options whose value is a path, recorded absolute so the config works from any folder.
 bool IsPathOption(const std::string& name) {
-  return name == "manifest" || name == "bad_pixel_mask";
+  return name == "manifest" || name == "bad_pixel_mask" || name == "ptc";
 }
 
 // The flag's current value as typed JSON (gflags' type names).
@@ -105,7 +105,7 @@ json RunConfigJson(const fit::FitConfig& config, const json& command_options, st
     gflags::CommandLineFlagInfo info;
     if (!gflags::GetCommandLineFlagInfo(o.name.c_str(), &info)) continue;
     json value = FlagValueJson(info);
-    if (IsPathOption(o.name)) {
+    if (IsPathOption(o.name) && !info.current_value.empty()) {
       value = fs::absolute(fs::path(info.current_value)).lexically_normal().string();
     }
     flags[o.name] = value;
@@ -171,8 +171,8 @@ std::string RunSignature(const std::vector<std::string>& inputs) {
     if (f.is_default || f.name == "out" || f.name == "resume" || f.name == "threads") continue;
     signature["flags"][f.name] = f.current_value;
   }
-  // The files --config, --manifest, --keywords and --requirements name, by content.
-  for (const char* flag : {"config", "manifest", "keywords", "requirements"}) {
+  // The files --config, --manifest, --keywords, --requirements and --ptc name, by content.
+  for (const char* flag : {"config", "manifest", "keywords", "requirements", "ptc"}) {
     std::string path;
     if (!gflags::GetCommandLineOption(flag, &path) || path.empty()) continue;
     // Unreadable here: the command itself reports it (this only identifies the run).

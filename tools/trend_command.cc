@@ -302,7 +302,8 @@ Command TrendCommand() {
        "pipelines); without it a completed run exits 0 whatever the verdicts"},
       {"resume", "false",
        "Continue a run that was killed, into the same --out with the same inputs and options: "
-       "the groups already finished are kept"}};
+       "the groups already finished are kept"},
+      PtcOption()};
   for (const Option& o : InputOptions()) options.push_back(o);
   return {"trend",
           "ccdpsf trend --out=DIR [options] CAMPAIGN (manifest.json, its folder, or FITS files "

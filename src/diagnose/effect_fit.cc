@@ -60,6 +60,10 @@ std::unique_ptr<EffectModel> EffectModel::Create(const fit::FitModel& base, cons
   twin_options.effects.clear();
   for (EffectKind kind : spec.effects) twin_options.effects.push_back({kind, {}});
   twin_options.jitter_reference = spec.Has(EffectKind::kJitter) ? spec.jitter_reference : -1;
+  // No Gaussian prior (gaussian_prior.h; `diagnose` takes no --ptc): diagnose names effects by
+  // likelihood ratios, BIC and predictive checks, which compare maximum likelihoods; a prior in
+  // the solve would move the points they are taken at.
+  twin_options.gaussian_prior = fit::GaussianPrior();
   std::unique_ptr<EffectModel> m(new EffectModel(base, spec));
   m->twin_ = fit::FitModel::Create(base.stamps(), twin_options, error);
   if (m->twin_ == nullptr) return nullptr;

@@ -101,8 +101,15 @@ bool RunFit(const FitModel& model, const FitOptions& options, FitResult* result,
   const std::vector<double>& theta_map = result->map.theta;
 
   std::unique_ptr<FitEvaluator> evaluator = model.NewEvaluator();
-  result->laplace =
-      ComputeLaplace(model, theta_map, evaluator->FisherInformation(theta_map.data()));
+  // The likelihood's information, and the posterior's: with a Gaussian prior its precision is
+  // added (gaussian_prior.h), so that the Laplace covariance and the sampler's seeds and
+  // proposals are the posterior's.
+  const std::vector<double> fisher = evaluator->FisherInformation(theta_map.data());
+  const std::vector<double> information = model.PosteriorInformation(fisher);
+  result->laplace = ComputeLaplace(model, theta_map, information);
+  if (model.gaussian_prior().active()) {
+    result->data_alone = EstimateFromDataAlone(model, theta_map, fisher);
+  }
 
   // The split of docs/trust.md (single focus) is exact here, whatever the curvature says: at a
   // MAP with zero defocus the model depends on the defocus only through its square, so the
@@ -206,8 +213,7 @@ bool RunFit(const FitModel& model, const FitOptions& options, FitResult* result,
     // The sampler walks the state of posterior_target.h (total widths, the defocus integrated
     // out where the data cannot see it, positions by conditional moves in joint fits), seeded
     // from the Laplace approximation in those coordinates.
-    const PosteriorTarget target(model, theta_map, evaluator->FisherInformation(theta_map.data()),
-                                 options.target);
+    const PosteriorTarget target(model, theta_map, information, options.target);
     // Default walkers: the sampler stops when the chain is min_tau_multiple taus long AND
     // every ESS = walkers x steps / tau reaches target_ess; with target_ess / min_tau_multiple
     // walkers (20 by default) both are met at once, and more walkers only add evaluations.
@@ -258,6 +264,10 @@ bool RunFit(const FitModel& model, const FitOptions& options, FitResult* result,
               : 0.0;
       target.ToTheta(state, u, theta);
     };
+    // Resume (--resume): a checkpoint's stored log densities include the Gaussian prior's
+    // log density; it is taken up only by the run that wrote it, whose fingerprint covers the
+    // walkers' initial positions (ensemble_sampler.cc), drawn around the posterior's MAP from
+    // its Laplace approximation, both of which a different prior moves.
     mcmc.reported = to_theta;
     mcmc.reported_dim = dim;
     if (!RunEnsembleSampler(target.Make(evaluator_ptrs), target.dim(), initial, mcmc,

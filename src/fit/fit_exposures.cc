@@ -306,7 +306,9 @@ bool FitExposures(const std::vector<Exposure>& exposures, const Quality& set_qua
   MapResult map;
   if (!FindMap(*model, options.config.fit.map, &map, error)) return false;
 
-  // Outliers: mask, refit from where the MAP was, repeat.
+  // Outliers: mask, refit from where the MAP was, repeat. (The masked models are made from
+  // model_options, so a Gaussian prior stays in their refits: gaussian_prior.h. FindOutliers
+  // judges pixels by their residuals alone.)
   for (int round = 0; round < options.outliers.max_rounds; ++round) {
     const std::vector<OutlierMask> found = FindOutliers(*model, map.theta, options.outliers);
     if (found.empty()) break;

@@ -404,7 +404,13 @@ std::unique_ptr<FitModel> FitModel::Create(std::vector<Stamp> stamps,
       return nullptr;
     }
   }
+  if (!m->gaussian_prior_.Bind(options.gaussian_prior, m->names_, error)) return nullptr;
   return m;
+}
+
+std::vector<double> FitModel::PosteriorInformation(std::vector<double> fisher) const {
+  if (gaussian_prior_.active()) gaussian_prior_.AddPrecision(&fisher, dim());
+  return fisher;
 }
 
 int FitModel::NumValidPixels() const {

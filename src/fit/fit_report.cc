@@ -11,6 +11,7 @@
 #include "ccdpsf/column_units.h"
 #include "ccdpsf/fit/focus_plot.h"
 #include "ccdpsf/fit/intensity_plot.h"
+#include "ccdpsf/fit/prior_report.h"
 #include "ccdpsf/fits_io.h"
 #include "ccdpsf/plot.h"
 #include "ccdpsf/provenance.h"
@@ -164,8 +165,21 @@ json FitJson(const ExposuresFit& fit) {
     priors[r.names[i]] = {{"kind", "flat"}, {"lower", model.lower()[i]},
                           {"upper", model.upper()[i]}};
   }
+  // A Gaussian prior's parameters: the normal truncated to their flat ranges.
+  const GaussianPriorTerm& gaussian = model.gaussian_prior();
+  for (int a = 0; a < gaussian.size(); ++a) {
+    const int i = gaussian.indices()[a];
+    json& p = priors[r.names[i]];
+    p["kind"] = "truncated_gaussian";
+    p["mean"] = gaussian.prior().mean[a];
+    p["sd"] = std::sqrt(gaussian.prior().covariance[static_cast<size_t>(a) * gaussian.size() + a]);
+  }
   j["parameters"] = params;
   j["priors"] = priors;
+  if (gaussian.active()) {
+    j["gaussian_prior"] = GaussianPriorJson(model);
+    j["boundary_shift_vs_flats"] = PriorComparisonJson(model, r);
+  }
   json derived = json::object();
   for (const auto& [name, s] : r.derived) derived[name] = SummaryJson(s);
   j["derived"] = derived;
@@ -250,6 +264,8 @@ json FitJson(const ExposuresFit& fit) {
               {"usable_starts", r.map.num_usable_starts},
               {"map_seconds", r.map.seconds},
               {"seconds", r.seconds}};
+  // The Gaussian prior's log density at the MAP (loglike stays the likelihood's).
+  if (gaussian.active()) j["fit"]["log_prior"] = r.map.log_prior;
   json comparison = json::array();
   for (int i = 0; i < model.dim(); ++i) comparison.push_back(ComparisonRow(r.names[i], r.parameters[i]));
   for (const auto& [name, s] : r.derived) comparison.push_back(ComparisonRow(name, s));
@@ -543,6 +559,7 @@ bool WriteFitReport(const std::string& out_dir, const ExposuresFit& fit, const j
        << ", " << (r.chain.converged ? "converged" : "NOT converged") << ": " << r.chain.stop_reason
        << ".\n\n";
   }
+  md << PriorComparisonMarkdown(model, r);
   if (!r.laplace.unconstrained.empty()) {
     md << "## Not constrained by the data\n\n";
     for (const auto& d : r.laplace.unconstrained) md << "- " << d.description << "\n";

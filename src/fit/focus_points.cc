@@ -20,7 +20,9 @@ const Summary* FindDerived(const FitResult& r, const std::string& name) {
 std::vector<FocusPoint> FitEachFocusPosition(const FitModel& model, const MapOptions& map) {
   std::vector<FocusPoint> points;
   if (!model.through_focus()) return points;
-  // The joint model's options with the law dropped: a free Gaussian defocus, one flux.
+  // The joint model's options with the law dropped: a free Gaussian defocus, one flux. Its
+  // effects and a Gaussian prior on them stay (gaussian_prior.h): each exposure alone is drawn
+  // with the same boundary-shift knowledge as the joint fit.
   FitModelOptions single = SingleExposureOptions(model.options());
   single.through_focus = false;
   single.flux = FluxMode::kShared;

@@ -104,6 +104,54 @@ class ExposureCost : public ceres::CostFunction {
   mutable std::vector<int> columns_;
 };
 
+// The Gaussian prior's whitened residuals (gaussian_prior.h) against the parameter blocks of
+// a layout that places every parameter it names (GaussianPriorLayout): 1/2 sum r^2 is minus
+// the log prior up to a constant, so a solve with this block minimises minus the log
+// posterior. A named parameter the layout does not place is held at 0, as the exposures'
+// blocks hold it.
+class GaussianPriorCost : public ceres::CostFunction {
+ public:
+  GaussianPriorCost(const GaussianPriorTerm& term, ExposureCostLayout layout)
+      : term_(term), layout_(std::move(layout)) {
+    for (const auto& block : layout_.blocks) mutable_parameter_block_sizes()->push_back(block.size);
+    set_num_residuals(term.size());
+  }
+
+  bool Evaluate(double const* const* parameters, double* residuals,
+                double** jacobians) const override {
+    const int n = term_.size();
+    // The named parameters in a theta-shaped scratch vector (only their slots are read).
+    const std::vector<int>& indices = term_.indices();
+    const int span = *std::max_element(indices.begin(), indices.end()) + 1;
+    std::vector<double> theta(span, 0.0);
+    for (int i : indices) {
+      const auto it = layout_.place.find(i);
+      if (it != layout_.place.end()) {
+        theta[i] = parameters[it->second.block][it->second.offset];
+      }
+    }
+    term_.WhitenedResiduals(theta.data(), residuals);
+    if (jacobians == nullptr) return true;
+    for (size_t b = 0; b < layout_.blocks.size(); ++b) {
+      if (jacobians[b] != nullptr) std::fill_n(jacobians[b], n * layout_.blocks[b].size, 0.0);
+    }
+    const std::vector<double>& w = term_.whitening();
+    for (int j = 0; j < n; ++j) {
+      const auto it = layout_.place.find(indices[j]);
+      if (it == layout_.place.end() || jacobians[it->second.block] == nullptr) continue;
+      const int size = layout_.blocks[it->second.block].size;
+      for (int r = 0; r < n; ++r) {
+        jacobians[it->second.block][r * size + it->second.offset] = w[r * n + j];
+      }
+    }
+    return true;
+  }
+
+ private:
+  const GaussianPriorTerm& term_;
+  ExposureCostLayout layout_;
+};
+
 struct StartOutcome {
   std::vector<double> theta;
   double cost = std::numeric_limits<double>::infinity();
@@ -131,10 +179,13 @@ StartOutcome Solve(const FitModel& model, std::vector<double> theta, const MapOp
   return out;
 }
 
-// Least-squares flux for the shape in *theta (set in place), then the log-posterior.
+// Least-squares flux for the shape in *theta (set in place), then the log-posterior: with
+// a Gaussian prior its log density is added, since JointScreenStarts ranks local optima whose
+// prior-bearing parameters differ. (The grid of ScreenStarts and RefinePositions move
+// parameters no Gaussian prior names today, so there it adds the same to every score.)
 double ScoreWithBestFlux(const FitModel& model, FitEvaluator* ev, std::vector<double>* theta) {
   const double ll = ev->BestFluxLogLikelihood(theta->data(), 0, model.num_exposures());
-  return model.InsidePrior(theta->data()) ? ll : -INFINITY;
+  return model.InsidePrior(theta->data()) ? ll + model.LogPrior(theta->data()) : -INFINITY;
 }
 
 // Positions by grid search, for pixel_centre sampling: there the moment centroid is not the
@@ -473,6 +524,7 @@ void FillResult(const FitModel& model, const StartOutcome& best, MapResult* resu
   result->termination = best.message;
   std::unique_ptr<FitEvaluator> ev = model.NewEvaluator();
   result->log_likelihood = ev->LogLikelihood(best.theta.data());
+  result->log_prior = model.LogPrior(best.theta.data());
   result->chi2 = ev->ChiSquare(best.theta.data());
   // Censored pixels are bounds, not measurements: no chi^2, no degree of freedom.
   result->num_pixels = model.NumMeasuredPixels();
@@ -532,6 +584,29 @@ ceres::CostFunction* NewExposureCost(const FitModel& model, int k) {
   return NewExposureCost(model, k, FitExposureCostLayout(model, k));
 }
 
+ExposureCostLayout GaussianPriorLayout(const FitModel& model,
+                                       const std::vector<ExposureCostLayout>& layouts) {
+  ExposureCostLayout out;
+  std::map<int, int> block_of_first;  // a block's first x index -> its number in `out`
+  for (int index : model.gaussian_prior().indices()) {
+    for (const ExposureCostLayout& layout : layouts) {
+      const auto it = layout.place.find(index);
+      if (it == layout.place.end()) continue;
+      const ExposureCostLayout::Block& block = layout.blocks[it->second.block];
+      auto [where, added] =
+          block_of_first.emplace(block.first, static_cast<int>(out.blocks.size()));
+      if (added) out.blocks.push_back(block);
+      out.place[index] = {where->second, it->second.offset};
+      break;
+    }
+  }
+  return out;
+}
+
+ceres::CostFunction* NewGaussianPriorCost(const FitModel& model, ExposureCostLayout layout) {
+  return new GaussianPriorCost(model.gaussian_prior(), std::move(layout));
+}
+
 SolveOutcome SolveResidualBlocks(const FitModel& model,
                                  const std::vector<ExposureCostLayout>& layouts,
                                  const std::vector<double>& lower, const std::vector<double>& upper,
@@ -551,6 +626,16 @@ SolveOutcome SolveResidualBlocks(const FitModel& model,
         problem.SetParameterLowerBound(x->data() + block.first, j, lower[block.first + j]);
         problem.SetParameterUpperBound(x->data() + block.first, j, upper[block.first + j]);
       }
+    }
+  }
+  if (model.gaussian_prior().active()) {
+    // The prior's block reads the parameter blocks the exposures' blocks already hold (and
+    // bound): one more residual block, so the cost is minus the log posterior.
+    ExposureCostLayout layout = GaussianPriorLayout(model, layouts);
+    std::vector<double*> blocks;
+    for (const auto& block : layout.blocks) blocks.push_back(x->data() + block.first);
+    if (!blocks.empty()) {
+      problem.AddResidualBlock(NewGaussianPriorCost(model, std::move(layout)), nullptr, blocks);
     }
   }
   ceres::Solver::Options solver;
@@ -627,6 +712,7 @@ bool FindMap(const FitModel& model, const MapOptions& options, MapResult* result
     // effects, with them added at "no effect" (theta holds them at its end), is a start
     // inside the right basin, as diagnose reaches them.
     FitModelOptions plain_options = model.options();
+    // (A Gaussian prior on effect parameters binds inactive there: gaussian_prior.h.)
     plain_options.effects.clear();
     std::string plain_error;
     auto plain = FitModel::Create(model.stamps(), plain_options, &plain_error);

@@ -177,7 +177,11 @@ double PosteriorTarget::LogDensity(FitEvaluator* evaluator, const double* state,
   if (!LikelihoodTheta(state, theta.data(), &log_weight) || !std::isfinite(log_weight)) {
     return -INFINITY;
   }
-  double total = log_weight;
+  // The Gaussian prior's log density (gaussian_prior.h; 0 without one). It names no defocus,
+  // so it stays outside the defocus integral of marginal mode; and no position, so the
+  // positions' conditional moves (ConditionalUpdate), which change one exposure's
+  // log-likelihood at a time, leave it as it is. aux holds the log-likelihoods alone.
+  double total = log_weight + model_.LogPrior(theta.data());
   for (int k = 0; k < model_.num_exposures(); ++k) {
     const double l = evaluator->ExposureLogLikelihood(theta.data(), k);
     if (!std::isfinite(l)) return -INFINITY;

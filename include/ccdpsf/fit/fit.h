@@ -8,6 +8,7 @@
 #include <string>
 #include <vector>
 
+#include "ccdpsf/fit/data_alone_estimate.h"
 #include "ccdpsf/fit/ensemble_sampler.h"
 #include "ccdpsf/fit/fit_model.h"
 #include "ccdpsf/fit/laplace.h"
@@ -55,6 +56,9 @@ struct FitResult {
   SamplerResult chain;
   std::vector<Summary> parameters;                       // in theta order
   std::vector<std::pair<std::string, Summary>> derived;  // fixed order, see fit.cc
+  // With a Gaussian prior: what the data alone say of its parameters (data_alone_estimate.h);
+  // left not available (and empty) without one.
+  DataAloneEstimate data_alone;
   double seconds = 0.0;
 };
 
@@ -77,7 +81,8 @@ std::vector<double> DerivedAt(const FitModel& model, const double* theta);
 std::vector<double> PeakTheta(const FitModel& model, const double* theta);
 
 // MAP (FindMap, unless `map` gives one already found for this model), Laplace, MCMC and the
-// summaries.
+// summaries. With a Gaussian prior (gaussian_prior.h) every step is the posterior's, and
+// data_alone is filled.
 bool RunFit(const FitModel& model, const FitOptions& options, FitResult* result,
             std::string* error, const MapResult* map = nullptr);
 

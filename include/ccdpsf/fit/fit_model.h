@@ -10,7 +10,9 @@
 //   4 ccd_sigma_y_px                                                         shared
 //   5 + 2K, 6 + 2K       x_px_K, y_px_K: spot centre of exposure K, frame coordinates [px]
 // (the paper's joint fit: CCD widths, intensity and defocus shared, one position per
-// exposure). Priors are flat within [lower, upper] for every parameter.
+// exposure). Priors are flat within [lower, upper] for every parameter, except those a
+// Gaussian prior names (FitModelOptions::gaussian_prior, gaussian_prior.h): their prior is
+// that normal truncated to their flat ranges.
 //
 // Effects (FitModelOptions::effects): each fitted effect of the catalogue (model/effects.h)
 // adds its parameters, shared by every exposure, at the very end of theta (after best focus
@@ -68,6 +70,7 @@
 #include <string>
 #include <vector>
 
+#include "ccdpsf/fit/gaussian_prior.h"
 #include "ccdpsf/fit/likelihood.h"
 #include "ccdpsf/fit/pixel_likelihood.h"
 #include "ccdpsf/image.h"
@@ -148,6 +151,10 @@ struct FitModelOptions {
   // (SharpestExposure). Models remade from one another (after outlier masking) keep theirs,
   // so that their theta layouts agree.
   int jitter_reference = -1;
+  // A Gaussian prior on named parameters (gaussian_prior.h; empty: every prior flat), e.g.
+  // boundary_shift's a_ij from flats (`--ptc`). A model that fits none of its parameters
+  // leaves it out (GaussianPriorTerm::Bind); one that fits some but not all is refused.
+  GaussianPrior gaussian_prior;
   bool HasEffect(model::EffectKind kind) const;
 };
 
@@ -262,6 +269,14 @@ class FitModel {
                     double* d_z0 = nullptr) const;
 
   bool InsidePrior(const double* theta) const;
+  // The Gaussian prior as bound to theta (inactive without one), and its log density at theta
+  // (0 without: the flat priors' constant is left out of every log density, as it is of the
+  // log posterior the MCMC walks).
+  const GaussianPriorTerm& gaussian_prior() const { return gaussian_prior_; }
+  double LogPrior(const double* theta) const { return gaussian_prior_.LogDensity(theta); }
+  // The posterior's information for the Laplace approximation: the likelihood's Fisher
+  // information (dim x dim, row-major) with the Gaussian prior's precision added.
+  std::vector<double> PosteriorInformation(std::vector<double> fisher) const;
 
   // The renderer's parameters and pixel grid for exposure k (pixel_centre works on stamp
   // indices, so its centre is shifted by the stamp origin).
@@ -300,6 +315,7 @@ class FitModel {
   std::vector<double> effect_start_;             // theta's effect parameters at a start (no effect)
   int jitter_reference_ = -1;                    // JitterReference
   std::vector<int> jitter_index_;                // JitterIndex, per exposure (empty without)
+  GaussianPriorTerm gaussian_prior_;              // options_.gaussian_prior bound to names_
   double signal_e_ = 0.0;                        // mean summed signal per stamp
 };
 

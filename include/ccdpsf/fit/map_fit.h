@@ -82,6 +82,7 @@ struct MapOptions {
 struct MapResult {
   std::vector<double> theta;
   double log_likelihood = 0.0;  // of the model's likelihood kind, at theta
+  double log_prior = 0.0;       // FitModel::LogPrior at theta (0 when every prior is flat)
   double chi2 = 0.0;            // sum of squared whitened residuals
   int num_pixels = 0;
   int dof = 0;                  // pixels - parameters
@@ -130,6 +131,14 @@ ceres::CostFunction* NewExposureCost(const FitModel& model, int k, ExposureCostL
 // In the fit's layout, against the stamp.
 ceres::CostFunction* NewExposureCost(const FitModel& model, int k);
 
+// The Gaussian prior's residual block (gaussian_prior.h): its layout, the blocks of
+// `layouts` that hold the parameters the model's prior names (empty without a prior), and the
+// block itself, whose 1/2 sum r^2 is minus the log prior up to a constant. SolveResidualBlocks
+// adds it whenever the model's prior is active.
+ExposureCostLayout GaussianPriorLayout(const FitModel& model,
+                                       const std::vector<ExposureCostLayout>& layouts);
+ceres::CostFunction* NewGaussianPriorCost(const FitModel& model, ExposureCostLayout layout);
+
 // Ceres' stopping rules for a solve (dense QR, silent).
 struct SolveSettings {
   int max_iterations = 200;
@@ -148,8 +157,9 @@ struct SolveOutcome {
 };
 
 // The one least-squares solve of fit and diagnose: the residual blocks of all exposures
-// (layouts[k], against (*data_e)[k] or the stamps) minimised over *x within [lower, upper];
-// *x holds the start and receives the end point.
+// (layouts[k], against (*data_e)[k] or the stamps), and the Gaussian prior's block when the
+// model has one, minimised over *x within [lower, upper]; *x holds the start and receives the
+// end point.
 SolveOutcome SolveResidualBlocks(const FitModel& model,
                                  const std::vector<ExposureCostLayout>& layouts,
                                  const std::vector<double>& lower, const std::vector<double>& upper,

@@ -73,7 +73,10 @@ struct PosteriorTargetOptions {
 
 class PosteriorTarget {
  public:
-  // theta_map and the Fisher information at it (theta coordinates, dim x dim).
+  // theta_map and the posterior's information at it (theta coordinates, dim x dim): the
+  // likelihood's Fisher information with a Gaussian prior's precision added
+  // (FitModel::PosteriorInformation), so that the Laplace seeds and proposals are the
+  // posterior's.
   PosteriorTarget(const FitModel& model, const std::vector<double>& theta_map,
                   const std::vector<double>& fisher, const PosteriorTargetOptions& options);
 
@@ -99,8 +102,10 @@ class PosteriorTarget {
   // defocus drawn from its exact conditional. False when the state is outside the support.
   bool ToTheta(const double* state, double u, double* theta) const;
 
-  // log posterior density of a state up to a constant (-infinity outside the support); writes
-  // each exposure's log-likelihood to aux (num_exposures values) unless aux is nullptr.
+  // log posterior density of a state up to a constant (-infinity outside the support): the
+  // log-likelihood, the Gaussian prior's log density (FitModel::LogPrior) and the coordinates'
+  // log Jacobian or defocus weight; writes each exposure's log-likelihood to aux
+  // (num_exposures values) unless aux is nullptr.
   double LogDensity(FitEvaluator* evaluator, const double* state, double* aux) const;
 
   // The sampler's target, thread t using evaluators[t] (which must outlive the run).
