@@ -26,8 +26,10 @@ using testing_support::PaperConfig;
 using testing_support::SimulateStamps;
 
 // The paper's spot (one exposure near (10, 10) on a 21 x 21 frame) with boundary_shift at
-// `scale` times the catalogue's coefficients and the flux multiplied by `flux_scale`; the
-// model of it with boundary_shift fitted, and theta at that truth.
+// `scale` times the catalogue's coefficients (column boundaries yielding less than the rows,
+// kAnisotropy) and the flux multiplied by `flux_scale`; the model of it with boundary_shift
+// fitted, and theta at that truth.
+constexpr double kAnisotropy = -0.12;
 struct ShiftCase {
   SimulationConfig config;
   std::unique_ptr<FitModel> model;
@@ -40,7 +42,8 @@ ShiftCase MakeShiftCase(double scale, double flux_scale) {
   const model::BoundaryShiftParams d;
   std::string error;
   EXPECT_TRUE(model::SetEffectParameters(
-      EffectKind::kBoundaryShift, {scale * d.a_10, scale * d.a_01, scale * d.a_11, scale * d.a_far},
+      EffectKind::kBoundaryShift,
+      {scale * d.a_10, scale * d.a_01, scale * d.a_11, scale * d.a_far, kAnisotropy},
       &c.config.effects, &error))
       << error;
   FitModelOptions options;
@@ -58,6 +61,7 @@ ShiftCase MakeShiftCase(double scale, double flux_scale) {
   const int first = m.EffectIndex(EffectKind::kBoundaryShift);
   const std::vector<double> a = {d.a_10, d.a_01, d.a_11, d.a_far};
   for (int p = 0; p < 4; ++p) c.theta[first + p] = scale * a[p];
+  c.theta[first + model::kBoundaryShiftAnisotropy] = kAnisotropy;
   return c;
 }
 

@@ -80,7 +80,7 @@ struct ClosedForm {
 
 std::vector<double> Truth() {
   const model::BoundaryShiftParams d;
-  return {3 * d.a_10, 3 * d.a_01, 3 * d.a_11, 3 * d.a_far};
+  return {3 * d.a_10, 3 * d.a_01, 3 * d.a_11, 3 * d.a_far, d.anisotropy};
 }
 
 // `count` exposures of the paper's spot drawn with boundary_shift at three times the
@@ -277,10 +277,11 @@ TEST(GaussianPrior, ATightPriorPinsTheCoefficientsAndALooseOneChangesNothing) {
 // prior moves the MAP by up to ~1 sd (measured: 0.07, -0.53, 0.94 sd): the formula has to
 // undo that. In the Laplace approximation the two agree exactly; what is left is the
 // likelihood's curvature changing between the two MAPs (the model is nonlinear in a_ij at
-// second order, Q = M + S M / 2 + S^2 M / 6, and the other parameters move with them). An
-// error of 0.1 of the spots' sd moves difference_sd by at most 0.1, well below its own
-// scatter of 1: allowed 0.1 sd for the centres (measured 0.026-0.038) and 2 % for the sds
-// (measured < 0.7 %).
+// second order, Q = M + S M / 2 + S^2 M / 6; the shifts are bilinear in the a_ij and the
+// anisotropy, which moves with them; and the other parameters move too). An error of 0.25 of
+// the spots' sd moves difference_sd by at most 0.25, well below its own scatter of 1: allowed
+// 0.25 sd for the centres and 8 % for the sds (measured 0.026-0.038 sd and < 0.7 % before the
+// anisotropy was a parameter; with it, up to 0.18 sd and 5.4 %).
 TEST(GaussianPrior, SpotsAloneEstimateIsTheFitWithoutThePrior) {
   // Covered in the sanitized build by EveryUseAgreesWithTheClosedFormDensity and
   // DataAloneEstimateOfALinearGaussianIsExact.
@@ -304,8 +305,8 @@ TEST(GaussianPrior, SpotsAloneEstimateIsTheFitWithoutThePrior) {
   for (int a = 0; a < 3; ++a) {
     const double moved = (with.map.theta[first + a] - flat.map.theta[first + a]) / sd[a];
     largest_move = std::max(largest_move, std::fabs(moved));
-    EXPECT_NEAR(e.mean[a], flat.map.theta[first + a], 0.1 * sd[a]) << kNames[a];
-    EXPECT_NEAR(e.sd[a] / sd[a], 1.0, 0.02) << kNames[a];
+    EXPECT_NEAR(e.mean[a], flat.map.theta[first + a], 0.25 * sd[a]) << kNames[a];
+    EXPECT_NEAR(e.sd[a] / sd[a], 1.0, 0.08) << kNames[a];
   }
   EXPECT_GT(largest_move, 0.3) << "the prior moved the MAP";
 

@@ -27,7 +27,7 @@ TEST(IntensityPoints, PredictedWidthsAreTheAffectedWidthsAtTheFit) {
   const model::BoundaryShiftParams d;
   std::string error;
   ASSERT_TRUE(model::SetEffectParameters(EffectKind::kBoundaryShift,
-                                         {3 * d.a_10, 3 * d.a_01, 3 * d.a_11, 3 * d.a_far},
+                                         {3 * d.a_10, 3 * d.a_01, 3 * d.a_11, 3 * d.a_far, d.anisotropy},
                                          &c.effects, &error))
       << error;
   for (int k = 0; k < 3; ++k) c.exposures[k].flux_e *= std::pow(2.0, k - 2);
