@@ -615,9 +615,27 @@ void Judge(const EffectModel& final_model, const EffectFitResult& final_fit,
     // (b) its parameters inside the prior.
     if (round.named) {
       const std::vector<int> idx = final_model.EffectIndices(*round.named);
-      for (const ParameterEstimate& e : Estimates(final_model, final_fit, idx)) {
+      const std::vector<ParameterEstimate> estimates = Estimates(final_model, final_fit, idx);
+      // An effect of several strengths (boundary_shift's a_ij) may have one at its "no
+      // effect" value while another holds the effect: a lag without a measurable gain is
+      // inside the effect's physics, not a shape the data push against (a strength at its
+      // upper bound, or a shape parameter at either, still is).
+      const std::vector<model::EffectParameterInfo>& info =
+          model::DescribeEffect(*round.named).parameters;
+      const auto at_null = [&](size_t j) {
+        return j < info.size() && info[j].null_on_boundary && estimates[j].at_bound &&
+               estimates[j].map <= info[j].prior_lower;
+      };
+      bool another_strength_holds = false;
+      for (size_t j = 0; j < estimates.size() && j < info.size(); ++j) {
+        another_strength_holds =
+            another_strength_holds || (info[j].null_on_boundary && !at_null(j));
+      }
+      for (size_t j = 0; j < estimates.size(); ++j) {
+        const ParameterEstimate& e = estimates[j];
         // A jitter variance of 0 is an exposure without extra jitter.
         if (*round.named == EffectKind::kJitter && e.map <= 0.0) continue;
+        if (*round.named != EffectKind::kJitter && at_null(j) && another_strength_holds) continue;
         if (e.at_bound) reasons.push_back(e.name + " at its prior bound (" + FormatNumber(e.map) + ")");
       }
     } else {
