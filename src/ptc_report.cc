@@ -11,7 +11,6 @@
 namespace ccdpsf {
 namespace {
 
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 // Model curves are drawn through this many levels, spaced evenly in log(level).
 constexpr int kCurvePoints = 120;
 

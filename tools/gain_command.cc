@@ -22,8 +22,6 @@ DEFINE_string(gain_method, "auto", "");  // meaning: GainCommand()'s table
 namespace ccdpsf::tools {
 namespace {
 
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
-
 // Points are listed on screen up to this many; beyond, gain.csv has them.
 constexpr int kMaxPointsOnScreen = 15;
 
