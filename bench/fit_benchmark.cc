@@ -140,6 +140,13 @@ void SeriesFit(benchmark::State& state, bool with_shift, bool mcmc) {
     state.counters["mcmc_s"] = mcmc ? r.chain.seconds : 0.0;
     state.counters["steps"] = mcmc ? r.chain.num_steps : 0;
     state.counters["chi2_dof"] = r.map.chi2 / r.map.dof;
+    state.counters["map_iterations"] = r.map.iterations;
+    if (mcmc) {
+      state.counters["laplace_acc"] = r.chain.independence_acceptance;
+      double max_tau = 0.0;
+      for (double t : r.chain.tau) max_tau = std::max(max_tau, t);
+      state.counters["max_tau"] = max_tau;
+    }
   }
 }
 void BM_Series12Map(benchmark::State& s) { SeriesFit(s, false, false); }

@@ -813,22 +813,32 @@ bool FitEvaluator::ModelImageColumns(const double* theta, int k, std::vector<dou
   if (!image_effects) return true;
   if (shift) {
     // The line densities along the pixel boundaries, drawn with the spot's parameters, with
-    // their derivatives chained to theta as the image's.
-    const model::PixelGrid grids[2] = {{grid.nx + 1, grid.ny, grid.x0 - 1.0, grid.y0},
-                                       {grid.nx, grid.ny + 1, grid.x0, grid.y0 - 1.0}};
+    // their derivatives chained to theta as the image's. ApplyBoundaryShift reads only the
+    // boundaries of the exposure's window, so only those are drawn: the window's rows' x
+    // boundaries from its first pixel's lower edge to its last's upper edge, likewise along y.
+    const model::PixelWindow& w = fm.ShiftWindow(k);
+    const int wx = w.i1 - w.i0 + 1, wy = w.j1 - w.j0 + 1;
+    const model::PixelGrid full[2] = {{grid.nx + 1, grid.ny, grid.x0 - 1.0, grid.y0},
+                                      {grid.nx, grid.ny + 1, grid.x0, grid.y0 - 1.0}};
+    const model::PixelGrid part[2] = {
+        {wx + 1, wy, grid.x0 - 1.0 + w.i0, grid.y0 + w.j0},
+        {wx, wy + 1, grid.x0 + w.i0, grid.y0 - 1.0 + w.j0}};
     for (int axis = 0; axis < 2; ++axis) {
-      const model::PixelGrid& g = grids[axis];
+      const model::PixelGrid& g = part[axis];
       model::DualImage& d = boundary_density_[axis];
-      d.nx = g.nx;
-      d.ny = g.ny;
+      d.nx = full[axis].nx;
+      d.ny = full[axis].ny;
       d.num_derivatives = want ? nc : 0;
-      d.data.assign(static_cast<size_t>(g.size()) * d.stride(), 0.0);
+      d.data.assign(static_cast<size_t>(full[axis].size()) * d.stride(), 0.0);
       density_values_.resize(g.size());
       if (want) density_jacobian_.resize(static_cast<size_t>(g.size()) * model::kNumSpotParams);
       renderer_.RenderBoundaryDensity(spot, g, axis, density_values_.data(),
                                       want ? density_jacobian_.data() : nullptr);
       for (int q = 0; q < g.size(); ++q) {
-        double* row = d.data.data() + static_cast<size_t>(q) * d.stride();
+        // Entry (qi, qj) of the window's grid is (w.i0 + qi, w.j0 + qj) of the full one.
+        const int qi = q % g.nx, qj = q / g.nx;
+        const size_t at = static_cast<size_t>(w.j0 + qj) * d.nx + (w.i0 + qi);
+        double* row = d.data.data() + at * d.stride();
         row[0] = density_values_[q];
         if (!want) continue;
         const double* gq = &density_jacobian_[static_cast<size_t>(q) * model::kNumSpotParams];

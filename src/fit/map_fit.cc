@@ -15,6 +15,22 @@
 namespace ccdpsf::fit {
 namespace {
 
+// The options of the one-exposure search that seeds a joint fit's PSF: one exposure's options
+// (SingleExposureOptions) without boundary_shift. One exposure does not measure the boundary
+// shifts (they need a series of intensities), the seed passes on only the PSF and the first
+// position, and the effect makes each of the search's starts several times dearer
+// (bench/fit_benchmark.cc, BM_Series12MapBoundaryShift); the joint solve starts the effect
+// at its start values (FitModel::SetEffectStart).
+FitModelOptions JointSeedOptions(const FitModelOptions& options) {
+  FitModelOptions seed = SingleExposureOptions(options);
+  seed.effects.erase(std::remove_if(seed.effects.begin(), seed.effects.end(),
+                                    [](const FitEffect& e) {
+                                      return e.kind == model::EffectKind::kBoundaryShift;
+                                    }),
+                     seed.effects.end());
+  return seed;
+}
+
 // The residuals of exposure k (pixel_likelihood.h: two per valid pixel) against the parameter
 // blocks of a layout (ExposureCostLayout). The model image and its derivatives come from
 // FitEvaluator::ModelImageColumns, the one place a model is drawn.
@@ -433,7 +449,7 @@ std::vector<std::vector<double>> FocusStarts(const FitModel& model, const MapOpt
   double radius = 0.5, tx2 = NAN, ty2 = NAN;
   std::vector<double> single_theta;
   {
-    FitModelOptions single_options = SingleExposureOptions(model.options());
+    FitModelOptions single_options = JointSeedOptions(model.options());
     single_options.through_focus = false;
     single_options.flux = FluxMode::kShared;
     std::string error;
@@ -679,7 +695,7 @@ bool FindMap(const FitModel& model, const MapOptions& options, MapResult* result
     // 12 exposures), and its PSF seeds the joint solve; positions start at the centroids.
     // The moment start with the single fit's radius is kept as a fallback seed.
     std::string single_error;
-    auto single = FitModel::Create({model.stamps()[0]}, SingleExposureOptions(model.options()),
+    auto single = FitModel::Create({model.stamps()[0]}, JointSeedOptions(model.options()),
                                    &single_error);
     MapResult single_map;
     if (single && FindMap(*single, options, &single_map, &single_error)) {

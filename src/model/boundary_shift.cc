@@ -5,6 +5,8 @@
 #include <cmath>
 #include <vector>
 
+#include <Eigen/Dense>
+
 #include "ccdpsf/model/effects.h"
 #include "glog/logging.h"
 
@@ -170,16 +172,14 @@ BoundaryShiftKernel CombineKernels(const std::array<double, kNumBoundaryShiftCoe
   BoundaryShiftKernel kernel;
   kernel.dx.assign(static_cast<size_t>(side) * side, 0.0);
   kernel.dy.assign(kernel.dx.size(), 0.0);
-  for (int j = -kReach; j <= kReach; ++j) {
-    for (int i = -kReach; i <= kReach; ++i) {
-      const size_t at = static_cast<size_t>(j + kReach) * side + (i + kReach);
-      for (int q = 0; q < kNumBoundaryShiftCoefficients; ++q) {
-        if (weight[q] == 0.0) continue;
-        kernel.dx[at] += weight[q] * (potential_scale * basis.Dx(q, i, j) +
-                                      anisotropy_scale * basis.Ex(q, i, j));
-        kernel.dy[at] += weight[q] * (potential_scale * basis.Dy(q, i, j) +
-                                      anisotropy_scale * basis.Ey(q, i, j));
-      }
+  for (int q = 0; q < kNumBoundaryShiftCoefficients; ++q) {
+    if (weight[q] == 0.0) continue;
+    const double potential = weight[q] * potential_scale, anisotropy = weight[q] * anisotropy_scale;
+    const double *dx = basis.DxTable(q), *dy = basis.DyTable(q), *ex = basis.ExTable(q),
+                 *ey = basis.EyTable(q);
+    for (size_t at = 0; at < kernel.dx.size(); ++at) {
+      kernel.dx[at] += potential * dx[at] + anisotropy * ex[at];
+      kernel.dy[at] += potential * dy[at] + anisotropy * ey[at];
     }
   }
   return kernel;
@@ -210,70 +210,175 @@ PixelWindow BoundaryShiftWindow(int centre_i, int centre_j, int nx, int ny) {
           std::min(ny - 1, centre_j + h)};
 }
 
-// One axis of S(Q), the rate at which charge moves when the boundaries stand as the charge Q
-// has them (boundary_shift.h), added into `change`. Boundary b of a line (b = 0 .. n, between
-// pixels b - 1 and b of the line; b = 0 the lower edge of pixel 0) moves by the sum over the
-// window's charges of the shift kernel, and moves shift x density of charge from pixel b to
-// pixel b - 1 (a positive shift enlarges pixel b - 1). For axis 0 the lines are rows j and the
-// boundary densities `density` are laid out (nx + 1) x ny; for axis 1 columns i, nx x (ny + 1).
-// Derivative channels by the chain rule; the parameters' own channels add the shifts of
-// their derivative kernels (`basis`, null when no channel asks).
+// S(Q), the rate at which charge moves when the boundaries stand as the charge Q has them
+// (boundary_shift.h), as matrices. Boundary r of an axis (axis 0: the boundaries x = const of
+// the window's rows, axis 1: y = const of its columns; b from the window's first pixel's lower
+// edge to its last pixel's upper edge) moves by shift_r = sum_w K(r, w) Q_w over the window's
+// pixels w, and moves shift_r x density_r of charge from the pixel above it to the pixel below
+// it (a positive shift enlarges the lower pixel). K depends on the parameters only, the
+// densities on the spot only, so K is built once per render and applied to every derivative
+// channel of Q at once (one matrix product); the parameters' own channels add the shifts of
+// their derivative kernels, applied to Q's values.
 namespace {
 
-void AddMovesAlongAxis(int axis, const BoundaryShiftKernel& kernel,
-                       const std::array<BoundaryShiftKernel, kNumBoundaryShiftParams>* basis,
-                       const std::array<int, kNumBoundaryShiftParams>& parameter_channels,
-                       const DualImage& density, const PixelWindow& w, const DualImage& charge,
-                       DualImage* change) {
-  const int nx = charge.nx, s = charge.stride();
-  CHECK_EQ(density.stride(), s);
-  std::vector<double> shift(s), flow(s);
-  std::array<double, kNumBoundaryShiftParams> shift_p{};
-  // Boundaries of the window: b from its first pixel's lower edge to its last pixel's upper
-  // edge, on every line of the window.
-  const int line_lo = axis == 0 ? w.j0 : w.i0, line_hi = axis == 0 ? w.j1 : w.i1;
-  const int b_lo = axis == 0 ? w.i0 : w.j0, b_hi = (axis == 0 ? w.i1 : w.j1) + 1;
-  for (int line = line_lo; line <= line_hi; ++line) {
-    for (int b = b_lo; b <= b_hi; ++b) {
-      // The boundary is pixel (b - 1)'s upper edge: X(b - 1, line) in boundary_shift.h.
-      const int bi = axis == 0 ? b - 1 : line, bj = axis == 0 ? line : b - 1;
-      std::fill(shift.begin(), shift.end(), 0.0);
-      shift_p.fill(0.0);
-      for (int l = w.j0; l <= w.j1; ++l) {
-        for (int k = w.i0; k <= w.i1; ++k) {
-          const double d = axis == 0 ? kernel.Dx(bi - k, bj - l) : kernel.Dy(bi - k, bj - l);
-          const double* q = charge.data.data() + (static_cast<size_t>(l) * nx + k) * s;
-          for (int c = 0; c < s; ++c) shift[c] += d * q[c];
-          if (basis == nullptr) continue;
-          for (int p = 0; p < kNumBoundaryShiftParams; ++p) {
-            if (parameter_channels[p] < 0) continue;
-            const BoundaryShiftKernel& bp = (*basis)[p];
-            shift_p[p] += (axis == 0 ? bp.Dx(bi - k, bj - l) : bp.Dy(bi - k, bj - l)) * q[0];
-          }
-        }
-      }
-      // Density at this boundary: row `line`, entry b (axis 0), or column `line`, entry b.
-      const size_t at =
-          axis == 0 ? static_cast<size_t>(line) * (nx + 1) + b : static_cast<size_t>(b) * nx + line;
-      const double* L = density.data.data() + at * s;
-      flow[0] = shift[0] * L[0];
-      for (int c = 1; c < s; ++c) flow[c] = shift[0] * L[c] + shift[c] * L[0];
-      for (int p = 0; p < kNumBoundaryShiftParams; ++p) {
-        if (parameter_channels[p] >= 0) flow[parameter_channels[p]] += shift_p[p] * L[0];
-      }
-      // Pixel b - 1 gains the flow, pixel b loses it (where they are on the image).
-      const int n_line = axis == 0 ? nx : charge.ny;
-      for (int side = 0; side < 2; ++side) {
-        const int pix = b - 1 + side;
-        if (pix < 0 || pix >= n_line) continue;
-        const size_t q =
-            axis == 0 ? static_cast<size_t>(line) * nx + pix : static_cast<size_t>(pix) * nx + line;
-        double* out = change->data.data() + q * s;
-        const double sign = side == 0 ? 1.0 : -1.0;
-        for (int c = 0; c < s; ++c) out[c] += sign * flow[c];
+using RowMatrix = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+
+// A kernel padded with zeros to |offset| <= half on both axes, so that building a matrix
+// needs no bounds checks (the offsets between a window's boundaries and pixels reach the
+// window's side, which may exceed kBoundaryShiftReach), and mirrored along i, so that the
+// offsets bi - k of a row of window pixels k = i0, i0 + 1, ... are read forwards.
+struct PaddedKernel {
+  int half = 0, side = 0;
+  std::vector<double> mirrored;  // [j + half][half - i]
+  PaddedKernel(const BoundaryShiftKernel& kernel, int axis, int half_in)
+      : half(std::max(half_in, kBoundaryShiftReach)), side(2 * half + 1) {
+    mirrored.assign(static_cast<size_t>(side) * side, 0.0);
+    for (int j = -kBoundaryShiftReach; j <= kBoundaryShiftReach; ++j) {
+      for (int i = -kBoundaryShiftReach; i <= kBoundaryShiftReach; ++i) {
+        mirrored[static_cast<size_t>(j + half) * side + (half - i)] =
+            axis == 0 ? kernel.Dx(i, j) : kernel.Dy(i, j);
       }
     }
   }
+  // kernel(bi - k, j) for k = k0, k0 + 1, ...: the pointer's [k - k0].
+  const double* Run(int bi, int k0, int j) const {
+    return mirrored.data() + static_cast<size_t>(j + half) * side + (half - bi + k0);
+  }
+};
+
+// Where the boundaries of one axis sit: for boundary r, its density's index in the density
+// image and the image pixels below (gains) and above (loses) it, -1 off the image.
+struct AxisBoundaries {
+  int num = 0;
+  std::vector<int> bi, bj;  // the pixel whose upper edge it is: X(bi, bj) in boundary_shift.h
+  std::vector<size_t> density_at;
+  std::vector<int> lower_pixel, upper_pixel;
+};
+
+AxisBoundaries ListBoundaries(int axis, const PixelWindow& w, int nx, int ny) {
+  AxisBoundaries a;
+  const int line_lo = axis == 0 ? w.j0 : w.i0, line_hi = axis == 0 ? w.j1 : w.i1;
+  const int b_lo = axis == 0 ? w.i0 : w.j0, b_hi = (axis == 0 ? w.i1 : w.j1) + 1;
+  const int n_line = axis == 0 ? nx : ny;
+  for (int line = line_lo; line <= line_hi; ++line) {
+    for (int b = b_lo; b <= b_hi; ++b) {
+      a.bi.push_back(axis == 0 ? b - 1 : line);
+      a.bj.push_back(axis == 0 ? line : b - 1);
+      a.density_at.push_back(axis == 0 ? static_cast<size_t>(line) * (nx + 1) + b
+                                       : static_cast<size_t>(b) * nx + line);
+      auto pixel = [&](int pix) {
+        if (pix < 0 || pix >= n_line) return -1;
+        return axis == 0 ? line * nx + pix : pix * nx + line;
+      };
+      a.lower_pixel.push_back(pixel(b - 1));
+      a.upper_pixel.push_back(pixel(b));
+    }
+  }
+  a.num = static_cast<int>(a.bi.size());
+  return a;
+}
+
+// K(r, w) = kernel(bi - k, bj - l) for the window's pixels w = (k, l), row-major, as the rows
+// of `m`.
+void FillShiftRows(const PaddedKernel& kernel, const AxisBoundaries& boundaries,
+                   const PixelWindow& w, RowMatrix* m) {
+  const int wx = w.i1 - w.i0 + 1;
+  for (int r = 0; r < boundaries.num; ++r) {
+    double* row = m->row(r).data();
+    for (int l = w.j0; l <= w.j1; ++l) {
+      const double* run = kernel.Run(boundaries.bi[r], w.i0, boundaries.bj[r] - l);
+      std::copy_n(run, wx, row + static_cast<size_t>(l - w.j0) * wx);
+    }
+  }
+}
+
+// The derivative kernels of the parameters with a channel, interleaved: for each offset, the
+// kLanes parameters' values side by side (unused lanes 0), padded and mirrored as
+// PaddedKernel. Their shifts are needed for Q's values only (one channel), where building a
+// matrix per parameter would cost as much as the product; interleaved, one pass over the
+// window gives all of them, the lanes vectorised.
+constexpr int kLanes = 8;
+static_assert(kLanes >= kNumBoundaryShiftParams);
+struct InterleavedKernels {
+  int half = 0, side = 0;
+  std::vector<double> mirrored;  // [j + half][half - i][lane]
+  InterleavedKernels(const std::vector<BoundaryShiftKernel>& kernels, int axis, int half_in)
+      : half(std::max(half_in, kBoundaryShiftReach)), side(2 * half + 1) {
+    CHECK_LE(kernels.size(), static_cast<size_t>(kLanes));
+    mirrored.assign(static_cast<size_t>(side) * side * kLanes, 0.0);
+    for (size_t lane = 0; lane < kernels.size(); ++lane) {
+      for (int j = -kBoundaryShiftReach; j <= kBoundaryShiftReach; ++j) {
+        for (int i = -kBoundaryShiftReach; i <= kBoundaryShiftReach; ++i) {
+          mirrored[(static_cast<size_t>(j + half) * side + (half - i)) * kLanes + lane] =
+              axis == 0 ? kernels[lane].Dx(i, j) : kernels[lane].Dy(i, j);
+        }
+      }
+    }
+  }
+  const double* Run(int bi, int k0, int j) const {
+    return mirrored.data() + (static_cast<size_t>(j + half) * side + (half - bi + k0)) * kLanes;
+  }
+};
+
+// shift[r * kLanes + lane] = sum_w K_lane(r, w) values[w].
+void ShiftsOfParameters(const InterleavedKernels& kernels, const AxisBoundaries& boundaries,
+                        const PixelWindow& w, const double* values, double* shift) {
+  const int wx = w.i1 - w.i0 + 1;
+  for (int r = 0; r < boundaries.num; ++r) {
+    Eigen::Matrix<double, kLanes, 1> sum = Eigen::Matrix<double, kLanes, 1>::Zero();
+    for (int l = w.j0; l <= w.j1; ++l) {
+      const double* run = kernels.Run(boundaries.bi[r], w.i0, boundaries.bj[r] - l);
+      const double* v = values + static_cast<size_t>(l - w.j0) * wx;
+      for (int k = 0; k < wx; ++k) {
+        sum += v[k] * Eigen::Map<const Eigen::Matrix<double, kLanes, 1>>(run + k * kLanes);
+      }
+    }
+    Eigen::Map<Eigen::Matrix<double, kLanes, 1>>(shift + static_cast<size_t>(r) * kLanes) = sum;
+  }
+}
+
+// What depends on the parameters and the window's shape only (not on where the window is,
+// nor on the spot): the shift matrices of both axes and the parameters' kernels. A joint fit
+// applies the effect to every exposure at the same parameters, and its windows share their
+// shape, so each thread keeps the last set it built and reuses it while the parameters, the
+// channels asked for and the shape stay the same (the results are the same bits either way).
+struct ShiftMatrices {
+  bool valid = false;
+  std::array<double, kNumBoundaryShiftParams> values{};
+  std::vector<int> active;
+  int wx = 0, wy = 0;
+  std::array<RowMatrix, 2> shift_of_charge;
+  std::vector<InterleavedKernels> parameter_kernels;
+};
+
+const ShiftMatrices& CachedShiftMatrices(const BoundaryShiftParams& params,
+                                         const std::vector<int>& active, int wx, int wy,
+                                         const std::array<AxisBoundaries, 2>& boundaries,
+                                         const PixelWindow& window) {
+  thread_local ShiftMatrices cache;
+  const auto values = BoundaryShiftValues(params);
+  if (cache.valid && cache.values == values && cache.active == active && cache.wx == wx &&
+      cache.wy == wy) {
+    return cache;
+  }
+  cache.valid = false;
+  const int half = std::max(wx, wy);
+  const BoundaryShiftKernel kernel = MakeBoundaryShiftKernel(params);
+  std::vector<BoundaryShiftKernel> derivative_kernels;
+  for (int p : active) derivative_kernels.push_back(MakeBoundaryShiftDerivativeKernel(params, p));
+  cache.parameter_kernels.clear();
+  for (int axis = 0; axis < 2; ++axis) {
+    cache.shift_of_charge[axis].resize(boundaries[axis].num, wx * wy);
+    FillShiftRows(PaddedKernel(kernel, axis, half), boundaries[axis], window,
+                  &cache.shift_of_charge[axis]);
+    if (!active.empty()) cache.parameter_kernels.emplace_back(derivative_kernels, axis, half);
+  }
+  cache.values = values;
+  cache.active = active;
+  cache.wx = wx;
+  cache.wy = wy;
+  cache.valid = true;
+  return cache;
 }
 
 }  // namespace
@@ -287,28 +392,71 @@ void ApplyBoundaryShift(const BoundaryShiftParams& params, const DualImage& dens
   CHECK_EQ(density_y.ny, image->ny + 1);
   CHECK(window.i0 >= 0 && window.i1 < image->nx && window.j0 >= 0 && window.j1 < image->ny &&
         window.i0 <= window.i1 && window.j0 <= window.j1);
-  const BoundaryShiftKernel kernel = MakeBoundaryShiftKernel(params);
-  std::array<int, kNumBoundaryShiftParams> parameter_channels;
-  bool any = false;
-  for (int p = 0; p < kNumBoundaryShiftParams; ++p) {
-    parameter_channels[p] = channels.Get(EffectKind::kBoundaryShift, p);
-    any = any || parameter_channels[p] >= 0;
-  }
-  // The kernels' derivatives by each parameter, for their channels: the shifts are linear in
+  const int s = image->stride(), nx = image->nx;
+  CHECK_EQ(density_x.stride(), s);
+  CHECK_EQ(density_y.stride(), s);
+  const int wx = window.i1 - window.i0 + 1, wy = window.j1 - window.j0 + 1;
+  const int num_window = wx * wy;
+  // The parameters with a channel, and their kernels' derivatives: the shifts are linear in
   // the a's at fixed eta, and in eta at fixed a's.
-  std::array<BoundaryShiftKernel, kNumBoundaryShiftParams> basis;
-  if (any) {
-    for (int p = 0; p < kNumBoundaryShiftParams; ++p) {
-      if (parameter_channels[p] >= 0) basis[p] = MakeBoundaryShiftDerivativeKernel(params, p);
-    }
+  std::vector<int> active, active_channel;
+  for (int p = 0; p < kNumBoundaryShiftParams; ++p) {
+    const int c = channels.Get(EffectKind::kBoundaryShift, p);
+    if (c < 0) continue;
+    CHECK(c >= 1 && c < s) << "boundary_shift parameter " << p << " channel " << c;
+    active.push_back(p);
+    active_channel.push_back(c);
   }
-  // S(Q): the rate of moves at charge Q (the line densities are the incident light's, fixed).
+  const int num_active = static_cast<int>(active.size());
+  std::array<AxisBoundaries, 2> boundaries;
+  for (int axis = 0; axis < 2; ++axis) {
+    boundaries[axis] = ListBoundaries(axis, window, nx, image->ny);
+  }
+  const ShiftMatrices& matrices = CachedShiftMatrices(params, active, wx, wy, boundaries, window);
+  const std::array<RowMatrix, 2>& shift_of_charge = matrices.shift_of_charge;
+  const std::vector<InterleavedKernels>& parameter_kernels = matrices.parameter_kernels;
+  // S(Q) with its channels: the line densities are the incident light's, fixed.
+  RowMatrix charge_window(num_window, s), shift;
+  std::vector<double> values(num_window),
+      parameter_shift(static_cast<size_t>(kLanes) *
+                      std::max(boundaries[0].num, boundaries[1].num));
+  std::vector<double> flow(s);
+  double* f = flow.data();
   auto moves = [&](const DualImage& charge) {
     DualImage change{charge.nx, charge.ny, charge.num_derivatives,
                      std::vector<double>(charge.data.size(), 0.0)};
+    for (int l = window.j0; l <= window.j1; ++l) {
+      std::copy_n(charge.data.data() + (static_cast<size_t>(l) * nx + window.i0) * s,
+                  static_cast<size_t>(wx) * s,
+                  charge_window.data() + static_cast<size_t>(l - window.j0) * wx * s);
+    }
     for (int axis = 0; axis < 2; ++axis) {
-      AddMovesAlongAxis(axis, kernel, any ? &basis : nullptr, parameter_channels,
-                        axis == 0 ? density_x : density_y, window, charge, &change);
+      const AxisBoundaries& bd = boundaries[axis];
+      const DualImage& density = axis == 0 ? density_x : density_y;
+      shift.noalias() = shift_of_charge[axis] * charge_window;
+      if (num_active > 0) {
+        for (int w = 0; w < num_window; ++w) values[w] = charge_window(w, 0);
+        ShiftsOfParameters(parameter_kernels[axis], bd, window, values.data(),
+                           parameter_shift.data());
+      }
+      for (int r = 0; r < bd.num; ++r) {
+        const double* L = density.data.data() + bd.density_at[r] * s;
+        const double* sh = shift.row(r).data();
+        f[0] = sh[0] * L[0];
+        for (int c = 1; c < s; ++c) f[c] = sh[0] * L[c] + sh[c] * L[0];
+        for (int a = 0; a < num_active; ++a) {
+          f[active_channel[a]] += parameter_shift[static_cast<size_t>(r) * kLanes + a] * L[0];
+        }
+        // The pixel below the boundary gains the flow, the one above loses it.
+        if (bd.lower_pixel[r] >= 0) {
+          double* out = change.data.data() + static_cast<size_t>(bd.lower_pixel[r]) * s;
+          for (int c = 0; c < s; ++c) out[c] += f[c];
+        }
+        if (bd.upper_pixel[r] >= 0) {
+          double* out = change.data.data() + static_cast<size_t>(bd.upper_pixel[r]) * s;
+          for (int c = 0; c < s; ++c) out[c] -= f[c];
+        }
+      }
     }
     return change;
   };

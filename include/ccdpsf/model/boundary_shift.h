@@ -110,6 +110,11 @@ class BoundaryShiftBasis {
   double Dy(int parameter, int i, int j) const { return At(dy_, parameter, i, j); }
   double Ex(int parameter, int i, int j) const { return At(ex_, parameter, i, j); }
   double Ey(int parameter, int i, int j) const { return At(ey_, parameter, i, j); }
+  // One parameter's whole table, kSide x kSide, [j + reach][i + reach] (the kernels' layout).
+  const double* DxTable(int parameter) const { return Table(dx_, parameter); }
+  const double* DyTable(int parameter) const { return Table(dy_, parameter); }
+  const double* ExTable(int parameter) const { return Table(ex_, parameter); }
+  const double* EyTable(int parameter) const { return Table(ey_, parameter); }
 
  private:
   BoundaryShiftBasis();
@@ -120,6 +125,9 @@ class BoundaryShiftBasis {
     }
     return table[(static_cast<size_t>(parameter) * kSide + (j + kBoundaryShiftReach)) * kSide +
                  (i + kBoundaryShiftReach)];
+  }
+  static const double* Table(const std::vector<double>& table, int parameter) {
+    return table.data() + static_cast<size_t>(parameter) * kSide * kSide;
   }
   std::vector<double> dx_, dy_, ex_, ey_;  // [coefficient][j][i]
 };
