@@ -199,11 +199,13 @@ int FitInto(const std::string& dir, const std::string& shown, const std::string&
   }
   for (const std::string& w : warnings) std::fprintf(stderr, "ccdpsf: warning: %s\n", w.c_str());
   const fit::FitResult& result = fitted.result;
-  std::printf("%s: chi2/dof %.4g, %s; verdict %s; results in %s/fit.json (report.md, plots)\n",
+  // What else is in the folder: report.md always, the pictures when they were drawn.
+  std::printf("%s: chi2/dof %.4g, %s; verdict %s; results in %s/fit.json (report.md%s)\n",
               files.size() == 1 ? files[0].c_str() : "joint fit", result.map.chi2 / result.map.dof,
               result.have_mcmc ? (result.chain.converged ? "MCMC converged" : "MCMC NOT converged")
                                : "no MCMC",
-              fitted.quality.OneLine().c_str(), shown.c_str());
+              fitted.quality.OneLine().c_str(), shown.c_str(),
+              report_options.plot.draw ? ", plots" : "");
   if (fitted.quality.Worst() != Severity::kNote) *flagged = true;
   return 0;
 }

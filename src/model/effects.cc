@@ -261,7 +261,7 @@ std::vector<EffectInfo> MakeCatalogue() {
         Param("a_11", "1/e-", shift.a_11, 0.0, 6.0e-7, -1.0e-4, false, 1.0e-4, false,
               "area gain of the diagonal pixel per electron", 3.0e-8, true),
         Param("a_far", "1/e-", shift.a_far, 0.0, 1.5e-7, -1.0e-4, false, 1.0e-4, false,
-              "area gain at lag distance 2 per electron, falling as (2/r)^3 to lag 5", 1.0e-8,
+              "area gain at lag distance 2 per electron, falling as (2/r)^4 to lag 5", 1.0e-8,
               true),
         Param("anisotropy", "", shift.anisotropy, -0.6, 0.6, -1.0, true, 1.0, true,
               "column boundaries yield (1 + eta), row boundaries (1 - eta); moves no area",

@@ -328,6 +328,12 @@ TEST(Cli, FitDrawsPicturesWhereThePlotsOptionAsks) {
       if (!drawn) {
         EXPECT_NE(md.find("fit --plots=" + mode), std::string::npos) << md;
       }
+      // The summary line names the pictures only where they were drawn.
+      const size_t line = r.output.find("/" + name + "/fit.json");
+      ASSERT_NE(line, std::string::npos) << r.output;
+      const std::string rest = r.output.substr(line, r.output.find('\n', line) - line);
+      EXPECT_EQ(rest.find("plots") != std::string::npos, drawn) << rest;
+      EXPECT_NE(rest.find("report.md"), std::string::npos) << rest;
     }
   }
   const std::string bad = Fresh("plots_bad");

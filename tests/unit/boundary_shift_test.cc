@@ -49,7 +49,7 @@ TEST(BoundaryShift, AreasOfTheShiftsAreTheCoefficients) {
   EXPECT_DOUBLE_EQ(BoundaryShiftCoefficient(p, 0, -1), p.a_01);
   EXPECT_DOUBLE_EQ(BoundaryShiftCoefficient(p, -1, 1), p.a_11);
   EXPECT_DOUBLE_EQ(BoundaryShiftCoefficient(p, 2, 0), p.a_far);
-  EXPECT_NEAR(BoundaryShiftCoefficient(p, 3, 4), p.a_far * std::pow(2.0 / 5.0, 3.0), 1e-22);
+  EXPECT_NEAR(BoundaryShiftCoefficient(p, 3, 4), p.a_far * std::pow(2.0 / 5.0, 4.0), 1e-22);
   EXPECT_EQ(BoundaryShiftCoefficient(p, 6, 0), 0.0);
   const int r = kBoundaryShiftReach - 1;
   for (int j = -r; j <= r; ++j) {

@@ -14,9 +14,13 @@
 //                      0 beyond (a_far is the coefficient at r = 2, e.g. a_20);
 //   a_00               from the sum rule: minus the sum of all the others.
 // The far exponent is held, not fitted: a spot's light falls within two pixels of its centre,
-// so spots do not measure the far lags' shape; flats do (`ccdpsf ptc` reports a_ij per lag),
-// and kFarExponent = 3 follows from a boundary shift falling as the square of the distance
-// from the charge (a_ij, the divergence of the shifts, then falls as its cube).
+// so spots do not measure the far lags' shape; flats do (`ccdpsf ptc` reports a_ij per lag).
+// kFarExponent = 4: the collected charge sits next to the gate electrodes, which screen it
+// like an image charge, so far away its lateral field - a boundary's shift - is a dipole's,
+// falling as the cube of the distance, and a_ij, the divergence of the shifts, as the fourth
+// power. Through the sum rule the far lags set a_00 and so what a spot's centre loses: with
+// the power 3 the model moved 10.6 % more charge out of the centre of a bright spot than the
+// photon-shooting reference sensor (docs/conventions.md, boundary_shift_sensor_test.cc).
 //
 // From areas to boundaries. A spot needs the shift of each boundary, not only the areas. As
 // Coulton et al. 2018, the shifts are taken as the gradient of a potential K with a = lap K
@@ -68,7 +72,7 @@ namespace ccdpsf::model {
 
 // Lags |i|, |j| <= kLagRange carry a coefficient; the far power law stops there.
 constexpr int kBoundaryShiftLagRange = 5;
-constexpr double kBoundaryShiftFarExponent = 3.0;
+constexpr double kBoundaryShiftFarExponent = 4.0;
 // Boundary shifts are kept for charges up to kBoundaryShiftReach pixels away along each axis:
 // beyond, the shift of the potential of a charge-neutral pattern of coefficients (a
 // quadrupole-like field) is below 1e-3 of the nearest boundary's (checked in a test).
