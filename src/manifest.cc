@@ -94,6 +94,9 @@ bool LoadCsv(const std::string& text, const std::string& name, const fs::path& b
   int line_number = 0;
   while (std::getline(in, line)) {
     ++line_number;
+    // A spreadsheet saving "CSV UTF-8" starts the file with a byte-order mark, which is not
+    // part of the first column's name.
+    if (line_number == 1 && line.rfind("\xEF\xBB\xBF", 0) == 0) line.erase(0, 3);
     if (!line.empty() && line.back() == '\r') line.pop_back();
     const std::string trimmed = Trim(line);
     if (trimmed.empty() || trimmed[0] == '#') continue;

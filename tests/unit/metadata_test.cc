@@ -118,6 +118,13 @@ TEST(Manifest, CsvRowsColumnsAndErrors) {
   EXPECT_EQ(m.rows[0].values.Find("exptime_s")->source, "manifest m.csv line 3");
   EXPECT_EQ(*m.rows[1].values.Find("gain_e_per_adu")->number, 3.1);
   EXPECT_NE(m.Find(dir + "/./sub/../sub/b.fits"), nullptr);  // matched by canonical path
+  // Saved by a spreadsheet as "CSV UTF-8": a byte-order mark before the header and CRLF line
+  // ends; the same rows.
+  Write(dir + "/bom.csv", "\xEF\xBB\xBF" "file,exptime_s\r\na.fits,0.1\r\n");
+  Manifest bom;
+  ASSERT_TRUE(LoadManifest(dir + "/bom.csv", &bom, &error)) << error;
+  ASSERT_EQ(bom.rows.size(), 1u);
+  EXPECT_EQ(*bom.rows[0].values.Find("exptime_s")->number, 0.1);
   struct Bad {
     const char* text;
     const char* says;
