@@ -55,7 +55,7 @@ a.fits,s800,1.5,2.0,mask.fits
     "section_reversed.txt": (SECTION, "[20:1,*]"),
     "truth.json": (TRUTH, """{"seed": 1, "noiseless": false,
  "exposures": [{"file": "exposure_000.fits", "flux_e": 1e5, "airy_radius_px": 0.8}]}"""),
-    "group_result.json": (GROUP_RESULT, """{"format": 4, "group": "g1", "ok": true,
+    "group_result.json": (GROUP_RESULT, """{"format": 5, "group": "g1", "ok": true,
  "failure": "", "exposures": 3, "seconds": 1.5, "summaries": {"sigma_x_px":
  [0.4, 0.01, 0.4, 0.39, 0.41, 0.37, 0.43]}, "draws": {"sigma_x_px": [0.4, "nan"]},
  "report_dir": "groups/g1"}"""),

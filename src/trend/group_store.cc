@@ -127,8 +127,13 @@ bool LoadGroupResult(const std::string& path, GroupResult* result) {
 }
 
 bool GroupResultFromJson(const nlohmann::json& j, GroupResult* result) {
-  if (!j.is_object() || j.value("format", 0) != kFormat ||
-      j.value("group", std::string()) != result->group.name) {
+  // Checked by type first: json::value() throws when the key is there with another type
+  // (a stored file is input, however it was damaged).
+  if (!j.is_object()) return false;
+  const auto format = j.find("format"), group = j.find("group");
+  if (format == j.end() || !format->is_number_integer() || format->get<int64_t>() != kFormat ||
+      group == j.end() || !group->is_string() ||
+      group->get<std::string>() != result->group.name) {
     return false;
   }
   GroupResult r;

@@ -22,6 +22,7 @@
 #include "ccdpsf/simulate.h"
 #include "ccdpsf/trend/campaign.h"
 #include "ccdpsf/trend/group_fit.h"
+#include "ccdpsf/trend/group_store.h"
 #include "gtest/gtest.h"
 #include "nlohmann/json.hpp"
 #include "support/run_ccdpsf.h"
@@ -72,6 +73,40 @@ void SimulateSet(const std::string& dir, double wavelength, double exptime,
   SimulationResult r;
   std::string error;
   ASSERT_TRUE(RunSimulation(c, dir, false, &r, &error)) << error;
+}
+
+// A stored group result is input like any other file: a field of the wrong type is refused
+// (false, result untouched), never thrown. The first case is the text_input_fuzzer's find
+// ("format" an object made json::value() throw); a result written by GroupResultJson still
+// reads back.
+TEST(GroupStore, FieldsOfTheWrongTypeAreRefusedNotThrown) {
+  GroupResult stored;
+  stored.group.name = "g1";
+  stored.ok = true;
+  GroupResult read;
+  read.group.name = "g1";
+  ASSERT_TRUE(GroupResultFromJson(GroupResultJson(stored), &read));
+  EXPECT_TRUE(read.ok);
+  const nlohmann::json good = GroupResultJson(stored);
+  std::vector<nlohmann::json> damaged = {
+      nlohmann::json::parse(R"({"format": {"sigma_x_px": [0.4, 0.01]}, "report_dir": "g"})"),
+      nlohmann::json::parse(R"({"format": "5", "group": "g1"})"), nlohmann::json::array()};
+  for (const char* key : {"format", "group"}) {
+    for (const nlohmann::json& wrong :
+         {nlohmann::json(nullptr), nlohmann::json(1.5), nlohmann::json::object(),
+          nlohmann::json::array(), nlohmann::json(true)}) {
+      nlohmann::json j = good;
+      j[key] = wrong;
+      damaged.push_back(j);
+    }
+  }
+  for (const nlohmann::json& j : damaged) {
+    GroupResult r;
+    r.group.name = "g1";
+    bool accepted = true;
+    EXPECT_NO_THROW(accepted = GroupResultFromJson(j, &r)) << j.dump();
+    EXPECT_FALSE(accepted) << j.dump();
+  }
 }
 
 TEST(Campaign, FoldersAreGroupedByWavelengthAndExposureTime) {
