@@ -121,7 +121,11 @@ void Parse(Reader reader, const std::string& text) {
     case kGroupResult: {
       ccdpsf::trend::GroupResult result;
       const nlohmann::json j = nlohmann::json::parse(text, nullptr, /*allow_exceptions=*/false);
-      if (j.is_object()) result.group.name = j.value("group", std::string());
+      // The caller knows its group's name; the harness takes it from the text where it is a
+      // string (json::value() would throw on another type, in the harness, not the reader).
+      if (j.is_object() && j.contains("group") && j["group"].is_string()) {
+        result.group.name = j["group"].get<std::string>();
+      }
       (void)ccdpsf::trend::GroupResultFromJson(j, &result);
       break;
     }
