@@ -101,7 +101,11 @@ bool WriteFocusPlot(const std::string& dir, const std::string& stem, const Expos
   if (truth && truth->document.is_object()) {
     const nlohmann::json& t = truth->document;
     const bool effects = t.contains("effects") && !t["effects"].empty();
-    const nlohmann::json params = t.value("parameters", nlohmann::json::object());
+    // (A damaged truth file's "parameters" of another type reads as none: json::value() would
+    // throw.)
+    const nlohmann::json params = t.contains("parameters") && t["parameters"].is_object()
+                                      ? t["parameters"]
+                                      : nlohmann::json::object();
     if (!effects && params.contains("ccd_sigma_x_px") && params.contains("ccd_sigma_y_px") &&
         t.contains("exposures") && t["exposures"].is_array()) {
       Curve points[2];

@@ -202,9 +202,17 @@ Curve TruthGroupPoints(const PlotContext& ctx, const std::string& metric) {
   const nlohmann::json& doc = ctx.options->truth->document;
   if (!doc.contains("groups") || !doc["groups"].is_array()) return c;
   for (const nlohmann::json& g : doc["groups"]) {
-    if (!g.is_object() || g.value("focus_series", false)) continue;
-    const double wavelength = g.value("wavelength_nm", NAN);
-    const double peak = g.value("nominal_peak_e", NAN);
+    // Fields read by type (a truth file is input: json::value() throws on another type).
+    if (!g.is_object()) continue;
+    auto number = [&g](const char* key) {
+      return g.contains(key) && g[key].is_number() ? g[key].get<double>() : NAN;
+    };
+    if (g.contains("focus_series") && g["focus_series"].is_boolean() &&
+        g["focus_series"].get<bool>()) {
+      continue;
+    }
+    const double wavelength = number("wavelength_nm");
+    const double peak = number("nominal_peak_e");
     const double value =
         g.contains(metric) && g[metric].is_number() ? g[metric].get<double>() : NAN;
     if (wavelength != ctx.result->intensity_wavelength_nm || !std::isfinite(peak) ||
