@@ -24,6 +24,7 @@
 #include "ccdpsf/model/effects.h"
 #include "ccdpsf/model/renderer.h"
 #include "gtest/gtest.h"
+#include "support/boundary_densities.h"
 #include "support/reference_model.h"
 
 namespace ccdpsf::model {
@@ -126,11 +127,7 @@ TEST(BoundaryShiftAccuracy, ModelAgainstExactAccumulationAt2e5) {
 
   // The model: the same window, the renderer's line densities.
   DualImage image{kN, kN, 0, s.base};
-  const PixelGrid gx{kN + 1, kN, -1.0, 0.0}, gy{kN, kN + 1, 0.0, -1.0};
-  DualImage lx{gx.nx, gx.ny, 0, std::vector<double>(gx.size())};
-  DualImage ly{gy.nx, gy.ny, 0, std::vector<double>(gy.size())};
-  renderer.RenderBoundaryDensity(p, gx, 0, lx.data.data(), nullptr);
-  renderer.RenderBoundaryDensity(p, gy, 1, ly.data.data(), nullptr);
+  const auto [lx, ly] = testing_support::DrawBoundaryDensities(renderer, p, grid);
   ApplyBoundaryShift(a, lx, ly, s.window, EffectChannels(), &image);
 
   const std::vector<double> exact4 = ExactAccumulation(s, 4);

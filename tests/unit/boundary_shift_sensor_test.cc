@@ -33,6 +33,7 @@
 #include "ccdpsf/model/effects.h"
 #include "ccdpsf/model/renderer.h"
 #include "gtest/gtest.h"
+#include "support/boundary_densities.h"
 #include "nlohmann/json.hpp"
 
 namespace ccdpsf::model {
@@ -53,12 +54,7 @@ std::vector<double> ModelMoved(const BoundaryShiftParams& a, double flux) {
   const PixelGrid grid;
   DualImage image{grid.nx, grid.ny, 0, std::vector<double>(grid.size())};
   renderer.Render(p, grid, image.data.data(), nullptr);
-  const PixelGrid gx{grid.nx + 1, grid.ny, grid.x0 - 1.0, grid.y0};
-  const PixelGrid gy{grid.nx, grid.ny + 1, grid.x0, grid.y0 - 1.0};
-  DualImage lx{gx.nx, gx.ny, 0, std::vector<double>(gx.size())};
-  DualImage ly{gy.nx, gy.ny, 0, std::vector<double>(gy.size())};
-  renderer.RenderBoundaryDensity(p, gx, 0, lx.data.data(), nullptr);
-  renderer.RenderBoundaryDensity(p, gy, 1, ly.data.data(), nullptr);
+  const auto [lx, ly] = testing_support::DrawBoundaryDensities(renderer, p, grid);
   DualImage shifted = image;
   ApplyBoundaryShift(a, lx, ly, BoundaryShiftWindow(10, 10, grid.nx, grid.ny), EffectChannels(),
                      &shifted);
