@@ -812,28 +812,37 @@ bool FitEvaluator::ModelImageColumns(const double* theta, int k, std::vector<dou
   }
   if (!image_effects) return true;
   if (shift) {
-    // The line densities along the pixel boundaries, drawn with the spot's parameters, with
-    // their derivatives chained to theta as the image's. ApplyBoundaryShift reads only the
-    // boundaries of the exposure's window, so only those are drawn: the window's rows' x
-    // boundaries from its first pixel's lower edge to its last's upper edge, likewise along y.
+    // The line densities along the pixel boundaries and the light at their corners, drawn
+    // with the spot's parameters, with their derivatives chained to theta as the image's.
+    // ApplyBoundaryShift reads only the boundaries and corners of the exposure's window, so
+    // only those are drawn: the window's rows' x boundaries from its first pixel's lower edge
+    // to its last's upper edge, likewise along y, and the corners of both.
     const model::PixelWindow& w = fm.ShiftWindow(k);
     const int wx = w.i1 - w.i0 + 1, wy = w.j1 - w.j0 + 1;
-    const model::PixelGrid full[2] = {{grid.nx + 1, grid.ny, grid.x0 - 1.0, grid.y0},
-                                      {grid.nx, grid.ny + 1, grid.x0, grid.y0 - 1.0}};
-    const model::PixelGrid part[2] = {
+    const model::PixelGrid full[3] = {{grid.nx + 1, grid.ny, grid.x0 - 1.0, grid.y0},
+                                      {grid.nx, grid.ny + 1, grid.x0, grid.y0 - 1.0},
+                                      {grid.nx + 1, grid.ny + 1, grid.x0 - 1.0, grid.y0 - 1.0}};
+    const model::PixelGrid part[3] = {
         {wx + 1, wy, grid.x0 - 1.0 + w.i0, grid.y0 + w.j0},
-        {wx, wy + 1, grid.x0 + w.i0, grid.y0 - 1.0 + w.j0}};
-    for (int axis = 0; axis < 2; ++axis) {
-      const model::PixelGrid& g = part[axis];
-      model::DualImage& d = boundary_density_[axis];
-      d.nx = full[axis].nx;
-      d.ny = full[axis].ny;
+        {wx, wy + 1, grid.x0 + w.i0, grid.y0 - 1.0 + w.j0},
+        {wx + 1, wy + 1, grid.x0 - 1.0 + w.i0, grid.y0 - 1.0 + w.j0}};
+    model::DualImage* const densities[3] = {&boundary_densities_.x, &boundary_densities_.y,
+                                            &boundary_densities_.corner};
+    for (int kind = 0; kind < 3; ++kind) {
+      const model::PixelGrid& g = part[kind];
+      model::DualImage& d = *densities[kind];
+      d.nx = full[kind].nx;
+      d.ny = full[kind].ny;
       d.num_derivatives = want ? nc : 0;
-      d.data.assign(static_cast<size_t>(full[axis].size()) * d.stride(), 0.0);
+      d.data.assign(static_cast<size_t>(full[kind].size()) * d.stride(), 0.0);
       density_values_.resize(g.size());
       if (want) density_jacobian_.resize(static_cast<size_t>(g.size()) * model::kNumSpotParams);
-      renderer_.RenderBoundaryDensity(spot, g, axis, density_values_.data(),
-                                      want ? density_jacobian_.data() : nullptr);
+      double* jacobian = want ? density_jacobian_.data() : nullptr;
+      if (kind < 2) {
+        renderer_.RenderBoundaryDensity(spot, g, kind, density_values_.data(), jacobian);
+      } else {
+        renderer_.RenderCornerDensity(spot, g, density_values_.data(), jacobian);
+      }
       for (int q = 0; q < g.size(); ++q) {
         // Entry (qi, qj) of the window's grid is (w.i0 + qi, w.j0 + qj) of the full one.
         const int qi = q % g.nx, qj = q / g.nx;
@@ -877,7 +886,7 @@ bool FitEvaluator::ModelImageColumns(const double* theta, int k, std::vector<dou
     }
   }
   if (shift) {
-    model::ApplyBoundaryShift(*effects.boundary_shift, boundary_density_[0], boundary_density_[1],
+    model::ApplyBoundaryShift(*effects.boundary_shift, boundary_densities_,
                               fm.ShiftWindow(k), channels, &dual_);
   }
   model::ApplyImageEffects(effects, grid, reference, want ? &reference_d : nullptr, channels,

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Dense>
@@ -383,18 +384,24 @@ const ShiftMatrices& CachedShiftMatrices(const BoundaryShiftParams& params,
 
 }  // namespace
 
-void ApplyBoundaryShift(const BoundaryShiftParams& params, const DualImage& density_x,
-                        const DualImage& density_y, const PixelWindow& window,
-                        const EffectChannels& channels, DualImage* image) {
+void ApplyBoundaryShift(const BoundaryShiftParams& params, const BoundaryDensities& densities,
+                        const PixelWindow& window, const EffectChannels& channels,
+                        DualImage* image) {
+  const DualImage& density_x = densities.x;
+  const DualImage& density_y = densities.y;
+  const DualImage& density_corner = densities.corner;
   CHECK_EQ(density_x.nx, image->nx + 1);
   CHECK_EQ(density_x.ny, image->ny);
   CHECK_EQ(density_y.nx, image->nx);
   CHECK_EQ(density_y.ny, image->ny + 1);
+  CHECK_EQ(density_corner.nx, image->nx + 1);
+  CHECK_EQ(density_corner.ny, image->ny + 1);
   CHECK(window.i0 >= 0 && window.i1 < image->nx && window.j0 >= 0 && window.j1 < image->ny &&
         window.i0 <= window.i1 && window.j0 <= window.j1);
   const int s = image->stride(), nx = image->nx;
   CHECK_EQ(density_x.stride(), s);
   CHECK_EQ(density_y.stride(), s);
+  CHECK_EQ(density_corner.stride(), s);
   const int wx = window.i1 - window.i0 + 1, wy = window.j1 - window.j0 + 1;
   const int num_window = wx * wy;
   // The parameters with a channel, and their kernels' derivatives: the shifts are linear in
@@ -416,36 +423,57 @@ void ApplyBoundaryShift(const BoundaryShiftParams& params, const DualImage& dens
   const std::array<RowMatrix, 2>& shift_of_charge = matrices.shift_of_charge;
   const std::vector<InterleavedKernels>& parameter_kernels = matrices.parameter_kernels;
   // S(Q) with its channels: the line densities are the incident light's, fixed.
-  RowMatrix charge_window(num_window, s), shift;
-  std::vector<double> values(num_window),
-      parameter_shift(static_cast<size_t>(kLanes) *
-                      std::max(boundaries[0].num, boundaries[1].num));
-  std::vector<double> flow(s);
+  RowMatrix charge_window(num_window, s);
+  std::array<RowMatrix, 2> shift;
+  std::vector<double> values(num_window);
+  std::array<std::vector<double>, 2> parameter_shift;
+  for (int axis = 0; axis < 2; ++axis) {
+    parameter_shift[axis].assign(static_cast<size_t>(kLanes) * boundaries[axis].num, 0.0);
+  }
+  std::vector<double> flow(s), u(s), v(s);
   double* f = flow.data();
-  auto moves = [&](const DualImage& charge) {
-    DualImage change{charge.nx, charge.ny, charge.num_derivatives,
-                     std::vector<double>(charge.data.size(), 0.0)};
+  // The shifts of every boundary of both axes by the charge `charge` (all channels; the
+  // parameters' own channels in parameter_shift, for the values only).
+  auto shifts_of = [&](const DualImage& charge) {
     for (int l = window.j0; l <= window.j1; ++l) {
       std::copy_n(charge.data.data() + (static_cast<size_t>(l) * nx + window.i0) * s,
                   static_cast<size_t>(wx) * s,
                   charge_window.data() + static_cast<size_t>(l - window.j0) * wx * s);
     }
     for (int axis = 0; axis < 2; ++axis) {
+      shift[axis].noalias() = shift_of_charge[axis] * charge_window;
+    }
+    if (num_active > 0) {
+      for (int w = 0; w < num_window; ++w) values[w] = charge_window(w, 0);
+      for (int axis = 0; axis < 2; ++axis) {
+        ShiftsOfParameters(parameter_kernels[axis], boundaries[axis], window, values.data(),
+                           parameter_shift[axis].data());
+      }
+    }
+  };
+  // Boundary r of `axis`'s shift with every channel (the parameters' own added), into out.
+  auto full_shift = [&](int axis, int r, double* out) {
+    const double* sh = shift[axis].row(r).data();
+    std::copy(sh, sh + s, out);
+    for (int a = 0; a < num_active; ++a) {
+      out[active_channel[a]] += parameter_shift[axis][static_cast<size_t>(r) * kLanes + a];
+    }
+  };
+  // The charge moved across the boundaries at the shifts of the last shifts_of (first order).
+  auto moves = [&]() {
+    DualImage change{image->nx, image->ny, image->num_derivatives,
+                     std::vector<double>(image->data.size(), 0.0)};
+    for (int axis = 0; axis < 2; ++axis) {
       const AxisBoundaries& bd = boundaries[axis];
       const DualImage& density = axis == 0 ? density_x : density_y;
-      shift.noalias() = shift_of_charge[axis] * charge_window;
-      if (num_active > 0) {
-        for (int w = 0; w < num_window; ++w) values[w] = charge_window(w, 0);
-        ShiftsOfParameters(parameter_kernels[axis], bd, window, values.data(),
-                           parameter_shift.data());
-      }
       for (int r = 0; r < bd.num; ++r) {
         const double* L = density.data.data() + bd.density_at[r] * s;
-        const double* sh = shift.row(r).data();
+        const double* sh = shift[axis].row(r).data();
         f[0] = sh[0] * L[0];
         for (int c = 1; c < s; ++c) f[c] = sh[0] * L[c] + sh[c] * L[0];
         for (int a = 0; a < num_active; ++a) {
-          f[active_channel[a]] += parameter_shift[static_cast<size_t>(r) * kLanes + a] * L[0];
+          f[active_channel[a]] +=
+              parameter_shift[axis][static_cast<size_t>(r) * kLanes + a] * L[0];
         }
         // The pixel below the boundary gains the flow, the one above loses it.
         if (bd.lower_pixel[r] >= 0) {
@@ -463,10 +491,61 @@ void ApplyBoundaryShift(const BoundaryShiftParams& params, const DualImage& dens
   // dQ/dt = M + S(Q(t)), Q(0) = 0, over the exposure t in [0, 1]: Q(1) = M + S M / 2 + S^2 M / 6
   // + ..., the exponential series of the linear S, kept to second order (the third is below
   // 1e-3 of the effect at a 2e5 e- peak).
-  const DualImage first = moves(*image);
-  const DualImage second = moves(first);
+  shifts_of(*image);
+  const DualImage first = moves();
+  // The corners (second order in the shifts, at the shifts of M). Each side of a pixel moves
+  // rigidly, so where two sides of one pixel both move into it, the patch beyond both (area
+  // the product of their shifts) belongs to neither edge neighbour, to which the first order
+  // gives it (and takes it from the pixel twice), but to the diagonal one. At the corner
+  // between pixels LL = (c - 1, d - 1), LR = (c, d - 1), UL = (c - 1, d), UR = (c, d), with
+  // the x boundaries below (xb, LL|LR) and above (xa, UL|UR) it and the y boundaries left (yl,
+  // LL|UL) and right (yr, LR|UR), every such patch corrects the four pixels by
+  // (+P, -P, -P, +P) x rho(corner): P is the sum of the signed products xb yl (if both < 0:
+  // LL's patch), xa yr (both > 0: UR's), xb yr (xb > 0 > yr: LR's), xa yl (xa < 0 < yl: UL's).
+  // The area grows as the square of the charge collected, so over the exposure it averages a
+  // third of its final value. The corners on the window's edge are left out.
+  DualImage corners{image->nx, image->ny, image->num_derivatives,
+                    std::vector<double>(image->data.size(), 0.0)};
+  std::array<std::vector<double>, 4> side;  // xb, xa, yl, yr with channels
+  for (std::vector<double>& one : side) one.resize(s);
+  const int row0 = wx + 1, col0 = wy + 1;  // boundaries per row (axis 0) and column (axis 1)
+  for (int d = window.j0 + 1; d <= window.j1; ++d) {
+    for (int c = window.i0 + 1; c <= window.i1; ++c) {
+      // Axis 0: row l, boundary b at r = (l - j0) (wx + 1) + (b - i0); axis 1: column m,
+      // boundary b at r = (m - i0) (wy + 1) + (b - j0).
+      full_shift(0, (d - 1 - window.j0) * row0 + (c - window.i0), side[0].data());
+      full_shift(0, (d - window.j0) * row0 + (c - window.i0), side[1].data());
+      full_shift(1, (c - 1 - window.i0) * col0 + (d - window.j0), side[2].data());
+      full_shift(1, (c - window.i0) * col0 + (d - window.j0), side[3].data());
+      const double xb = side[0][0], xa = side[1][0], yl = side[2][0], yr = side[3][0];
+      // The patch products present, as (x side, y side) pairs.
+      std::fill(u.begin(), u.end(), 0.0);  // P with its channels
+      auto add_patch = [&](const std::vector<double>& px, const std::vector<double>& py) {
+        u[0] += px[0] * py[0];
+        for (int k = 1; k < s; ++k) u[k] += px[k] * py[0] + px[0] * py[k];
+      };
+      if (xb < 0 && yl < 0) add_patch(side[0], side[2]);
+      if (xa > 0 && yr > 0) add_patch(side[1], side[3]);
+      if (xb > 0 && yr < 0) add_patch(side[0], side[3]);
+      if (xa < 0 && yl > 0) add_patch(side[1], side[2]);
+      if (u[0] == 0.0) continue;
+      const double* rho =
+          density_corner.data.data() + (static_cast<size_t>(d) * (nx + 1) + c) * s;
+      v[0] = u[0] * rho[0] / 3.0;
+      for (int k = 1; k < s; ++k) v[k] = (u[k] * rho[0] + u[0] * rho[k]) / 3.0;
+      const int ll = (d - 1) * nx + (c - 1);
+      const std::array<std::pair<int, double>, 4> to = {
+          std::pair<int, double>{ll, 1.0}, {ll + 1, -1.0}, {ll + nx, -1.0}, {ll + nx + 1, 1.0}};
+      for (const auto& [pixel, sign] : to) {
+        double* out = corners.data.data() + static_cast<size_t>(pixel) * s;
+        for (int k = 0; k < s; ++k) out[k] += sign * v[k];
+      }
+    }
+  }
+  shifts_of(first);
+  const DualImage second = moves();
   for (size_t e = 0; e < image->data.size(); ++e) {
-    image->data[e] += first.data[e] / 2.0 + second.data[e] / 6.0;
+    image->data[e] += first.data[e] / 2.0 + second.data[e] / 6.0 + corners.data[e];
   }
 }
 

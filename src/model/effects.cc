@@ -549,22 +549,27 @@ void RenderSpotWithKernelEffects(const SpotRenderer& renderer, const ExposureEff
   const bool pc_offset = effects.defocus_offset && options.sampling == Sampling::kPixelCentre;
   const double odx = pc_offset ? effects.defocus_offset->dx_px : 0.0;
   const double ody = pc_offset ? effects.defocus_offset->dy_px : 0.0;
-  // With boundary_shift, the line densities along the pixel boundaries too, on the grid grown
-  // by one pixel below on their axis (ApplyBoundaryShift's layout).
+  // With boundary_shift, the light along the pixel boundaries and at their corners too, on
+  // the grid grown by one pixel below on their axes (ApplyBoundaryShift's layout).
   const bool shift = effects.boundary_shift.has_value();
   const PixelGrid grid_x{grid.nx + 1, grid.ny, grid.x0 - 1.0, grid.y0};
   const PixelGrid grid_y{grid.nx, grid.ny + 1, grid.x0, grid.y0 - 1.0};
-  DualImage density_x, density_y;
+  const PixelGrid grid_corner{grid.nx + 1, grid.ny + 1, grid.x0 - 1.0, grid.y0 - 1.0};
+  BoundaryDensities densities;
   if (shift) {
-    density_x = {grid_x.nx, grid_x.ny, 0, std::vector<double>(grid_x.size(), 0.0)};
-    density_y = {grid_y.nx, grid_y.ny, 0, std::vector<double>(grid_y.size(), 0.0)};
+    densities.x = {grid_x.nx, grid_x.ny, 0, std::vector<double>(grid_x.size(), 0.0)};
+    densities.y = {grid_y.nx, grid_y.ny, 0, std::vector<double>(grid_y.size(), 0.0)};
+    densities.corner = {grid_corner.nx, grid_corner.ny, 0,
+                        std::vector<double>(grid_corner.size(), 0.0)};
   }
-  std::vector<double> one(shift ? std::max(grid_x.size(), grid_y.size()) : grid.size());
+  std::vector<double> one(shift ? grid_corner.size() : grid.size());
   auto add_densities = [&](const SpotParams& p, double weight) {
     renderer.RenderBoundaryDensity(p, grid_x, 0, one.data(), nullptr);
-    for (int q = 0; q < grid_x.size(); ++q) density_x.data[q] += weight * one[q];
+    for (int q = 0; q < grid_x.size(); ++q) densities.x.data[q] += weight * one[q];
     renderer.RenderBoundaryDensity(p, grid_y, 1, one.data(), nullptr);
-    for (int q = 0; q < grid_y.size(); ++q) density_y.data[q] += weight * one[q];
+    for (int q = 0; q < grid_y.size(); ++q) densities.y.data[q] += weight * one[q];
+    renderer.RenderCornerDensity(p, grid_corner, one.data(), nullptr);
+    for (int q = 0; q < grid_corner.size(); ++q) densities.corner.data[q] += weight * one[q];
   };
   if (n == 1) {
     if (pc_offset) {
@@ -591,7 +596,7 @@ void RenderSpotWithKernelEffects(const SpotRenderer& renderer, const ExposureEff
   if (shift) {
     DualImage image{grid.nx, grid.ny, 0, std::vector<double>(model, model + grid.size())};
     const int peak = static_cast<int>(std::max_element(model, model + grid.size()) - model);
-    ApplyBoundaryShift(*effects.boundary_shift, density_x, density_y,
+    ApplyBoundaryShift(*effects.boundary_shift, densities,
                        BoundaryShiftWindow(peak % grid.nx, peak / grid.nx, grid.nx, grid.ny),
                        EffectChannels(), &image);
     std::copy(image.data.begin(), image.data.end(), model);

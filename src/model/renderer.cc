@@ -79,4 +79,17 @@ void SpotRenderer::RenderBoundaryDensity(const SpotParams& params, const PixelGr
                              axis == 1 ? AxisKernel::kUpperEdge : AxisKernel::kPixel);
 }
 
+void SpotRenderer::RenderCornerDensity(const SpotParams& params, const PixelGrid& grid,
+                                       double* density, double* jacobian) const {
+  CHECK(options_.sampling == Sampling::kIntegrated) << "corner densities need integrated sampling";
+  CHECK_EQ(options_.pixel_response_width, 1.0) << "corner densities need the whole pixel";
+  std::string error;
+  CHECK(ValidSpotParams(options_, params, &error)) << error;
+  CHECK_GT(grid.nx, 0);
+  CHECK_GT(grid.ny, 0);
+  using internal::AxisKernel;
+  internal::RenderIntegrated(options_, params, grid, density, jacobian, &workspace_->integrated,
+                             AxisKernel::kUpperEdge, AxisKernel::kUpperEdge);
+}
+
 }  // namespace ccdpsf::model

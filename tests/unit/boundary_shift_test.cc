@@ -312,12 +312,12 @@ TEST(BoundaryShift, WindowHoldsTheEffect) {
   const PixelGrid grid;
   DualImage image{grid.nx, grid.ny, 0, std::vector<double>(grid.size())};
   renderer.Render(p, grid, image.data.data(), nullptr);
-  const auto [lx, ly] = testing_support::DrawBoundaryDensities(renderer, p, grid);
+  const BoundaryDensities densities = testing_support::DrawBoundaryDensities(renderer, p, grid);
   const BoundaryShiftParams a;
   DualImage small = image, whole = image;
-  ApplyBoundaryShift(a, lx, ly, BoundaryShiftWindow(10, 10, grid.nx, grid.ny), EffectChannels(),
+  ApplyBoundaryShift(a, densities, BoundaryShiftWindow(10, 10, grid.nx, grid.ny), EffectChannels(),
                      &small);
-  ApplyBoundaryShift(a, lx, ly, PixelWindow{0, grid.nx - 1, 0, grid.ny - 1}, EffectChannels(),
+  ApplyBoundaryShift(a, densities, PixelWindow{0, grid.nx - 1, 0, grid.ny - 1}, EffectChannels(),
                      &whole);
   double largest = 0.0, worst = 0.0;
   for (int q = 0; q < grid.size(); ++q) {
@@ -352,7 +352,11 @@ TEST(BoundaryShift, PointChargeMovesAreasByTheCoefficients) {
   DualImage ly{n, n + 1, kNumBoundaryShiftParams, std::vector<double>(n * (n + 1) * s, 0.0)};
   for (size_t e = 0; e < lx.data.size(); e += s) lx.data[e] = 1.0;
   for (size_t e = 0; e < ly.data.size(); e += s) ly.data[e] = 1.0;
-  ApplyBoundaryShift(a, lx, ly, PixelWindow{0, n - 1, 0, n - 1}, channels, &image);
+  // No light at the corners: their term (second order in the shifts) is left out here.
+  DualImage corner{n + 1, n + 1, kNumBoundaryShiftParams,
+                   std::vector<double>((n + 1) * (n + 1) * s, 0.0)};
+  ApplyBoundaryShift(a, BoundaryDensities{lx, ly, corner}, PixelWindow{0, n - 1, 0, n - 1},
+                     channels, &image);
   const double scale = 0.5 * q * std::fabs(BoundaryShiftCoefficient(a, 0, 0));
   double gained = 0.0;
   for (int j = 0; j < n; ++j) {

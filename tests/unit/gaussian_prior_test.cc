@@ -280,8 +280,10 @@ TEST(GaussianPrior, ATightPriorPinsTheCoefficientsAndALooseOneChangesNothing) {
 // second order, Q = M + S M / 2 + S^2 M / 6; the shifts are bilinear in the a_ij and the
 // anisotropy, which moves with them; and the other parameters move too). An error of 0.25 of
 // the spots' sd moves difference_sd by at most 0.25, well below its own scatter of 1: allowed
-// 0.25 sd for the centres and 8 % for the sds (measured 0.026-0.038 sd and < 0.7 % before the
-// anisotropy was a parameter; with it, up to 0.18 sd and 5.4 %).
+// 0.25 sd for the centres and 15 % for the sds (measured 0.026-0.038 sd and < 0.7 % before the
+// anisotropy was a parameter; with it, up to 0.18 sd and 5.4 %; with the corner term, which
+// is quadratic in the a_ij so that their own Fisher information changes with them, 8.3 % and
+// 11.7 % on a_10 and a_01).
 TEST(GaussianPrior, SpotsAloneEstimateIsTheFitWithoutThePrior) {
   // Covered in the sanitized build by EveryUseAgreesWithTheClosedFormDensity and
   // DataAloneEstimateOfALinearGaussianIsExact.
@@ -306,7 +308,7 @@ TEST(GaussianPrior, SpotsAloneEstimateIsTheFitWithoutThePrior) {
     const double moved = (with.map.theta[first + a] - flat.map.theta[first + a]) / sd[a];
     largest_move = std::max(largest_move, std::fabs(moved));
     EXPECT_NEAR(e.mean[a], flat.map.theta[first + a], 0.25 * sd[a]) << kNames[a];
-    EXPECT_NEAR(e.sd[a] / sd[a], 1.0, 0.08) << kNames[a];
+    EXPECT_NEAR(e.sd[a] / sd[a], 1.0, 0.15) << kNames[a];
   }
   EXPECT_GT(largest_move, 0.3) << "the prior moved the MAP";
 

@@ -402,9 +402,9 @@ class FitEvaluator {
   // d image / d (defocus_offset dx, dy), pixels x 2: the image's and plain_'s.
   std::vector<double> offset_jacobian_, plain_offset_jacobian_;
   model::DualImage dual_;                         // image effects with derivatives
-  // boundary_shift: the line densities along the x and y boundaries, with derivatives, and
-  // the renderer's values and Jacobian of one of them.
-  model::DualImage boundary_density_[2];
+  // boundary_shift: the light along the x and y boundaries and at their corners, with
+  // derivatives, and the renderer's values and Jacobian of one of them.
+  model::BoundaryDensities boundary_densities_;
   std::vector<double> density_values_, density_jacobian_;
   std::vector<std::vector<double>> unit_models_;  // BestFluxLogLikelihood's renders
 };

@@ -57,8 +57,14 @@
 // x = i + 1/2 in row j [px], Lx(i, j) the line integral of the spot's continuous image along
 // that boundary [e- / px] (Y, Ly likewise along y), and 1/2 the time average of a shift that
 // grows linearly from 0. The sum over pixels of dQ is 0 (each boundary's gain is its
-// neighbour's loss): charge is conserved. Q is taken as the image without the effect (first
-// order); docs/conventions.md gives the error against an exact sequential accumulation.
+// neighbour's loss): charge is conserved. The charge moved so is itself moved again (the
+// second term of dQ/dt = M + S Q, Q = M + S M / 2 + S^2 M / 6). And each side moves rigidly,
+// so where two sides of one pixel both move into it the patch beyond both (area the product
+// of their shifts) goes to the diagonal neighbour, not to the two edge neighbours the strips
+// give it to: at each corner, +P, -P, -P, +P to the lower-left, lower-right, upper-left and
+// upper-right pixels, P the signed products of such pairs times the light at the corner and
+// 1/3 (the area grows as the square of the charge). docs/conventions.md gives the error
+// against an exact sequential accumulation and against the photon-shooting sensor.
 //
 // Units: lengths in pixels [px], charges in electrons [e-], coefficients per electron [1/e-].
 #ifndef CCDPSF_MODEL_BOUNDARY_SHIFT_H_

@@ -415,16 +415,21 @@ void ApplySerialCti(const CtiParams& cti, const EffectChannels& channels, DualIm
 void ApplyParallelCti(const CtiParams& cti, const EffectChannels& channels, DualImage* image);
 void AddBackground(const BackgroundParams& background, const EffectChannels& channels,
                    DualImage* image);
+// The spot's light where the boundary shifts move it, each with the image's derivative
+// channels, drawn on the image's grid grown by one pixel below on the boundaries' axes
+// (SpotRenderer::RenderBoundaryDensity and RenderCornerDensity):
+struct BoundaryDensities {
+  DualImage x;       // (nx + 1) x ny: line integrals along x = x0 - 1/2 + b of each row [e-/px]
+  DualImage y;       // nx x (ny + 1): along y = y0 - 1/2 + b of each column [e-/px]
+  DualImage corner;  // (nx + 1) x (ny + 1): the image at (x0 - 1/2 + b, y0 - 1/2 + c) [e-/px^2]
+};
 // The boundary shifts' redistribution of a drawn spot (model/boundary_shift.h; implemented in
-// boundary_shift.cc): `image` holds the spot's pixels Q, `density_x` the line integrals along
-// the (nx + 1) x ny boundaries x = x0 - 1/2 + b (b = 0 .. nx) of each row, `density_y` along
-// the nx x (ny + 1) boundaries y = y0 - 1/2 + b, both with the image's derivative channels
-// (SpotRenderer::RenderBoundaryDensity on the grid grown by one pixel below). Only the charge
-// and the boundaries of `window` take part. The derivatives by a_10, a_01, a_11, a_far and
+// boundary_shift.cc): `image` holds the spot's pixels Q. Only the charge, the boundaries and
+// the corners of `window` take part. The derivatives by a_10, a_01, a_11, a_far and
 // anisotropy go to the channels EffectChannels names for kBoundaryShift.
-void ApplyBoundaryShift(const BoundaryShiftParams& params, const DualImage& density_x,
-                        const DualImage& density_y, const PixelWindow& window,
-                        const EffectChannels& channels, DualImage* image);
+void ApplyBoundaryShift(const BoundaryShiftParams& params, const BoundaryDensities& densities,
+                        const PixelWindow& window, const EffectChannels& channels,
+                        DualImage* image);
 // halo -> nonlinearity -> ipc -> serial_cti -> parallel_cti: the charge effects, before
 // the Poisson step.
 void ApplyChargeEffects(const ExposureEffects& effects, const PixelGrid& grid,

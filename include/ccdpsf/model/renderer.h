@@ -54,6 +54,12 @@ class SpotRenderer {
   // has no pixel boundaries.
   void RenderBoundaryDensity(const SpotParams& params, const PixelGrid& grid, int axis,
                              double* density, double* jacobian) const;
+  // The spot's continuous image itself [e- / px^2] at each pixel's upper corner: out[j * nx +
+  // i] at (x0 + i + 1/2, y0 + j + 1/2), where four pixels meet. A corner patch of small area A
+  // there holds A times this (the second-order term of the boundary shifts). Same layout,
+  // Jacobian and restrictions as RenderBoundaryDensity.
+  void RenderCornerDensity(const SpotParams& params, const PixelGrid& grid, double* density,
+                           double* jacobian) const;
 
  private:
   struct Workspace;
