@@ -28,6 +28,11 @@ namespace ccdpsf::fit {
 namespace {
 
 constexpr double kInf = std::numeric_limits<double>::infinity();
+// The independence move's draws per update while outside its box (ensemble_sampler.h): with
+// a box holding a fraction f of the proposal, a last draw still outside (and so rejected)
+// has probability (1 - f)^100, below 1e-4 for f >= 0.09. The bound keeps an update's cost
+// finite where the box holds almost nothing.
+constexpr int kMaxIndependenceDraws = 100;
 
 // A fixed team of threads that runs one task at a time: Run(task) calls task(t) once for
 // every t in [0, size()), t = 0 on the calling thread, and returns when all have finished.
@@ -334,6 +339,17 @@ class EnsembleSampler {
     return -0.5 * (nu + stretch_dim_) * std::log1p(r2 / nu);
   }
 
+  // Whether the stretch block of y lies inside the independence move's box (true without one).
+  bool InsideBox(const double* y) const {
+    const std::vector<double>& lo = options_.independence_lower;
+    const std::vector<double>& hi = options_.independence_upper;
+    if (lo.empty()) return true;
+    for (int d = 0; d < stretch_dim_; ++d) {
+      if (!(y[d] >= lo[d] && y[d] <= hi[d])) return false;
+    }
+    return true;
+  }
+
   // Thread t's share of the walkers of half `half`.
   void UpdateHalf(int half, int t) {
     const double a = options_.stretch_a;
@@ -354,29 +370,35 @@ class EnsembleSampler {
       double log_factor = 0.0;
       double u_accept = 0.0;
       if (independence) {
-        // Always d + nu normals, then one uniform. y = m + L z sqrt(nu / chi2): z ~ N(0, I_d)
-        // and chi2 a chi-square variate with nu degrees of freedom give a multivariate t.
-        for (int d = 0; d < stretch_dim_; ++d) y[d] = StandardNormal(engine);
-        double chi2 = 0.0;
-        for (int n = 0; n < options_.independence_nu; ++n) {
-          const double g = StandardNormal(engine);
-          chi2 += g * g;
-        }
-        u_accept = Uniform01(engine);
-        const double scale = std::sqrt(options_.independence_nu / chi2);
-        double z2 = 0.0;
-        for (int d = 0; d < stretch_dim_; ++d) z2 += y[d] * y[d];
-        // y = m + scale L z in place, last row first: row d reads z[0..d], not yet overwritten.
+        // d + nu normals per draw (repeated while outside the box), then one uniform.
+        // y = m + L z sqrt(nu / chi2): z ~ N(0, I_d) and chi2 a chi-square variate with nu
+        // degrees of freedom give a multivariate t.
         const std::vector<double>& m = options_.independence_mean;
         const std::vector<double>& l = options_.independence_cholesky;
-        for (int d = stretch_dim_ - 1; d >= 0; --d) {
-          double v = 0.0;
-          for (int j = 0; j <= d; ++j) v += l[static_cast<size_t>(d) * stretch_dim_ + j] * y[j];
-          y[d] = m[d] + scale * v;
-        }
-        // L^-1 (y - m) = scale z, so q(y) needs no solve.
         const double nu = options_.independence_nu;
-        const double log_q_y = -0.5 * (nu + stretch_dim_) * std::log1p(scale * scale * z2 / nu);
+        double log_q_y = 0.0;
+        for (int draw = 0; draw < kMaxIndependenceDraws; ++draw) {
+          for (int d = 0; d < stretch_dim_; ++d) y[d] = StandardNormal(engine);
+          double chi2 = 0.0;
+          for (int n = 0; n < options_.independence_nu; ++n) {
+            const double g = StandardNormal(engine);
+            chi2 += g * g;
+          }
+          const double scale = std::sqrt(nu / chi2);
+          double z2 = 0.0;
+          for (int d = 0; d < stretch_dim_; ++d) z2 += y[d] * y[d];
+          // y = m + scale L z in place, last row first: row d reads z[0..d], not yet
+          // overwritten.
+          for (int d = stretch_dim_ - 1; d >= 0; --d) {
+            double v = 0.0;
+            for (int j = 0; j <= d; ++j) v += l[static_cast<size_t>(d) * stretch_dim_ + j] * y[j];
+            y[d] = m[d] + scale * v;
+          }
+          // L^-1 (y - m) = scale z, so q(y) needs no solve.
+          log_q_y = -0.5 * (nu + stretch_dim_) * std::log1p(scale * scale * z2 / nu);
+          if (InsideBox(y)) break;
+        }
+        u_accept = Uniform01(engine);
         double* scratch = &whitened_[static_cast<size_t>(t) * proposal_stride_];
         log_factor = IndependenceLogDensity(xk, scratch) - log_q_y;
         ++independence_proposed_[k];
@@ -670,6 +692,10 @@ uint64_t RunFingerprint(const BlockedTarget& target, int dim, const std::vector<
     for (int i = 0; i < d; ++i) {
       mix(&o.independence_cholesky[static_cast<size_t>(i) * d], (i + 1) * sizeof(double));
     }
+    const int64_t box = o.independence_lower.empty() ? 0 : 1;
+    mix(&box, sizeof(box));
+    mix(o.independence_lower.data(), o.independence_lower.size() * sizeof(double));
+    mix(o.independence_upper.data(), o.independence_upper.size() * sizeof(double));
   }
   return h;
 }
@@ -819,6 +845,17 @@ bool RunEnsembleSampler(const BlockedTarget& target, int dim, const std::vector<
                std::to_string(d) +
                " lower Cholesky factor with finite entries and a positive "
                "diagonal";
+      return false;
+    }
+    const std::vector<double>& lo = options.independence_lower;
+    const std::vector<double>& hi = options.independence_upper;
+    bool box_ok = lo.size() == hi.size() && (lo.empty() || lo.size() == d);
+    for (size_t i = 0; box_ok && i < lo.size(); ++i) {
+      box_ok = !std::isnan(lo[i]) && !std::isnan(hi[i]) && lo[i] < hi[i];
+    }
+    if (!box_ok) {
+      *error = "ensemble sampler: the independence move's box needs " + std::to_string(d) +
+               " lower and upper bounds, each lower below its upper (or none)";
       return false;
     }
   }

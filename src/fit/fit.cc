@@ -252,6 +252,7 @@ bool RunFit(const FitModel& model, const FitOptions& options, FitResult* result,
         target.LaplaceProposal(options.target.laplace_move_scale, &mcmc.independence_mean,
                                &mcmc.independence_cholesky)) {
       mcmc.independence_fraction = options.target.laplace_move_fraction;
+      target.ProposalBox(&mcmc.independence_lower, &mcmc.independence_upper);
     }
     // The reported parameters of stored state `index`; where the defocus is integrated out,
     // it is drawn from its exact conditional with a uniform fixed by the index, so that the

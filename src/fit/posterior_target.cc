@@ -128,6 +128,17 @@ bool PosteriorTarget::LaplaceProposal(double scale, std::vector<double>* mean,
   return true;
 }
 
+void PosteriorTarget::ProposalBox(std::vector<double>* lower, std::vector<double>* upper) const {
+  lower->assign(stretch_dim_, -INFINITY);
+  upper->assign(stretch_dim_, INFINITY);
+  for (int i = 0; i < stretch_dim_; ++i) {
+    const int p = PhiIndex(i);
+    if (!coords_.IsIdentity(p)) continue;
+    (*lower)[i] = model_.lower()[p];
+    (*upper)[i] = model_.upper()[p];
+  }
+}
+
 int PosteriorTarget::PhiIndex(int i) const {
   // State [core shared (5, or 4 without the integrated-out defocus) | trailing shared
   // (best_focus_um, flux ratios) | positions]; theta [shared (5) | positions | trailing].

@@ -591,6 +591,82 @@ TEST(EnsembleSampler, WrongLaplaceMoveStillGivesTheRightMoments) {
   }
 }
 
+// The independence move drawn inside a box (ensemble_sampler.h, Bounds) on a posterior piled
+// against its bounds: three independent normals (sds 1, 2, 0.5, centred at 0) cut to x0 >=
+// -0.2 and x1 <= 1 (0.2 and 0.5 sd from the centre; x2 free), the proposal the uncut
+// Gaussian's own Laplace approximation, as a fit's is at a MAP near a bound. The chain's
+// means and variances must be the cut normals' (brute-force integrals on a fine grid; 5 SE,
+// file comment), with the box and without, and the box must raise the move's acceptance:
+// without it, the t_5 proposal falls outside with probability ~0.5 and each such draw is a
+// wasted update; inside, the proposal is the target's own shape (acceptance ~0.8, as on the
+// uncut Gaussians above). Measured: 0.86 with the box, 0.33 without (max tau 3.1 and 7.0,
+// 225 and 475 steps); required: above 0.6,
+// and 1.5 times the acceptance without it.
+TEST(EnsembleSampler, LaplaceMoveInsideABoxKeepsTheCutPosteriorAndIsAcceptedMore) {
+  const double sd[3] = {1.0, 2.0, 0.5};
+  const double lo[3] = {-0.2, -kInf, -kInf}, hi[3] = {kInf, 1.0, kInf};
+  const LogDensity cut = [&](const double* x) {
+    double log_p = 0.0;
+    for (int k = 0; k < 3; ++k) {
+      if (!(x[k] >= lo[k] && x[k] <= hi[k])) return -kInf;
+      log_p -= 0.5 * x[k] * x[k] / (sd[k] * sd[k]);
+    }
+    return log_p;
+  };
+  // Mean and variance of N(0, s^2) cut to [a, b] by the midpoint rule on 2e5 intervals over
+  // [max(a, -12 s), min(b, 12 s)] (error far below the 5 SE allowed).
+  auto cut_moments = [](double s, double a, double b) {
+    const double from = std::max(a, -12.0 * s), to = std::min(b, 12.0 * s);
+    const int n = 200000;
+    const double h = (to - from) / n;
+    double m0 = 0.0, m1 = 0.0, m2 = 0.0;
+    for (int i = 0; i < n; ++i) {
+      const double x = from + (i + 0.5) * h, w = std::exp(-0.5 * x * x / (s * s));
+      m0 += w;
+      m1 += w * x;
+      m2 += w * x * x;
+    }
+    return std::pair<double, double>{m1 / m0, m2 / m0 - (m1 / m0) * (m1 / m0)};
+  };
+  const int walkers = 16;
+  std::mt19937_64 engine(5);
+  std::vector<double> initial(walkers * 3);
+  for (int w = 0; w < walkers; ++w) {
+    initial[w * 3 + 0] = 0.3 + 0.1 * Uniform01(engine);
+    initial[w * 3 + 1] = -0.3 + 0.1 * Uniform01(engine);
+    initial[w * 3 + 2] = 0.1 * StandardNormal(engine);
+  }
+  SamplerOptions options = QuietOptions(41);
+  options.independence_fraction = 0.6;
+  options.independence_mean.assign(3, 0.0);
+  options.independence_cholesky = {sd[0], 0.0, 0.0, 0.0, sd[1], 0.0, 0.0, 0.0, sd[2]};
+  SamplerResult open, boxed;
+  std::string error;
+  ASSERT_TRUE(RunEnsembleSampler(PerThread(cut, 2), 3, initial, options, &open, &error)) << error;
+  options.independence_lower.assign(lo, lo + 3);
+  options.independence_upper.assign(hi, hi + 3);
+  ASSERT_TRUE(RunEnsembleSampler(PerThread(cut, 2), 3, initial, options, &boxed, &error)) << error;
+  for (const SamplerResult* r : {&open, &boxed}) {
+    SCOPED_TRACE(r == &open ? "without the box" : "with the box");
+    ASSERT_TRUE(r->converged) << r->stop_reason;
+    for (int k = 0; k < 3; ++k) {
+      const auto [mu, var] = cut_moments(sd[k], lo[k], hi[k]);
+      const McEstimate m = Estimate(*r, [k](const double* x) { return x[k]; });
+      EXPECT_NEAR(m.mean, mu, 5.0 * m.se) << "mean of parameter " << k;
+      const McEstimate v = Estimate(*r, [k, mu = mu](const double* x) {
+        return (x[k] - mu) * (x[k] - mu);
+      });
+      EXPECT_NEAR(v.mean, var, 5.0 * v.se) << "variance of parameter " << k;
+    }
+  }
+  std::printf("cut Gaussian: independence acceptance %.2f with the box, %.2f without; "
+              "max tau %.2f and %.2f, %d and %d steps\n",
+              boxed.independence_acceptance, open.independence_acceptance, MaxTau(boxed),
+              MaxTau(open), boxed.num_steps, open.num_steps);
+  EXPECT_GT(boxed.independence_acceptance, 0.6);
+  EXPECT_GT(boxed.independence_acceptance, 1.5 * open.independence_acceptance);
+}
+
 // A false return with a non-empty one-line message, and the result left alone.
 void ExpectRejected(const std::vector<LogDensity>& f, int dim, const std::vector<double>& initial,
                     const SamplerOptions& options, const std::string& what) {
@@ -655,6 +731,14 @@ TEST(EnsembleSampler, RejectsBadInput) {
   SetLaplaceMove(g, 0.5, 0.0, 1.0, &bad);
   bad.independence_cholesky[3] = 0.0;
   ExpectRejected(f, 2, good, bad, "a zero on the Cholesky diagonal");
+  bad = options;
+  SetLaplaceMove(g, 0.5, 0.0, 1.0, &bad);
+  bad.independence_lower = {0.0, 0.0};
+  ExpectRejected(f, 2, good, bad, "a box with lower bounds only");
+  bad.independence_upper = {1.0, -1.0};
+  ExpectRejected(f, 2, good, bad, "a box with an upper bound below its lower");
+  bad.independence_upper = {1.0, NAN};
+  ExpectRejected(f, 2, good, bad, "a box with a NaN bound");
   // All walkers on one line through the mean: the ensemble could never leave it.
   std::vector<double> line(good.size());
   for (int w = 0; w < 8; ++w) {

@@ -54,10 +54,20 @@
 // For a blocked target the move acts on the stretch block [0, stretch_dim) only (m, L of that
 // block's marginal), keeping the walker's other coordinates: an MH update of the first block
 // given the walker's own rest, accepted with p(y, rest) q(x) / (p(x, rest) q(y)).
+// Bounds (optional: independence_lower, independence_upper): where the target is 0 outside a
+// box (a prior's bounds), a proposal outside it is a move wasted, and with a posterior
+// piled against a bound (a coefficient near 0) half the proposals can fall there. The move
+// then draws y again, up to kMaxIndependenceDraws times, until it lies inside the box. The
+// proposal is then q restricted to the box times a constant (the probability of ending
+// inside within that many draws, over q's mass inside), which cancels in the ratio above: the
+// acceptance probability is the one above, unchanged, and the move stays exact; a last draw
+// still outside is proposed and rejected as before. The box must contain the target's
+// support.
 // Random numbers: with independence_fraction > 0 every update first draws one uniform (the
 // choice), then the stretch move's three numbers or the independence move's d + nu standard
-// normals and one uniform, always in that order; with independence_fraction = 0 nothing
-// extra is drawn and the chain is exactly that of the stretch-only sampler.
+// normals (repeated while outside the box) and one uniform, always in that order; with
+// independence_fraction = 0 nothing extra is drawn and the chain is exactly that of the
+// stretch-only sampler.
 //
 // It is easy to misuse an MCMC sampler's output: use only chain steps >= burn_in, and treat
 // converged = false as "the error bars are not to be trusted".
@@ -107,6 +117,10 @@ struct SamplerOptions {
   double independence_fraction = 0.0;
   std::vector<double> independence_mean;
   std::vector<double> independence_cholesky;
+  // The box the proposal is drawn in (see above): stretch_dim values each, -inf / +inf for an
+  // open side; both empty (the default) for no box.
+  std::vector<double> independence_lower;
+  std::vector<double> independence_upper;
   // Degrees of freedom of the Student-t proposal, an integer >= 1 so that its chi-square
   // variate is a sum of nu squared normals (a fixed number of draws). 5: tails heavy enough
   // that p / q stays bounded for a posterior a little heavier-tailed than Gaussian, while

@@ -97,6 +97,13 @@ class PosteriorTarget {
   // non-finite entry.
   bool LaplaceProposal(double scale, std::vector<double>* mean,
                        std::vector<double>* cholesky) const;
+  // The box the stretch block's support lies in, for the independence move's draws
+  // (SamplerOptions::independence_lower / _upper): the prior's bounds on every coordinate that
+  // is a model parameter itself, -inf / +inf on the transformed widths (whose support is not
+  // a box). Measured on a reference-sensor intensity series with boundary_shift (a_11 and the
+  // anisotropy near their bounds, half the proposals outside): the move's acceptance and the
+  // steps to convergence in docs/trust.md.
+  void ProposalBox(std::vector<double>* lower, std::vector<double>* upper) const;
 
   // theta of a state; with the defocus integrated out, u in [0, 1] is the quantile of the
   // defocus drawn from its exact conditional. False when the state is outside the support.

@@ -50,6 +50,10 @@ class SamplingCoordinates {
   double LogJacobian(const double* phi) const;
   // d theta / d phi at phi, dim x dim row-major (for the Fisher information in phi).
   std::vector<double> Jacobian(const double* phi) const;
+  // Whether coordinate p of phi is theta's coordinate p itself (its bounds are theta's).
+  bool IsIdentity(int p) const {
+    return identity_ || (p != kCcdSigmaXPx && p != kCcdSigmaYPx);
+  }
 
  private:
   double DefocusVariance(double defocus) const;
