@@ -430,7 +430,7 @@ void ApplyBoundaryShift(const BoundaryShiftParams& params, const BoundaryDensiti
   for (int axis = 0; axis < 2; ++axis) {
     parameter_shift[axis].assign(static_cast<size_t>(kLanes) * boundaries[axis].num, 0.0);
   }
-  std::vector<double> flow(s), u(s), v(s);
+  std::vector<double> flow(s), patches(s), corner_flow(s);
   double* f = flow.data();
   // The shifts of every boundary of both axes by the charge `charge` (all channels; the
   // parameters' own channels in parameter_shift, for the values only).
@@ -518,27 +518,29 @@ void ApplyBoundaryShift(const BoundaryShiftParams& params, const BoundaryDensiti
       full_shift(1, (c - 1 - window.i0) * col0 + (d - window.j0), side[2].data());
       full_shift(1, (c - window.i0) * col0 + (d - window.j0), side[3].data());
       const double xb = side[0][0], xa = side[1][0], yl = side[2][0], yr = side[3][0];
-      // The patch products present, as (x side, y side) pairs.
-      std::fill(u.begin(), u.end(), 0.0);  // P with its channels
+      // P with its channels: the products of the pairs of sides that both move into one pixel.
+      std::fill(patches.begin(), patches.end(), 0.0);
       auto add_patch = [&](const std::vector<double>& px, const std::vector<double>& py) {
-        u[0] += px[0] * py[0];
-        for (int k = 1; k < s; ++k) u[k] += px[k] * py[0] + px[0] * py[k];
+        patches[0] += px[0] * py[0];
+        for (int k = 1; k < s; ++k) patches[k] += px[k] * py[0] + px[0] * py[k];
       };
       if (xb < 0 && yl < 0) add_patch(side[0], side[2]);
       if (xa > 0 && yr > 0) add_patch(side[1], side[3]);
       if (xb > 0 && yr < 0) add_patch(side[0], side[3]);
       if (xa < 0 && yl > 0) add_patch(side[1], side[2]);
-      if (u[0] == 0.0) continue;
+      if (patches[0] == 0.0) continue;
       const double* rho =
           density_corner.data.data() + (static_cast<size_t>(d) * (nx + 1) + c) * s;
-      v[0] = u[0] * rho[0] / 3.0;
-      for (int k = 1; k < s; ++k) v[k] = (u[k] * rho[0] + u[0] * rho[k]) / 3.0;
+      corner_flow[0] = patches[0] * rho[0] / 3.0;
+      for (int k = 1; k < s; ++k) {
+        corner_flow[k] = (patches[k] * rho[0] + patches[0] * rho[k]) / 3.0;
+      }
       const int ll = (d - 1) * nx + (c - 1);
       const std::array<std::pair<int, double>, 4> to = {
           std::pair<int, double>{ll, 1.0}, {ll + 1, -1.0}, {ll + nx, -1.0}, {ll + nx + 1, 1.0}};
       for (const auto& [pixel, sign] : to) {
         double* out = corners.data.data() + static_cast<size_t>(pixel) * s;
-        for (int k = 0; k < s; ++k) out[k] += sign * v[k];
+        for (int k = 0; k < s; ++k) out[k] += sign * corner_flow[k];
       }
     }
   }
