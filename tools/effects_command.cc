@@ -31,11 +31,8 @@ int RunEffects(const std::vector<std::string>& args) {
     return 0;
   }
   std::printf("%s", model::FormatEffectCatalogue().c_str());
-  std::printf("\nFitted with the spot (fit / trend --effects=a,b or FIT.json \"effects\"):");
-  for (model::EffectKind kind : model::AllEffectKinds()) {
-    std::string why;
-    if (fit::IsFittableEffect(kind, &why)) std::printf(" %s", model::ToString(kind).c_str());
-  }
+  std::printf("\nFitted with the spot (fit / trend --effects=a,b or FIT.json \"effects\"): %s",
+              fit::FittableEffectNames(" ").c_str());
   std::printf(
       "\n(jitter per exposure in a joint fit, its Gaussian part: the excess variance over the "
       "sharpest exposure; defocus_offset in pixel_centre sampling only, in integrated sampling "

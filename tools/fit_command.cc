@@ -410,9 +410,10 @@ Command FitCommand() {
        "How the exposures of a joint fit share the light: auto (chosen from the data and "
        "said), shared, per_exposure or exptime_scaled"},
       {"effects", "",
-       "Effects of the catalogue fitted with the spot, comma-separated (serial_cti, "
-       "parallel_cti, brighter_fatter, ipc, background, nonlinearity, halo; `ccdpsf effects` "
-       "lists them), with the catalogue's priors (FIT.json \"effects\" sets others)"},
+       "Effects of the catalogue fitted with the spot, comma-separated (" +
+           fit::FittableEffectNames(", ") +
+           "; `ccdpsf effects` describes them), with the catalogue's priors (FIT.json "
+           "\"effects\" sets others)"},
       {"mixed_wavelengths", "false",
        "Let a joint fit share one PSF across exposures at different wavelengths"},
       {"outliers", fit::OutlierOptions().enabled ? "true" : "false",

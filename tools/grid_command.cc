@@ -246,10 +246,10 @@ Command GridCommand() {
       {"flux", "auto",
        "How a spot's exposures share the light: auto, shared, per_exposure or exptime_scaled"},
       {"effects", "",
-       "Effects of the catalogue fitted with every spot, comma-separated (serial_cti, "
-       "parallel_cti, ipc, background, nonlinearity, halo; `ccdpsf effects` lists them), with "
-       "the catalogue's priors (FIT.json \"effects\" sets others); psf_map gets each "
-       "parameter's column and map"},
+       "Effects of the catalogue fitted with every spot, comma-separated (" +
+           fit::FittableEffectNames(", ", {model::EffectKind::kBrighterFatter}) +
+           "; `ccdpsf effects` describes them), with the catalogue's priors (FIT.json "
+           "\"effects\" sets others); psf_map gets each parameter's column and map"},
       {"match_radius_px", "3",
        "Largest distance [px] between a spot's centroids in two exposures of a setting"},
       {"min_significance", "10",

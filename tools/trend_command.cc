@@ -278,11 +278,11 @@ Command TrendCommand() {
        "How a group's exposures share the light: auto (chosen from the data and said), "
        "shared, per_exposure or exptime_scaled"},
       {"effects", "",
-       "Effects of the catalogue fitted with every group's spot, comma-separated (serial_cti, "
-       "parallel_cti, brighter_fatter, ipc, background, nonlinearity, halo; `ccdpsf effects` "
-       "lists them), with the catalogue's priors (FIT.json \"effects\" sets others); "
-       "brighter_fatter and boundary_shift are fitted by an intensity series per wavelength, "
-       "every other setting without them (docs/trust.md)"},
+       "Effects of the catalogue fitted with every group's spot, comma-separated (" +
+           fit::FittableEffectNames(", ") +
+           "; `ccdpsf effects` describes them), with the catalogue's priors (FIT.json "
+           "\"effects\" sets others); brighter_fatter and boundary_shift are fitted by an "
+           "intensity series per wavelength, every other setting without them (docs/trust.md)"},
       {"requirements", "",
        "JSON list of requirements (not given: the Euclid VIS ones: FWHM <= 10.8 um and e <= "
        "0.156 at 800 nm and I0, alpha of FWHM(lambda) <= -0.2)"},

@@ -52,6 +52,18 @@ bool IsFittableEffect(model::EffectKind kind, std::string* why) {
   return why->empty();
 }
 
+std::string FittableEffectNames(const std::string& separator,
+                                const std::vector<model::EffectKind>& except) {
+  std::string names;
+  for (model::EffectKind kind : model::AllEffectKinds()) {
+    std::string why;
+    if (!IsFittableEffect(kind, &why)) continue;
+    if (std::find(except.begin(), except.end(), kind) != except.end()) continue;
+    names += (names.empty() ? "" : separator) + model::ToString(kind);
+  }
+  return names;
+}
+
 bool EffectsFitInSampling(const FitModelOptions& options, std::string* error) {
   if (options.HasEffect(model::EffectKind::kDefocusOffset) &&
       options.model.sampling != model::Sampling::kPixelCentre) {

@@ -106,6 +106,34 @@ TEST(Cli, HelpListsCommandsAndOptions) {
   EXPECT_NE(r.output.find("--sampling"), std::string::npos);
 }
 
+// Every effect the catalogue says can be fitted (`ccdpsf effects --json`, "fittable") is named
+// in the --effects help of fit, trend and grid (grid leaves out brighter_fatter, which it
+// refuses: one setting is one intensity), and none that cannot be fitted.
+TEST(Cli, EffectsHelpNamesEveryFittableEffect) {
+  const RunResult catalogue = RunCcdpsf("effects --json");
+  ASSERT_EQ(catalogue.exit_code, 0) << catalogue.output;
+  const nlohmann::json effects = nlohmann::json::parse(catalogue.output);
+  ASSERT_GE(effects.size(), 10u);
+  for (const char* command : {"fit", "trend", "grid"}) {
+    SCOPED_TRACE(command);
+    const RunResult help = RunCcdpsf(std::string(command) + " --help");
+    ASSERT_EQ(help.exit_code, 0);
+    const size_t at = help.output.find("--effects");
+    ASSERT_NE(at, std::string::npos);
+    // The flag's text: up to the next flag.
+    const std::string text = help.output.substr(at, help.output.find("\n  --", at + 1) - at);
+    for (const nlohmann::json& e : effects) {
+      const std::string name = e["name"].get<std::string>();
+      const bool listed = text.find(" " + name + ",") != std::string::npos ||
+                          text.find("(" + name + ",") != std::string::npos ||
+                          text.find(" " + name + ";") != std::string::npos;
+      const bool expected = e["fittable"].get<bool>() &&
+                            !(std::string(command) == "grid" && name == "brighter_fatter");
+      EXPECT_EQ(listed, expected) << name << " in: " << text;
+    }
+  }
+}
+
 TEST(Cli, FitWritesTheDocumentedOutputs) {
   CCDPSF_RELEASE_ONLY();  // a fit with MCMC and pictures; see Cli.SeparateFitsGetOneFolderEach for
   // the sanitized run

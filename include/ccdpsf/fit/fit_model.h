@@ -126,6 +126,11 @@ struct FitEffect {
 // exposure: see the top; defocus_offset only in pixel_centre sampling, as FitModel::Create
 // says: in integrated sampling it is exactly a shift of the position.)
 bool IsFittableEffect(model::EffectKind kind, std::string* why);
+// The names of every effect IsFittableEffect allows, in catalogue order, joined by
+// `separator`, leaving out those in `except` (a command that fits some of them elsewhere):
+// what the commands' help lists, so that a new catalogue entry appears there by itself.
+std::string FittableEffectNames(const std::string& separator,
+                                const std::vector<model::EffectKind>& except = {});
 
 struct FitModelOptions;
 // Whether the options' effects can be fitted in their sampling, with a one-line reason when
