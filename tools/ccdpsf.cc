@@ -3,6 +3,7 @@
 // A thin dispatcher: make the command's defaults the flags' defaults, check and parse the
 // flags, call the command, return its exit code. Errors on user input are one line on stderr
 // and exit code 1; usage errors exit with 2 (command.h).
+#include <algorithm>
 #include <charconv>
 #include <cstdio>
 #include <cstdlib>
@@ -70,6 +71,42 @@ bool FlagGiven(const char* name) {
 
 namespace {
 
+// The edit distance between a and b (insertions, deletions, substitutions and swaps of two
+// neighbours, each 1: the optimal string alignment distance).
+size_t EditDistance(const std::string& a, const std::string& b) {
+  std::vector<std::vector<size_t>> d(a.size() + 1, std::vector<size_t>(b.size() + 1));
+  for (size_t i = 0; i <= a.size(); ++i) d[i][0] = i;
+  for (size_t j = 0; j <= b.size(); ++j) d[0][j] = j;
+  for (size_t i = 1; i <= a.size(); ++i) {
+    for (size_t j = 1; j <= b.size(); ++j) {
+      d[i][j] = std::min({d[i - 1][j] + 1, d[i][j - 1] + 1,
+                          d[i - 1][j - 1] + (a[i - 1] == b[j - 1] ? 0 : 1)});
+      if (i > 1 && j > 1 && a[i - 1] == b[j - 2] && a[i - 2] == b[j - 1]) {
+        d[i][j] = std::min(d[i][j], d[i - 2][j - 2] + 1);
+      }
+    }
+  }
+  return d[a.size()][b.size()];
+}
+
+// "; did you mean --x?" for the command's option nearest to `name` when it is near enough to
+// be a slip (within 2 edits, and fewer than half the name's letters; or `name` begins it),
+// else "". The first of equally near options in the command's table.
+std::string DidYouMean(const std::string& name, const Command& command) {
+  const Option* best = nullptr;
+  size_t best_distance = 0;
+  for (const Option& o : command.options) {
+    const bool prefix = name.size() >= 3 && o.name.rfind(name, 0) == 0;
+    const size_t distance = prefix ? 1 : EditDistance(name, o.name);
+    if (distance > 2 || 2 * distance >= name.size()) continue;
+    if (best == nullptr || distance < best_distance) {
+      best = &o;
+      best_distance = distance;
+    }
+  }
+  return best == nullptr ? "" : "; did you mean --" + best->name + "?";
+}
+
 // Checks the flags in argv[first..argc) before gflags parses them: gflags ends the process
 // with exit code 1 on an unknown flag or a value it cannot parse, where a usage error must
 // exit with 2; and it knows every command's flags (and its own, --flagfile, --version ...),
@@ -98,6 +135,8 @@ std::string FlagSyntaxError(int first, int argc, char** argv, const Command& com
                  " --help' lists its options";
         }
       }
+      const std::string guess = DidYouMean(name, command);
+      if (!guess.empty()) return "unknown option --" + name + " for '" + cname + "'" + guess;
       return "unknown option --" + name + " for '" + cname + "'; 'ccdpsf " + cname +
              " --help' lists its options";
     }
