@@ -104,17 +104,34 @@ bool PosteriorTarget::LaplaceProposal(double scale, std::vector<double>* mean,
                                       std::vector<double>* cholesky) const {
   const int d = stretch_dim_;
   const int n = laplace_.dim;
-  if (!laplace_.unconstrained.empty() || !(scale > 0.0) || !std::isfinite(scale) || d > n ||
-      laplace_.covariance.size() != static_cast<size_t>(n) * n) {
+  if (!(scale > 0.0) || !std::isfinite(scale) || d > n ||
+      laplace_.covariance.size() != static_cast<size_t>(n) * n ||
+      laplace_.eigenvectors.size() != static_cast<size_t>(n) * n ||
+      laplace_.eigen_sd.size() != static_cast<size_t>(n) || laplace_.scales.size() !=
+      static_cast<size_t>(n)) {
     return false;
   }
-  // The marginal of a Gaussian on a block is the block of its covariance.
-  Eigen::MatrixXd block(d, d);
-  for (int a = 0; a < d; ++a) {
-    for (int b = 0; b < d; ++b) {
-      block(a, b) = scale * scale * laplace_.covariance[static_cast<size_t>(a) * n + b];
-    }
+  // The covariance of the constrained subspace, and along each direction the data constrain
+  // less than the prior does (an eigenvector of the prior-scaled information with sd above
+  // 1 / sqrt(12) of the prior's widths) the sd of a uniform spread across the prior: the
+  // posterior there is the prior's, cut by its bounds, which the move's box then applies.
+  // (Without it the move would be off and the stretch moves alone would have to cross the
+  // prior: on bench/fit_benchmark.cc's catalogue series with boundary_shift, not converged in
+  // 20 000 steps.)
+  Eigen::MatrixXd full(n, n);
+  for (int a = 0; a < n; ++a) {
+    for (int b = 0; b < n; ++b) full(a, b) = laplace_.covariance[static_cast<size_t>(a) * n + b];
   }
+  for (int j = 0; j < n; ++j) {
+    if (!(laplace_.eigen_sd[j] > kUnconstrainedSdFraction)) continue;
+    Eigen::VectorXd v(n);
+    for (int i = 0; i < n; ++i) {
+      v[i] = laplace_.eigenvectors[static_cast<size_t>(i) * n + j] * laplace_.scales[i];
+    }
+    full += kUnconstrainedSdFraction * kUnconstrainedSdFraction * v * v.transpose();
+  }
+  // The marginal of a Gaussian on a block is the block of its covariance.
+  const Eigen::MatrixXd block = scale * scale * full.topLeftCorner(d, d);
   if (!block.allFinite()) return false;
   const Eigen::LLT<Eigen::MatrixXd> llt(block);
   if (llt.info() != Eigen::Success) return false;

@@ -91,10 +91,10 @@ class PosteriorTarget {
 
   // The independence move's proposal: the Laplace approximation's marginal on the stretch
   // block [0, stretch_dim()), centred at the MAP state, as a mean and the lower Cholesky
-  // factor (row-major, stretch_dim() x stretch_dim()) of scale^2 times its covariance. False
-  // (outputs untouched) when that covariance is not positive definite: a direction the data
-  // do not constrain (the covariance then covers the constrained subspace only), or a
-  // non-finite entry.
+  // factor (row-major, stretch_dim() x stretch_dim()) of scale^2 times its covariance, where
+  // along each direction the data constrain less than the prior does the covariance holds
+  // the spread of a uniform across the prior (1 / sqrt(12) of its widths). False (outputs
+  // untouched) when that covariance is not positive definite or has a non-finite entry.
   bool LaplaceProposal(double scale, std::vector<double>* mean,
                        std::vector<double>* cholesky) const;
   // The box the stretch block's support lies in, for the independence move's draws
