@@ -63,33 +63,31 @@ void SpotRenderer::RenderWithDefocusOffset(const SpotParams& params, double dx_p
   }
 }
 
-void SpotRenderer::RenderBoundaryDensity(const SpotParams& params, const PixelGrid& grid, int axis,
-                                         double* density, double* jacobian) const {
+void SpotRenderer::RenderAtEdges(const SpotParams& params, const PixelGrid& grid, bool edge_x,
+                                 bool edge_y, double* density, double* jacobian) const {
   CHECK(options_.sampling == Sampling::kIntegrated)
-      << "boundary densities need integrated sampling";
-  CHECK_EQ(options_.pixel_response_width, 1.0) << "boundary densities need the whole pixel";
-  CHECK(axis == 0 || axis == 1) << axis;
+      << "boundary and corner densities need integrated sampling";
+  CHECK_EQ(options_.pixel_response_width, 1.0)
+      << "boundary and corner densities need the whole pixel";
   std::string error;
   CHECK(ValidSpotParams(options_, params, &error)) << error;
   CHECK_GT(grid.nx, 0);
   CHECK_GT(grid.ny, 0);
   using internal::AxisKernel;
   internal::RenderIntegrated(options_, params, grid, density, jacobian, &workspace_->integrated,
-                             axis == 0 ? AxisKernel::kUpperEdge : AxisKernel::kPixel,
-                             axis == 1 ? AxisKernel::kUpperEdge : AxisKernel::kPixel);
+                             edge_x ? AxisKernel::kUpperEdge : AxisKernel::kPixel,
+                             edge_y ? AxisKernel::kUpperEdge : AxisKernel::kPixel);
+}
+
+void SpotRenderer::RenderBoundaryDensity(const SpotParams& params, const PixelGrid& grid, int axis,
+                                         double* density, double* jacobian) const {
+  CHECK(axis == 0 || axis == 1) << axis;
+  RenderAtEdges(params, grid, axis == 0, axis == 1, density, jacobian);
 }
 
 void SpotRenderer::RenderCornerDensity(const SpotParams& params, const PixelGrid& grid,
                                        double* density, double* jacobian) const {
-  CHECK(options_.sampling == Sampling::kIntegrated) << "corner densities need integrated sampling";
-  CHECK_EQ(options_.pixel_response_width, 1.0) << "corner densities need the whole pixel";
-  std::string error;
-  CHECK(ValidSpotParams(options_, params, &error)) << error;
-  CHECK_GT(grid.nx, 0);
-  CHECK_GT(grid.ny, 0);
-  using internal::AxisKernel;
-  internal::RenderIntegrated(options_, params, grid, density, jacobian, &workspace_->integrated,
-                             AxisKernel::kUpperEdge, AxisKernel::kUpperEdge);
+  RenderAtEdges(params, grid, true, true, density, jacobian);
 }
 
 }  // namespace ccdpsf::model

@@ -62,6 +62,10 @@ class SpotRenderer {
                            double* jacobian) const;
 
  private:
+  // The integrated render with the pixel box replaced by its upper edge on the axes asked
+  // (both: the point at the pixel's upper corner): the densities above.
+  void RenderAtEdges(const SpotParams& params, const PixelGrid& grid, bool edge_x, bool edge_y,
+                     double* density, double* jacobian) const;
   struct Workspace;
   ModelOptions options_;
   std::unique_ptr<Workspace> workspace_;
