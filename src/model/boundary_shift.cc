@@ -384,6 +384,28 @@ const ShiftMatrices& CachedShiftMatrices(const BoundaryShiftParams& params,
 
 }  // namespace
 
+namespace {
+
+// The scratch of ApplyBoundaryShift, kept per thread: an MCMC applies the effect to every
+// exposure at every step, where allocating these each time cost more than the arithmetic.
+// The boundary lists depend on the window and the image's size only, so they are kept while
+// those stay the same.
+struct ShiftWorkspace {
+  PixelWindow window{-1, -1, -1, -1};
+  int nx = -1, ny = -1;
+  std::array<AxisBoundaries, 2> boundaries;
+  RowMatrix charge_window;
+  std::array<RowMatrix, 2> shift;
+  std::vector<double> values;
+  std::array<std::vector<double>, 2> parameter_shift;
+  std::vector<double> flow, patches, corner_flow;
+  std::array<std::vector<double>, 4> side;  // xb, xa, yl, yr with channels
+  // Image-sized changes, stride as the image: first and second order, corners.
+  std::vector<double> first, second, corners;
+};
+
+}  // namespace
+
 void ApplyBoundaryShift(const BoundaryShiftParams& params, const BoundaryDensities& densities,
                         const PixelWindow& window, const EffectChannels& channels,
                         DualImage* image) {
@@ -406,37 +428,52 @@ void ApplyBoundaryShift(const BoundaryShiftParams& params, const BoundaryDensiti
   const int num_window = wx * wy;
   // The parameters with a channel, and their kernels' derivatives: the shifts are linear in
   // the a's at fixed eta, and in eta at fixed a's.
-  std::vector<int> active, active_channel;
+  std::array<int, kNumBoundaryShiftParams> active_channel{};
+  std::vector<int> active;
+  active.reserve(kNumBoundaryShiftParams);
   for (int p = 0; p < kNumBoundaryShiftParams; ++p) {
     const int c = channels.Get(EffectKind::kBoundaryShift, p);
     if (c < 0) continue;
     CHECK(c >= 1 && c < s) << "boundary_shift parameter " << p << " channel " << c;
+    active_channel[active.size()] = c;
     active.push_back(p);
-    active_channel.push_back(c);
   }
   const int num_active = static_cast<int>(active.size());
-  std::array<AxisBoundaries, 2> boundaries;
-  for (int axis = 0; axis < 2; ++axis) {
-    boundaries[axis] = ListBoundaries(axis, window, nx, image->ny);
+  thread_local ShiftWorkspace ws;
+  if (ws.window.i0 != window.i0 || ws.window.i1 != window.i1 || ws.window.j0 != window.j0 ||
+      ws.window.j1 != window.j1 || ws.nx != nx || ws.ny != image->ny) {
+    for (int axis = 0; axis < 2; ++axis) {
+      ws.boundaries[axis] = ListBoundaries(axis, window, nx, image->ny);
+    }
+    ws.window = window;
+    ws.nx = nx;
+    ws.ny = image->ny;
   }
+  const std::array<AxisBoundaries, 2>& boundaries = ws.boundaries;
   const ShiftMatrices& matrices = CachedShiftMatrices(params, active, wx, wy, boundaries, window);
   const std::array<RowMatrix, 2>& shift_of_charge = matrices.shift_of_charge;
   const std::vector<InterleavedKernels>& parameter_kernels = matrices.parameter_kernels;
   // S(Q) with its channels: the line densities are the incident light's, fixed.
-  RowMatrix charge_window(num_window, s);
-  std::array<RowMatrix, 2> shift;
-  std::vector<double> values(num_window);
-  std::array<std::vector<double>, 2> parameter_shift;
+  RowMatrix& charge_window = ws.charge_window;
+  charge_window.resize(num_window, s);
+  std::array<RowMatrix, 2>& shift = ws.shift;
+  for (int axis = 0; axis < 2; ++axis) shift[axis].resize(boundaries[axis].num, s);
+  std::vector<double>& values = ws.values;
+  values.resize(num_window);
+  std::array<std::vector<double>, 2>& parameter_shift = ws.parameter_shift;
   for (int axis = 0; axis < 2; ++axis) {
     parameter_shift[axis].assign(static_cast<size_t>(kLanes) * boundaries[axis].num, 0.0);
   }
-  std::vector<double> flow(s), patches(s), corner_flow(s);
-  double* f = flow.data();
-  // The shifts of every boundary of both axes by the charge `charge` (all channels; the
-  // parameters' own channels in parameter_shift, for the values only).
-  auto shifts_of = [&](const DualImage& charge) {
+  ws.flow.resize(s);
+  ws.patches.resize(s);
+  ws.corner_flow.resize(s);
+  double* f = ws.flow.data();
+  // The shifts of every boundary of both axes by the charge `charge` (an image-sized array
+  // with the image's stride; all channels; the parameters' own channels in parameter_shift,
+  // for the values only).
+  auto shifts_of = [&](const double* charge) {
     for (int l = window.j0; l <= window.j1; ++l) {
-      std::copy_n(charge.data.data() + (static_cast<size_t>(l) * nx + window.i0) * s,
+      std::copy_n(charge + (static_cast<size_t>(l) * nx + window.i0) * s,
                   static_cast<size_t>(wx) * s,
                   charge_window.data() + static_cast<size_t>(l - window.j0) * wx * s);
     }
@@ -459,10 +496,10 @@ void ApplyBoundaryShift(const BoundaryShiftParams& params, const BoundaryDensiti
       out[active_channel[a]] += parameter_shift[axis][static_cast<size_t>(r) * kLanes + a];
     }
   };
-  // The charge moved across the boundaries at the shifts of the last shifts_of (first order).
-  auto moves = [&]() {
-    DualImage change{image->nx, image->ny, image->num_derivatives,
-                     std::vector<double>(image->data.size(), 0.0)};
+  // The charge moved across the boundaries at the shifts of the last shifts_of (first order),
+  // into `change` (image-sized, the image's stride).
+  auto moves = [&](std::vector<double>* change) {
+    change->assign(image->data.size(), 0.0);
     for (int axis = 0; axis < 2; ++axis) {
       const AxisBoundaries& bd = boundaries[axis];
       const DualImage& density = axis == 0 ? density_x : density_y;
@@ -477,22 +514,21 @@ void ApplyBoundaryShift(const BoundaryShiftParams& params, const BoundaryDensiti
         }
         // The pixel below the boundary gains the flow, the one above loses it.
         if (bd.lower_pixel[r] >= 0) {
-          double* out = change.data.data() + static_cast<size_t>(bd.lower_pixel[r]) * s;
+          double* out = change->data() + static_cast<size_t>(bd.lower_pixel[r]) * s;
           for (int c = 0; c < s; ++c) out[c] += f[c];
         }
         if (bd.upper_pixel[r] >= 0) {
-          double* out = change.data.data() + static_cast<size_t>(bd.upper_pixel[r]) * s;
+          double* out = change->data() + static_cast<size_t>(bd.upper_pixel[r]) * s;
           for (int c = 0; c < s; ++c) out[c] -= f[c];
         }
       }
     }
-    return change;
   };
   // dQ/dt = M + S(Q(t)), Q(0) = 0, over the exposure t in [0, 1]: Q(1) = M + S M / 2 + S^2 M / 6
   // + ..., the exponential series of the linear S, kept to second order (the third is below
   // 1e-3 of the effect at a 2e5 e- peak).
-  shifts_of(*image);
-  const DualImage first = moves();
+  shifts_of(image->data.data());
+  moves(&ws.first);
   // The corners (second order in the shifts, at the shifts of M). Each side of a pixel moves
   // rigidly, so where two sides of one pixel both move into it, the patch beyond both (area
   // the product of their shifts) belongs to neither edge neighbour, to which the first order
@@ -504,10 +540,12 @@ void ApplyBoundaryShift(const BoundaryShiftParams& params, const BoundaryDensiti
   // LL's patch), xa yr (both > 0: UR's), xb yr (xb > 0 > yr: LR's), xa yl (xa < 0 < yl: UL's).
   // The area grows as the square of the charge collected, so over the exposure it averages a
   // third of its final value. The corners on the window's edge are left out.
-  DualImage corners{image->nx, image->ny, image->num_derivatives,
-                    std::vector<double>(image->data.size(), 0.0)};
-  std::array<std::vector<double>, 4> side;  // xb, xa, yl, yr with channels
+  std::vector<double>& corners = ws.corners;
+  corners.assign(image->data.size(), 0.0);
+  std::array<std::vector<double>, 4>& side = ws.side;
   for (std::vector<double>& one : side) one.resize(s);
+  std::vector<double>& patches = ws.patches;
+  std::vector<double>& corner_flow = ws.corner_flow;
   const int row0 = wx + 1, col0 = wy + 1;  // boundaries per row (axis 0) and column (axis 1)
   for (int d = window.j0 + 1; d <= window.j1; ++d) {
     for (int c = window.i0 + 1; c <= window.i1; ++c) {
@@ -539,15 +577,15 @@ void ApplyBoundaryShift(const BoundaryShiftParams& params, const BoundaryDensiti
       const std::array<std::pair<int, double>, 4> to = {
           std::pair<int, double>{ll, 1.0}, {ll + 1, -1.0}, {ll + nx, -1.0}, {ll + nx + 1, 1.0}};
       for (const auto& [pixel, sign] : to) {
-        double* out = corners.data.data() + static_cast<size_t>(pixel) * s;
+        double* out = corners.data() + static_cast<size_t>(pixel) * s;
         for (int k = 0; k < s; ++k) out[k] += sign * corner_flow[k];
       }
     }
   }
-  shifts_of(first);
-  const DualImage second = moves();
+  shifts_of(ws.first.data());
+  moves(&ws.second);
   for (size_t e = 0; e < image->data.size(); ++e) {
-    image->data[e] += first.data[e] / 2.0 + second.data[e] / 6.0 + corners.data[e];
+    image->data[e] += ws.first[e] / 2.0 + ws.second[e] / 6.0 + corners[e];
   }
 }
 
