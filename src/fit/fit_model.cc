@@ -674,21 +674,25 @@ bool FitEvaluator::ModelImageColumns(const double* theta, int k, std::vector<dou
   model->resize(n);
 
   // The theta indices exposure k depends on, and the chain from them to the renderer's
-  // parameters: chain[p][c] = d spot_p / d theta_{columns[c]}.
-  columns->assign({kFluxE, kAiryRadiusPx, kDefocusPx, kCcdSigmaXPx, kCcdSigmaYPx,
-                   FitModel::XIndex(k), FitModel::YIndex(k)});
+  // parameters: chain[p][c] = d spot_p / d theta_{columns[c]}. Values alone (an MCMC's
+  // proposals) need neither: no columns then.
   const int focus = fm.FocusIndex(), ratio = fm.RatioIndex(k);
-  if (focus >= 0) columns->push_back(focus);
-  if (ratio >= 0) columns->push_back(ratio);
   const int jitter = fm.JitterIndex(k);
   const int offset = fm.EffectIndex(model::EffectKind::kDefocusOffset);  // pixel_centre only
-  for (const FitEffect& e : fm.options().effects) {
-    if (e.kind == model::EffectKind::kJitter) {
-      if (jitter >= 0) columns->insert(columns->end(), {jitter, jitter + 1});
-      continue;
+  columns->clear();
+  if (want) {
+    columns->assign({kFluxE, kAiryRadiusPx, kDefocusPx, kCcdSigmaXPx, kCcdSigmaYPx,
+                     FitModel::XIndex(k), FitModel::YIndex(k)});
+    if (focus >= 0) columns->push_back(focus);
+    if (ratio >= 0) columns->push_back(ratio);
+    for (const FitEffect& e : fm.options().effects) {
+      if (e.kind == model::EffectKind::kJitter) {
+        if (jitter >= 0) columns->insert(columns->end(), {jitter, jitter + 1});
+        continue;
+      }
+      const int np = fm.EffectSize(e.kind);
+      for (int p = 0; p < np; ++p) columns->push_back(fm.EffectIndex(e.kind) + p);
     }
-    const int np = fm.EffectSize(e.kind);
-    for (int p = 0; p < np; ++p) columns->push_back(fm.EffectIndex(e.kind) + p);
   }
   const int nc = static_cast<int>(columns->size());
   auto column_of = [&](int theta_index) {
@@ -701,17 +705,19 @@ bool FitEvaluator::ModelImageColumns(const double* theta, int k, std::vector<dou
     return chain[static_cast<size_t>(p) * nc + column_of(theta_index)];
   };
   // The renderer's flux is flux_e x scale; in focus mode the defocus is rate |z_k - z0|.
-  double d_rate = 1.0, d_z0 = 0.0;
-  if (focus >= 0) fm.DefocusFor(theta, k, &d_rate, &d_z0);
-  link(model::kFlux, kFluxE) = fm.FluxScale(theta, k);
-  if (ratio >= 0) link(model::kFlux, ratio) = theta[kFluxE] * fm.FixedFluxScale(k);
-  link(model::kCentreX, FitModel::XIndex(k)) = 1.0;
-  link(model::kCentreY, FitModel::YIndex(k)) = 1.0;
-  link(model::kAiryRadius, kAiryRadiusPx) = 1.0;
-  link(model::kDefocus, kDefocusPx) = d_rate;
-  if (focus >= 0) link(model::kDefocus, focus) = d_z0;
-  link(model::kCcdSigmaX, kCcdSigmaXPx) = 1.0;
-  link(model::kCcdSigmaY, kCcdSigmaYPx) = 1.0;
+  if (want) {
+    double d_rate = 1.0, d_z0 = 0.0;
+    if (focus >= 0) fm.DefocusFor(theta, k, &d_rate, &d_z0);
+    link(model::kFlux, kFluxE) = fm.FluxScale(theta, k);
+    if (ratio >= 0) link(model::kFlux, ratio) = theta[kFluxE] * fm.FixedFluxScale(k);
+    link(model::kCentreX, FitModel::XIndex(k)) = 1.0;
+    link(model::kCentreY, FitModel::YIndex(k)) = 1.0;
+    link(model::kAiryRadius, kAiryRadiusPx) = 1.0;
+    link(model::kDefocus, kDefocusPx) = d_rate;
+    if (focus >= 0) link(model::kDefocus, focus) = d_z0;
+    link(model::kCcdSigmaX, kCcdSigmaXPx) = 1.0;
+    link(model::kCcdSigmaY, kCcdSigmaYPx) = 1.0;
+  }
 
   if (want) spot_jacobian_.resize(static_cast<size_t>(n) * model::kNumSpotParams);
   std::string why;
@@ -725,7 +731,7 @@ bool FitEvaluator::ModelImageColumns(const double* theta, int k, std::vector<dou
       const double total = std::sqrt(w * w + v);
       if (!(total > 0.0)) return false;
       for (int c = 0; c < nc; ++c) (*rows)[static_cast<size_t>(sp) * nc + c] *= w / total;
-      (*rows)[static_cast<size_t>(sp) * nc + column_of(jitter + axis)] += 0.5 / total;
+      if (want) (*rows)[static_cast<size_t>(sp) * nc + column_of(jitter + axis)] += 0.5 / total;
       (*s)[sp] = total;
     }
     return true;
@@ -771,11 +777,39 @@ bool FitEvaluator::ModelImageColumns(const double* theta, int k, std::vector<dou
   }
   if (jitter >= 0 && !add_jitter(&spot, &chain)) return false;
   if (!model::ValidSpotParams(renderer_.options(), spot, &why)) return false;
+  // boundary_shift reads the line densities along the pixel boundaries and the light at
+  // their corners, only on the exposure's window (ApplyBoundaryShift): the window's rows' x
+  // boundaries from its first pixel's lower edge to its last's upper edge, likewise along y,
+  // and the corners of both. They are drawn with the spot's parameters in the image's render.
+  const bool shift = effects.boundary_shift.has_value();
+  const model::PixelWindow* shift_window = shift ? &fm.ShiftWindow(k) : nullptr;
+  model::PixelGrid part[3];
+  if (shift) {
+    const model::PixelWindow& w = *shift_window;
+    const int wx = w.i1 - w.i0 + 1, wy = w.j1 - w.j0 + 1;
+    part[0] = {wx + 1, wy, grid.x0 - 1.0 + w.i0, grid.y0 + w.j0};
+    part[1] = {wx, wy + 1, grid.x0 + w.i0, grid.y0 - 1.0 + w.j0};
+    part[2] = {wx + 1, wy + 1, grid.x0 - 1.0 + w.i0, grid.y0 - 1.0 + w.j0};
+  }
   if (offset >= 0) {
     offset_jacobian_.resize(2 * static_cast<size_t>(n));
     renderer_.RenderWithDefocusOffset(
         spot, effects.defocus_offset->dx_px, effects.defocus_offset->dy_px, grid, model->data(),
         want ? spot_jacobian_.data() : nullptr, want ? offset_jacobian_.data() : nullptr);
+  } else if (shift) {
+    model::SpotRenderer::DensityImage images[3];
+    for (int kind = 0; kind < 3; ++kind) {
+      density_values_[kind].resize(part[kind].size());
+      if (want) {
+        density_jacobian_[kind].resize(static_cast<size_t>(part[kind].size()) *
+                                       model::kNumSpotParams);
+      }
+      images[kind] = {part[kind], density_values_[kind].data(),
+                      want ? density_jacobian_[kind].data() : nullptr};
+    }
+    renderer_.RenderWithDensities(spot, grid, model->data(),
+                                  want ? spot_jacobian_.data() : nullptr, images[0], images[1],
+                                  images[2]);
   } else {
     renderer_.Render(spot, grid, model->data(), want ? spot_jacobian_.data() : nullptr);
   }
@@ -783,7 +817,6 @@ bool FitEvaluator::ModelImageColumns(const double* theta, int k, std::vector<dou
   // d image / d theta_column = sum_p d image / d spot_p x chain[p][column]; written into
   // the derivative channels of the image effects' dual image, or straight into the
   // Jacobian. boundary_shift works on that dual image too.
-  const bool shift = effects.boundary_shift.has_value();
   const bool image_effects = effects.HasImageEffects() || shift;
   const int stride = image_effects ? (want ? nc + 1 : 1) : nc;
   double* out = nullptr;
@@ -824,20 +857,12 @@ bool FitEvaluator::ModelImageColumns(const double* theta, int k, std::vector<dou
   }
   if (!image_effects) return true;
   if (shift) {
-    // The line densities along the pixel boundaries and the light at their corners, drawn
-    // with the spot's parameters, with their derivatives chained to theta as the image's.
-    // ApplyBoundaryShift reads only the boundaries and corners of the exposure's window, so
-    // only those are drawn: the window's rows' x boundaries from its first pixel's lower edge
-    // to its last's upper edge, likewise along y, and the corners of both.
-    const model::PixelWindow& w = fm.ShiftWindow(k);
-    const int wx = w.i1 - w.i0 + 1, wy = w.j1 - w.j0 + 1;
+    // The densities into dual images on the full boundary and corner grids, with their
+    // derivatives chained to theta as the image's.
+    const model::PixelWindow& w = *shift_window;
     const model::PixelGrid full[3] = {{grid.nx + 1, grid.ny, grid.x0 - 1.0, grid.y0},
                                       {grid.nx, grid.ny + 1, grid.x0, grid.y0 - 1.0},
                                       {grid.nx + 1, grid.ny + 1, grid.x0 - 1.0, grid.y0 - 1.0}};
-    const model::PixelGrid part[3] = {
-        {wx + 1, wy, grid.x0 - 1.0 + w.i0, grid.y0 + w.j0},
-        {wx, wy + 1, grid.x0 + w.i0, grid.y0 - 1.0 + w.j0},
-        {wx + 1, wy + 1, grid.x0 - 1.0 + w.i0, grid.y0 - 1.0 + w.j0}};
     model::DualImage* const densities[3] = {&boundary_densities_.x, &boundary_densities_.y,
                                             &boundary_densities_.corner};
     for (int kind = 0; kind < 3; ++kind) {
@@ -847,22 +872,15 @@ bool FitEvaluator::ModelImageColumns(const double* theta, int k, std::vector<dou
       d.ny = full[kind].ny;
       d.num_derivatives = want ? nc : 0;
       d.data.assign(static_cast<size_t>(full[kind].size()) * d.stride(), 0.0);
-      density_values_.resize(g.size());
-      if (want) density_jacobian_.resize(static_cast<size_t>(g.size()) * model::kNumSpotParams);
-      double* jacobian = want ? density_jacobian_.data() : nullptr;
-      if (kind < 2) {
-        renderer_.RenderBoundaryDensity(spot, g, kind, density_values_.data(), jacobian);
-      } else {
-        renderer_.RenderCornerDensity(spot, g, density_values_.data(), jacobian);
-      }
       for (int q = 0; q < g.size(); ++q) {
         // Entry (qi, qj) of the window's grid is (w.i0 + qi, w.j0 + qj) of the full one.
         const int qi = q % g.nx, qj = q / g.nx;
         const size_t at = static_cast<size_t>(w.j0 + qj) * d.nx + (w.i0 + qi);
         double* row = d.data.data() + at * d.stride();
-        row[0] = density_values_[q];
+        row[0] = density_values_[kind][q];
         if (!want) continue;
-        const double* gq = &density_jacobian_[static_cast<size_t>(q) * model::kNumSpotParams];
+        const double* gq =
+            &density_jacobian_[kind][static_cast<size_t>(q) * model::kNumSpotParams];
         for (const Link& l : links_) row[1 + l.column] += gq[l.spot_param] * l.value;
       }
     }
@@ -898,8 +916,8 @@ bool FitEvaluator::ModelImageColumns(const double* theta, int k, std::vector<dou
     }
   }
   if (shift) {
-    model::ApplyBoundaryShift(*effects.boundary_shift, boundary_densities_,
-                              fm.ShiftWindow(k), channels, &dual_);
+    model::ApplyBoundaryShift(*effects.boundary_shift, boundary_densities_, *shift_window,
+                              channels, &dual_);
   }
   model::ApplyImageEffects(effects, grid, reference, want ? &reference_d : nullptr, channels,
                            &dual_);

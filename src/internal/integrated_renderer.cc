@@ -273,12 +273,11 @@ void ComputeUpperEdgeWeights(double pixel0, double centre, double h, int q, doub
   const int last = static_cast<int>(std::floor((pixel0 - centre + half_width) * q));
   const int size = last - aw->first + 1;
   aw->w.resize(size, derivs ? 3 : 1);
-  edge_scratch->resize(3 * static_cast<size_t>(size));
+  edge_scratch->resize(2 * static_cast<size_t>(size));
   double* z = edge_scratch->data();
-  double* tail = z + size;
-  double* density = tail + size;
+  double* density = z + size;
   for (int m = 0; m < size; ++m) z[m] = (pixel0 - centre - (aw->first + m) * h + 0.5) / s;
-  NormalTailsAndDensities(z, size, tail, density);
+  NormalDensities(z, size, density);
   for (int m = 0; m < size; ++m) {
     aw->w(m, 0) = h * density[m] / s;
     if (derivs) {
@@ -525,6 +524,14 @@ double QuadratureStep(double rho_c, double s, double tolerance) {
 void RenderIntegrated(const model::ModelOptions& options, const model::SpotParams& p,
                       const model::PixelGrid& grid, double* model_out, double* jacobian,
                       IntegratedWorkspace* ws, AxisKernel kernel_x, AxisKernel kernel_y) {
+  const IntegratedOutput output{grid, kernel_x, kernel_y, model_out, jacobian};
+  RenderIntegrated(options, p, &output, 1, ws);
+}
+
+void RenderIntegrated(const model::ModelOptions& options, const model::SpotParams& p,
+                      const IntegratedOutput* outputs, int count, IntegratedWorkspace* ws) {
+  CHECK_GE(count, 1);
+  CHECK_LE(count, kMaxIntegratedOutputs);
   const bool pillbox = options.defocus == model::DefocusKind::kPillbox;
   const double cx = p[kCentreX], cy = p[kCentreY];
   const double r = p[kAiryRadius];
@@ -545,24 +552,80 @@ void RenderIntegrated(const model::ModelOptions& options, const model::SpotParam
   const int qx = static_cast<int>(std::lround(1.0 / hx));
   const int qy = static_cast<int>(std::lround(1.0 / hy));
   const double tw = KernelHalfWidthSigmas(tol);
-  const bool derivs = jacobian != nullptr;
+  const bool derivs = outputs[0].jacobian != nullptr;
+  for (int o = 1; o < count; ++o) CHECK_EQ(outputs[o].jacobian != nullptr, derivs);
 
-  AxisWeights& wx = ws->wx;
-  AxisWeights& wy = ws->wy;
   // A collecting window narrower than the pixel (ModelOptions::pixel_response_width) only
   // shortens the reach of each node; the error bound holds as it is (|sinc(w f)| <= 1). So
   // does the upper-edge kernel (window 0 below): its transform is the Gaussian's times a phase.
-  const double window = options.pixel_response_width;
-  const double window_x = kernel_x == AxisKernel::kUpperEdge ? 0.0 : window;
-  const double window_y = kernel_y == AxisKernel::kUpperEdge ? 0.0 : window;
   // The edge kernel's nodes reach T s either side of the pixel's upper edge.
-  const double reach_x = 0.5 * (window_x > 0.0 ? window_x : 1.0) + tw * sx;
-  const double reach_y = 0.5 * (window_y > 0.0 ? window_y : 1.0) + tw * sy;
-  ComputeAxisWeights(grid.x0, cx, hx, qx, reach_x, sx, window_x, derivs, &wx, &ws->edges);
-  ComputeAxisWeights(grid.y0, cy, hy, qy, reach_y, sy, window_y, derivs, &wy, &ws->edges);
-  // Node ranges: every node some pixel of the grid sees.
-  const int i_lo = wx.first, i_hi = wx.first + qx * (grid.nx - 1) + wx.w.rows() - 1;
-  const int j_lo = wy.first, j_hi = wy.first + qy * (grid.ny - 1) + wy.w.rows() - 1;
+  const double window = options.pixel_response_width;
+  const auto window_of = [&](AxisKernel kernel) {
+    return kernel == AxisKernel::kUpperEdge ? 0.0 : window;
+  };
+  const auto reach_of = [&](double w, double s) { return 0.5 * (w > 0.0 ? w : 1.0) + tw * s; };
+
+  // The first pass (along y) depends on the outputs' y kernel and rows only: outputs that
+  // integrate along y alike share one, over the union of their rows (a group); each output
+  // then reads its rows from it. Rows of one group lie a whole number of pixels apart.
+  int group_of[kMaxIntegratedOutputs];
+  int row_offset[kMaxIntegratedOutputs];  // the output's first row in its group's
+  struct Group {
+    AxisKernel kernel;
+    double y0;
+    int ny;      // rows computed
+    int ny_pad;  // rows stored (a multiple of 4, >= every member's offset + padded rows)
+  };
+  Group groups[kMaxIntegratedOutputs];
+  int num_groups = 0;
+  for (int o = 0; o < count; ++o) {
+    const IntegratedOutput& out = outputs[o];
+    CHECK_GT(out.grid.nx, 0);
+    CHECK_GT(out.grid.ny, 0);
+    int g = 0;
+    while (g < num_groups && groups[g].kernel != out.kernel_y) ++g;
+    if (g == num_groups) groups[num_groups++] = {out.kernel_y, out.grid.y0, out.grid.ny, 0};
+    group_of[o] = g;
+    Group& group = groups[g];
+    const double first = std::min(group.y0, out.grid.y0);
+    const double last = std::max(group.y0 + group.ny - 1, out.grid.y0 + out.grid.ny - 1);
+    CHECK_LT(std::abs(out.grid.y0 - group.y0 - std::round(out.grid.y0 - group.y0)), 1e-9)
+        << "outputs sharing a first pass must lie whole pixels apart";
+    group.ny = static_cast<int>(std::lround(last - first)) + 1;
+    group.y0 = first;
+  }
+  for (int o = 0; o < count; ++o) {
+    Group& group = groups[group_of[o]];
+    row_offset[o] = static_cast<int>(std::lround(outputs[o].grid.y0 - group.y0));
+    const int ny_pad = (outputs[o].grid.ny + 3) / 4 * 4;
+    group.ny_pad = std::max({group.ny_pad, (group.ny + 3) / 4 * 4, row_offset[o] + ny_pad});
+  }
+
+  // Kernel weights: along x per output, along y per group.
+  for (int o = 0; o < count; ++o) {
+    const double wo = window_of(outputs[o].kernel_x);
+    ComputeAxisWeights(outputs[o].grid.x0, cx, hx, qx, reach_of(wo, sx), sx, wo, derivs,
+                       &ws->wx[o], &ws->edges);
+  }
+  for (int g = 0; g < num_groups; ++g) {
+    const double wg = window_of(groups[g].kernel);
+    ComputeAxisWeights(groups[g].y0, cy, hy, qy, reach_of(wg, sy), sy, wg, derivs, &ws->wy[g],
+                       &ws->edges);
+  }
+  // Node ranges: every node some pixel of some output sees.
+  int i_lo = 0, i_hi = 0, j_lo = 0, j_hi = 0;
+  for (int o = 0; o < count; ++o) {
+    const AxisWeights& wx = ws->wx[o];
+    const int lo = wx.first, hi = wx.first + qx * (outputs[o].grid.nx - 1) + wx.w.rows() - 1;
+    i_lo = o == 0 ? lo : std::min(i_lo, lo);
+    i_hi = o == 0 ? hi : std::max(i_hi, hi);
+  }
+  for (int g = 0; g < num_groups; ++g) {
+    const AxisWeights& wy = ws->wy[g];
+    const int lo = wy.first, hi = wy.first + qy * (groups[g].ny - 1) + wy.w.rows() - 1;
+    j_lo = g == 0 ? lo : std::min(j_lo, lo);
+    j_hi = g == 0 ? hi : std::max(j_hi, hi);
+  }
   const int ni = i_hi - i_lo + 1, nj = j_hi - j_lo + 1;
   CHECK_LE(static_cast<double>(ni) * nj, kMaxNodes) << "quadrature grid too large";
 
@@ -621,64 +684,82 @@ void RenderIntegrated(const model::ModelOptions& options, const model::SpotParam
   }
   const int stride = ws->quadrant.rows;  // between node columns of S
 
-  // First pass, along y: B(|i|, b) = hy sum_j S(|i|, j) ky(yb - cy - j hy), and the same
-  // with d ky / d cy, d ky / d sY, and with dS / dr (and dS / dR): nr right-hand sides.
+  // First pass, along y, per group: B(|i|, b) = hy sum_j S(|i|, j) ky(yb - cy - j hy), and the
+  // same with d ky / d cy, d ky / d sY, and with dS / dr (and dS / dR): nr right-hand sides.
   // Hand-written loops: at these sizes (~75 x 40 per output row) a general matrix product
   // spends more time packing than multiplying. The sums run down contiguous columns of S
   // (node column j is quadrant column |j|: S(i, -j) = S(i, j), read in place); each finished
   // row b is stored transposed, bt[(|i| * nr + rhs) * ny_pad + b], so that the second pass
   // runs over b in the same way, with the right-hand sides of one node side by side.
   const int nr = derivs ? (pillbox ? 5 : 4) : 1;
-  const int ny = grid.ny;
-  const int ny_pad = (ny + 3) / 4 * 4;  // b padded to whole vectors; the padding holds zeros
-  const size_t row_size = static_cast<size_t>(nr) * nh;  // one output row b, [rhs * nh + |i|]
-  ws->row.resize(4 * row_size);
-  ws->bt.resize(row_size * ny_pad);
-  const int wy_size = static_cast<int>(wy.w.rows());
-  const int wx_size = static_cast<int>(wx.w.rows());
-  ws->offset.resize(std::max(wx_size, wy_size + qy));
+  // A group's first pass needs the node columns its members' second passes read, |i| up to
+  // their farthest (the densities of a window near the spot need fewer than the stamp).
+  int group_nh[kMaxIntegratedOutputs] = {};
+  for (int o = 0; o < count; ++o) {
+    const AxisWeights& wx = ws->wx[o];
+    const int lo = wx.first, hi = wx.first + qx * (outputs[o].grid.nx - 1) + wx.w.rows() - 1;
+    const int needed = (std::max(std::abs(lo), std::abs(hi)) + 1 + 3) / 4 * 4;
+    group_nh[group_of[o]] = std::max(group_nh[group_of[o]], needed);
+  }
+  ws->row.resize(4 * static_cast<size_t>(nr) * nh);
+  int max_wy = 0;
+  for (int g = 0; g < num_groups; ++g) max_wy = std::max(max_wy, static_cast<int>(ws->wy[g].w.rows()) + qy);
+  int max_wx = 0;
+  for (int o = 0; o < count; ++o) max_wx = std::max(max_wx, static_cast<int>(ws->wx[o].w.rows()));
+  ws->offset.resize(std::max(max_wx, max_wy));
   size_t* offset = ws->offset.data();
-  // Rows b in fours, so that the transposed stores are of four b at once.
-  for (int b0 = 0; b0 < ny_pad; b0 += 4) {
-    // Rows b, b + 1 in pairs: the nodes of row b + 1 are those of row b shifted by qy, so
-    // offsets m < wy_size + qy serve both, and single-weight sums run on both at once.
-    for (int l = 0; l < 4; l += 2) {
-      const int b = b0 + l;
-      double* row = ws->row.data() + l * row_size;
-      double* next = row + row_size;
-      if (b >= ny) {
-        std::fill_n(row, 2 * row_size, 0.0);
-        continue;
-      }
-      for (int m = 0; m < wy_size + qy; ++m) {
-        offset[m] = static_cast<size_t>(std::abs(j_lo + qy * b + m)) * stride;
-      }
-      const bool pair = b + 1 < ny;
-      if (!pair) std::fill_n(next, row_size, 0.0);
-      if (derivs) {
-        WeightedSums3(wy_size, ws->quadrant.data(), offset, wy.w.data(), wy_size, nh, row, nh);
-        if (pair) {
-          WeightedSums3(wy_size, ws->quadrant.data(), offset + qy, wy.w.data(), wy_size, nh, next,
-                        nh);
+  for (int g = 0; g < num_groups; ++g) {
+    const AxisWeights& wy = ws->wy[g];
+    const int ny = groups[g].ny, ny_pad = groups[g].ny_pad;
+    const int nh_g = group_nh[g];
+    const size_t row_size = static_cast<size_t>(nr) * nh_g;  // one row b, [rhs * nh_g + |i|]
+    // Node |i| keeps its place in bt whatever the group's nh_g: [(|i| * nr + rhs) * ny_pad + b].
+    ws->bt[g].resize(static_cast<size_t>(nr) * nh_g * ny_pad);
+    const int wy_size = static_cast<int>(wy.w.rows());
+    // Rows b in fours, so that the transposed stores are of four b at once.
+    for (int b0 = 0; b0 < ny_pad; b0 += 4) {
+      // Rows b, b + 1 in pairs: the nodes of row b + 1 are those of row b shifted by qy, so
+      // offsets m < wy_size + qy serve both, and single-weight sums run on both at once.
+      for (int l = 0; l < 4; l += 2) {
+        const int b = b0 + l;
+        double* row = ws->row.data() + l * row_size;
+        double* next = row + row_size;
+        if (b >= ny) {
+          std::fill_n(row, 2 * row_size, 0.0);
+          continue;
+        }
+        for (int m = 0; m < wy_size + qy; ++m) {
+          offset[m] = static_cast<size_t>(std::abs(wy.first + qy * b + m)) * stride;
+        }
+        const bool pair = b + 1 < ny;
+        if (!pair) std::fill_n(next, row_size, 0.0);
+        if (derivs) {
+          WeightedSums3(wy_size, ws->quadrant.data(), offset, wy.w.data(), wy_size, nh_g, row, nh_g);
+          if (pair) {
+            WeightedSums3(wy_size, ws->quadrant.data(), offset + qy, wy.w.data(), wy_size, nh_g,
+                          next, nh_g);
+          }
+        }
+        // Single-weight sums: S (values only), else dS/dr and dS/dR.
+        for (int rhs = derivs ? 3 : 0; rhs < nr; ++rhs) {
+          const double* base = (rhs == 0   ? ws->quadrant
+                                : rhs == 3 ? ws->quadrant_dr
+                                           : ws->quadrant_dR)
+                                   .data();
+          if (pair) {
+            PairSums(wy_size, qy, base, offset, wy.w.data(), nh_g, row + rhs * nh_g,
+                     next + rhs * nh_g);
+          } else {
+            WeightedSums1(wy_size, base, offset, wy.w.data(), nh_g, row + rhs * nh_g);
+          }
         }
       }
-      // Single-weight sums: S (values only), else dS/dr and dS/dR.
-      for (int rhs = derivs ? 3 : 0; rhs < nr; ++rhs) {
-        const double* base = (rhs == 0   ? ws->quadrant
-                              : rhs == 3 ? ws->quadrant_dr
-                                         : ws->quadrant_dR)
-                                 .data();
-        if (pair) {
-          PairSums(wy_size, qy, base, offset, wy.w.data(), nh, row + rhs * nh, next + rhs * nh);
-        } else {
-          WeightedSums1(wy_size, base, offset, wy.w.data(), nh, row + rhs * nh);
-        }
-      }
+      TransposeStore4(ws->row.data(), row_size, nh_g, nr, ny_pad, b0, ws->bt[g].data());
     }
-    TransposeStore4(ws->row.data(), row_size, nh, nr, ny_pad, b0, ws->bt.data());
   }
 
-  // Second pass, along x: M(a, b) = hx sum_i kx(xa - cx - i hx) B(|i|, b), over b.
+  // Second pass, along x, per output: M(a, b) = hx sum_i kx(xa - cx - i hx) B(|i|, b), over
+  // the output's rows b of its group's B.
   const double flux = p[kFlux];
   const double gx = (!pillbox && sx > 0) ? defocus / sx : 0.0;  // d sX / d sigma_f
   const double gy = (!pillbox && sy > 0) ? defocus / sy : 0.0;
@@ -686,35 +767,56 @@ void RenderIntegrated(const model::ModelOptions& options, const model::SpotParam
   const double fy = pillbox ? 1.0 : p[kCcdSigmaY] / sy;
   // acc rows: value, d/dcx, d/dsX, d/dcy, d/dsY, d/dr, d/dR.
   const int nacc = derivs ? (pillbox ? 7 : 6) : 1;
-  ws->acc.resize(static_cast<size_t>(nacc) * ny_pad);
-  double* acc = ws->acc.data();
-  const int node_stride = nr * ny_pad;  // one node's right-hand sides in bt
-  for (int a = 0; a < grid.nx; ++a) {
-    const int first = i_lo + qx * a;
-    for (int m = 0; m < wx_size; ++m) {
-      offset[m] = static_cast<size_t>(std::abs(first + m)) * node_stride;
-    }
-    const double* bt = ws->bt.data();
-    if (derivs) {
-      // B with the three weights, then every other right-hand side with the value weight.
-      WeightedSums3(wx_size, bt, offset, wx.w.data(), wx_size, ny_pad, acc, ny_pad);
-      WeightedSums1(wx_size, bt + ny_pad, offset, wx.w.data(), (nr - 1) * ny_pad, acc + 3 * ny_pad);
-    } else {
-      WeightedSums1(wx_size, bt, offset, wx.w.data(), ny_pad, acc);
-    }
-    for (int b = 0; b < ny; ++b) {
-      const int pix = b * grid.nx + a;
-      model_out[pix] = flux * acc[b];
-      if (!derivs) continue;
-      double* jrow = jacobian + static_cast<size_t>(pix) * kNumSpotParams;
-      const double d_sx = acc[2 * ny_pad + b], d_sy = acc[4 * ny_pad + b];
-      jrow[kFlux] = acc[b];
-      jrow[kCentreX] = flux * acc[ny_pad + b];
-      jrow[kCentreY] = flux * acc[3 * ny_pad + b];
-      jrow[kAiryRadius] = flux * acc[5 * ny_pad + b];
-      jrow[kDefocus] = pillbox ? flux * acc[6 * ny_pad + b] : flux * (d_sx * gx + d_sy * gy);
-      jrow[kCcdSigmaX] = flux * d_sx * fx;
-      jrow[kCcdSigmaY] = flux * d_sy * fy;
+  for (int o = 0; o < count; ++o) {
+    const model::PixelGrid& grid = outputs[o].grid;
+    double* const model_out = outputs[o].values;
+    double* const jacobian = outputs[o].jacobian;
+    const AxisWeights& wx = ws->wx[o];
+    const int wx_size = static_cast<int>(wx.w.rows());
+    const int ny = grid.ny;
+    const int ny_pad = (ny + 3) / 4 * 4;
+    const int group_pad = groups[group_of[o]].ny_pad;
+    ws->acc.resize(static_cast<size_t>(nacc) * ny_pad);
+    double* acc = ws->acc.data();
+    const int node_stride = nr * group_pad;  // one node's right-hand sides in bt
+    const double* bt = ws->bt[group_of[o]].data() + row_offset[o];
+    // The right-hand sides after the value lie group_pad apart; when that is the output's
+    // own padded length they are one contiguous run.
+    const bool contiguous = group_pad == ny_pad;
+    for (int a = 0; a < grid.nx; ++a) {
+      const int first = wx.first + qx * a;
+      for (int m = 0; m < wx_size; ++m) {
+        offset[m] = static_cast<size_t>(std::abs(first + m)) * node_stride;
+      }
+      if (derivs) {
+        // B with the three weights, then every other right-hand side with the value weight.
+        WeightedSums3(wx_size, bt, offset, wx.w.data(), wx_size, ny_pad, acc, ny_pad);
+        if (contiguous) {
+          WeightedSums1(wx_size, bt + ny_pad, offset, wx.w.data(), (nr - 1) * ny_pad,
+                        acc + 3 * ny_pad);
+        } else {
+          for (int rhs = 1; rhs < nr; ++rhs) {
+            WeightedSums1(wx_size, bt + static_cast<size_t>(rhs) * group_pad, offset, wx.w.data(),
+                          ny_pad, acc + (2 + rhs) * ny_pad);
+          }
+        }
+      } else {
+        WeightedSums1(wx_size, bt, offset, wx.w.data(), ny_pad, acc);
+      }
+      for (int b = 0; b < ny; ++b) {
+        const int pix = b * grid.nx + a;
+        model_out[pix] = flux * acc[b];
+        if (!derivs) continue;
+        double* jrow = jacobian + static_cast<size_t>(pix) * kNumSpotParams;
+        const double d_sx = acc[2 * ny_pad + b], d_sy = acc[4 * ny_pad + b];
+        jrow[kFlux] = acc[b];
+        jrow[kCentreX] = flux * acc[ny_pad + b];
+        jrow[kCentreY] = flux * acc[3 * ny_pad + b];
+        jrow[kAiryRadius] = flux * acc[5 * ny_pad + b];
+        jrow[kDefocus] = pillbox ? flux * acc[6 * ny_pad + b] : flux * (d_sx * gx + d_sy * gy);
+        jrow[kCcdSigmaX] = flux * d_sx * fx;
+        jrow[kCcdSigmaY] = flux * d_sy * fy;
+      }
     }
   }
 }

@@ -3,6 +3,7 @@
 #define CCDPSF_INTERNAL_INTEGRATED_RENDERER_H_
 
 #include <Eigen/Core>
+#include <array>
 #include <cstdint>
 #include <vector>
 
@@ -81,6 +82,14 @@ struct AxisWeights {
   Eigen::MatrixXd w;  // (size x 3): h k, d(h k)/d centre, d(h k)/d width
 };
 
+// The most outputs one render fills (the pixels and the three densities of the boundary shifts).
+constexpr int kMaxIntegratedOutputs = 4;
+
+// What the integral along one axis collects per pixel: the pixel's extent (times the pixel
+// response window, ModelOptions::pixel_response_width), or the line at its upper edge, so
+// that a pixel's value is the line integral of the image along that edge [e- / px].
+enum class AxisKernel { kPixel, kUpperEdge };
+
 // Scratch space reused between renders (sizes change with the parameters).
 struct IntegratedWorkspace {
   // The radially symmetric image S (unit flux) at the nodes (|i|, |j|) of one quadrant, and
@@ -88,9 +97,12 @@ struct IntegratedWorkspace {
   NodeImage quadrant, quadrant_dr, quadrant_dR;
   QuadrantKey quadrant_key;    // what the quadrant holds now (rows 0: nothing yet)
   AlignedDoubles row;          // first pass: the right-hand sides of one output row, by |i|
-  AlignedDoubles bt;           // first pass output, [(|i| * rhs count + rhs) * ny_pad + b]
-  std::vector<double> acc;     // second pass accumulators, [quantity * ny_pad + b]
-  AxisWeights wx, wy;          // kernel weights (kept: their storage is reused)
+  // First pass outputs, one per group of outputs that integrate alike along y (the render of
+  // several outputs below), [(|i| * rhs count + rhs) * ny_pad + b].
+  std::array<AlignedDoubles, kMaxIntegratedOutputs> bt;
+  std::vector<double> acc;  // second pass accumulators, [quantity * ny_pad + b]
+  // Kernel weights along x per output, along y per group (kept: their storage is reused).
+  std::array<AxisWeights, kMaxIntegratedOutputs> wx, wy;
   std::vector<double> edges;   // kernel weights: the normal's values at the window edges
   std::vector<size_t> offset;  // where each kernel node's input starts, for one output line
   AiryDiscProfile pillbox_profile;  // the pillbox model's S by distance
@@ -98,10 +110,6 @@ struct IntegratedWorkspace {
   NodeDistances distances;          // of the quadrant's nodes, for the fills
 };
 
-// What the integral along one axis collects per pixel: the pixel's extent (times the pixel
-// response window, ModelOptions::pixel_response_width), or the line at its upper edge, so
-// that a pixel's value is the line integral of the image along that edge [e- / px].
-enum class AxisKernel { kPixel, kUpperEdge };
 
 // Renders with unit flux semantics handled inside; see renderer.h for the output layout.
 // kernel_x = kUpperEdge gives, for pixel (i, j), the line integral along x = x0 + i + 1/2,
@@ -110,6 +118,23 @@ void RenderIntegrated(const model::ModelOptions& options, const model::SpotParam
                       const model::PixelGrid& grid, double* model, double* jacobian,
                       IntegratedWorkspace* workspace, AxisKernel kernel_x = AxisKernel::kPixel,
                       AxisKernel kernel_y = AxisKernel::kPixel);
+
+// One image a render fills: its grid, what each axis's integral collects, and where the
+// values (and, if not null, the Jacobian) go, in RenderIntegrated's layout.
+struct IntegratedOutput {
+  model::PixelGrid grid;
+  AxisKernel kernel_x = AxisKernel::kPixel, kernel_y = AxisKernel::kPixel;
+  double* values = nullptr;
+  double* jacobian = nullptr;
+};
+
+// Several outputs of one spot in one render (at most kMaxIntegratedOutputs; all with a
+// Jacobian or none): the quadrant S is filled once, the first pass (along y) runs once per
+// y kernel over the union of the rows of the outputs that use it, and each output's second
+// pass reads its rows from there. Every output's values are those of its own render up to
+// rounding. Outputs that share a y kernel must lie whole pixels apart along y.
+void RenderIntegrated(const model::ModelOptions& options, const model::SpotParams& params,
+                      const IntegratedOutput* outputs, int count, IntegratedWorkspace* workspace);
 
 // The quadrature node spacing [px] used along an axis whose total Gaussian width is s [px],
 // for an Airy pattern of cut-off frequency rho_c = Rz / r [cycles/px]. Exposed for tests.

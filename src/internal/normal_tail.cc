@@ -73,11 +73,16 @@ inline Vec4 ExpNonPositive(Vec4 a) {
   return p * scale;
 }
 
+// phi(z) for four points.
+inline Vec4 Densities4(Vec4 z) {
+  constexpr double kInvSqrt2Pi = 0.39894228040143267794;
+  return ExpNonPositive(-0.5 * (z * z)) * kInvSqrt2Pi;
+}
+
 // Q(|z|) and phi(z) for four points.
 inline void TailsAndDensities4(Vec4 z, Vec4* tail, Vec4* density) {
-  constexpr double kInvSqrt2Pi = 0.39894228040143267794;
   const Vec4 x = z < 0.0 ? -z : z;
-  const Vec4 phi = ExpNonPositive(-0.5 * (z * z)) * kInvSqrt2Pi;
+  const Vec4 phi = Densities4(z);
   // Clenshaw's recurrence for the Chebyshev series in u = 2 t - 1.
   const Vec4 t = kMillsK / (kMillsK + x);
   const Vec4 u = 2.0 * t - 1.0;
@@ -114,6 +119,24 @@ void NormalTailsAndDensities(const double* z, int n, double* tail, double* densi
   std::memcpy(dp, &dv, sizeof dp);
   std::copy(tp, tp + (n - e), tail + e);
   if (density != nullptr) std::copy(dp, dp + (n - e), density + e);
+}
+
+void NormalDensities(const double* z, int n, double* density) {
+  int e = 0;
+  for (; e + 4 <= n; e += 4) {
+    Vec4 zv;
+    std::memcpy(&zv, z + e, sizeof zv);
+    const Vec4 dv = Densities4(zv);
+    std::memcpy(density + e, &dv, sizeof dv);
+  }
+  if (e == n) return;
+  double zp[4] = {0.0, 0.0, 0.0, 0.0}, dp[4];
+  std::copy(z + e, z + n, zp);
+  Vec4 zv;
+  std::memcpy(&zv, zp, sizeof zv);
+  const Vec4 dv = Densities4(zv);
+  std::memcpy(dp, &dv, sizeof dp);
+  std::copy(dp, dp + (n - e), density + e);
 }
 
 }  // namespace ccdpsf::internal

@@ -9,6 +9,20 @@
 
 namespace ccdpsf::model {
 
+namespace {
+
+// What the boundary and corner densities need (renderer.h): checked, as Render checks its own.
+void CheckDensityRender(const ModelOptions& options, const SpotParams& params) {
+  CHECK(options.sampling == Sampling::kIntegrated)
+      << "boundary and corner densities need integrated sampling";
+  CHECK_EQ(options.pixel_response_width, 1.0)
+      << "boundary and corner densities need the whole pixel";
+  std::string error;
+  CHECK(ValidSpotParams(options, params, &error)) << error;
+}
+
+}  // namespace
+
 struct SpotRenderer::Workspace {
   internal::IntegratedWorkspace integrated;
 };
@@ -65,18 +79,27 @@ void SpotRenderer::RenderWithDefocusOffset(const SpotParams& params, double dx_p
 
 void SpotRenderer::RenderAtEdges(const SpotParams& params, const PixelGrid& grid, bool edge_x,
                                  bool edge_y, double* density, double* jacobian) const {
-  CHECK(options_.sampling == Sampling::kIntegrated)
-      << "boundary and corner densities need integrated sampling";
-  CHECK_EQ(options_.pixel_response_width, 1.0)
-      << "boundary and corner densities need the whole pixel";
-  std::string error;
-  CHECK(ValidSpotParams(options_, params, &error)) << error;
+  CheckDensityRender(options_, params);
   CHECK_GT(grid.nx, 0);
   CHECK_GT(grid.ny, 0);
   using internal::AxisKernel;
   internal::RenderIntegrated(options_, params, grid, density, jacobian, &workspace_->integrated,
                              edge_x ? AxisKernel::kUpperEdge : AxisKernel::kPixel,
                              edge_y ? AxisKernel::kUpperEdge : AxisKernel::kPixel);
+}
+
+void SpotRenderer::RenderWithDensities(const SpotParams& params, const PixelGrid& grid,
+                                       double* model, double* jacobian, const DensityImage& x,
+                                       const DensityImage& y, const DensityImage& corner) const {
+  CheckDensityRender(options_, params);
+  using internal::AxisKernel;
+  const internal::IntegratedOutput outputs[4] = {
+      {grid, AxisKernel::kPixel, AxisKernel::kPixel, model, jacobian},
+      {x.grid, AxisKernel::kUpperEdge, AxisKernel::kPixel, x.values, x.jacobian},
+      {y.grid, AxisKernel::kPixel, AxisKernel::kUpperEdge, y.values, y.jacobian},
+      {corner.grid, AxisKernel::kUpperEdge, AxisKernel::kUpperEdge, corner.values,
+       corner.jacobian}};
+  internal::RenderIntegrated(options_, params, outputs, 4, &workspace_->integrated);
 }
 
 void SpotRenderer::RenderBoundaryDensity(const SpotParams& params, const PixelGrid& grid, int axis,

@@ -246,6 +246,66 @@ TEST(BoundaryShift, BoundaryDensityIsTheLineIntegral) {
   }
 }
 
+// RenderWithDensities (one render, first passes shared) against the four separate renders it
+// replaces, on a 9 x 9 window of the 21 x 21 stamp away from its corner, with and without
+// Jacobians, for both defocus models. The passes are the same sums over the same nodes, only
+// the weights' abscissae are formed from another grid origin (rounding of 1e-16 px), so
+// 1e-12 of each output's largest value bounds the difference with a wide margin.
+TEST(BoundaryShift, SharedRenderIsTheSeparateRenders) {
+  for (const DefocusKind defocus : {DefocusKind::kGaussian, DefocusKind::kPillbox}) {
+    ModelOptions options;
+    options.defocus = defocus;
+    const SpotRenderer shared(options), separate(options);
+    const SpotParams p = PaperSpot(2.0e5);
+    const PixelGrid grid;  // 21 x 21 at the origin
+    const int i0 = 6, j0 = 5, w = 9;
+    const PixelGrid part[3] = {{w + 1, w, grid.x0 - 1.0 + i0, grid.y0 + j0},
+                               {w, w + 1, grid.x0 + i0, grid.y0 - 1.0 + j0},
+                               {w + 1, w + 1, grid.x0 - 1.0 + i0, grid.y0 - 1.0 + j0}};
+    for (const bool with_jacobian : {false, true}) {
+      const size_t np = with_jacobian ? kNumSpotParams : 0;
+      std::vector<double> image(grid.size()), image_j(grid.size() * np);
+      std::vector<double> values[3], jacobians[3];
+      SpotRenderer::DensityImage densities[3];
+      for (int kind = 0; kind < 3; ++kind) {
+        values[kind].resize(part[kind].size());
+        jacobians[kind].resize(part[kind].size() * np);
+        densities[kind] = {part[kind], values[kind].data(),
+                           with_jacobian ? jacobians[kind].data() : nullptr};
+      }
+      shared.RenderWithDensities(p, grid, image.data(), with_jacobian ? image_j.data() : nullptr,
+                                 densities[0], densities[1], densities[2]);
+      auto compare = [&](const std::vector<double>& got, const std::vector<double>& want,
+                         const char* what) {
+        ASSERT_EQ(got.size(), want.size());
+        double largest = 0.0, worst = 0.0;
+        for (size_t q = 0; q < want.size(); ++q) {
+          largest = std::max(largest, std::fabs(want[q]));
+          worst = std::max(worst, std::fabs(got[q] - want[q]));
+        }
+        EXPECT_GT(largest, 0.0) << what;
+        EXPECT_LE(worst, 1e-12 * largest)
+            << what << ", defocus " << static_cast<int>(defocus) << ", jacobian " << with_jacobian;
+      };
+      std::vector<double> want(grid.size()), want_j(grid.size() * np);
+      separate.Render(p, grid, want.data(), with_jacobian ? want_j.data() : nullptr);
+      compare(image, want, "image");
+      if (with_jacobian) compare(image_j, want_j, "image jacobian");
+      for (int kind = 0; kind < 3; ++kind) {
+        std::vector<double> v(part[kind].size()), j(part[kind].size() * np);
+        double* jp = with_jacobian ? j.data() : nullptr;
+        if (kind < 2) {
+          separate.RenderBoundaryDensity(p, part[kind], kind, v.data(), jp);
+        } else {
+          separate.RenderCornerDensity(p, part[kind], v.data(), jp);
+        }
+        compare(values[kind], v, kind == 0 ? "x density" : kind == 1 ? "y density" : "corners");
+        if (with_jacobian) compare(jacobians[kind], j, "density jacobian");
+      }
+    }
+  }
+}
+
 // The spot drawn with and without the effect, on the 21 x 21 grid (the simulator's path,
 // RenderSpotWithKernelEffects).
 std::vector<double> Draw(const SpotParams& p, const ExposureEffects& effects) {

@@ -49,6 +49,27 @@ TEST(NormalTail, ValueDoesNotDependOnPlaceOrLength) {
   }
 }
 
+// NormalDensities alone gives NormalTailsAndDensities' densities bit for bit (the glibc check
+// above then covers both), at every place of arrays of every length, NaN and far tails included.
+TEST(NormalTail, DensitiesAloneAreTheSameBits) {
+  for (int n = 1; n <= 11; ++n) {
+    std::vector<double> z(n);
+    for (int e = 0; e < n; ++e) z[e] = -5.3 + 1.37 * e + 1e-3 * n;
+    if (n > 8) z[n - 1] = std::numeric_limits<double>::quiet_NaN();
+    if (n > 9) z[n - 2] = 60.0;
+    std::vector<double> tail(n), both(n), alone(n);
+    NormalTailsAndDensities(z.data(), n, tail.data(), both.data());
+    NormalDensities(z.data(), n, alone.data());
+    for (int e = 0; e < n; ++e) {
+      if (std::isnan(z[e])) {
+        EXPECT_TRUE(std::isnan(alone[e]));
+      } else {
+        EXPECT_EQ(alone[e], both[e]) << "n " << n << " at " << e;
+      }
+    }
+  }
+}
+
 TEST(NormalTail, FarTailsAndNaN) {
   const double z[4] = {-60.0, 60.0, std::numeric_limits<double>::infinity(),
                        std::numeric_limits<double>::quiet_NaN()};

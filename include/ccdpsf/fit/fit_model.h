@@ -410,7 +410,8 @@ class FitEvaluator {
   // boundary_shift: the light along the x and y boundaries and at their corners, with
   // derivatives, and the renderer's values and Jacobian of one of them.
   model::BoundaryDensities boundary_densities_;
-  std::vector<double> density_values_, density_jacobian_;
+  // boundary_shift's densities on the exposure's window (x, y, corner) and their Jacobians.
+  std::array<std::vector<double>, 3> density_values_, density_jacobian_;
   std::vector<std::vector<double>> unit_models_;  // BestFluxLogLikelihood's renders
 };
 

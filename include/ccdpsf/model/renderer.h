@@ -61,6 +61,22 @@ class SpotRenderer {
   void RenderCornerDensity(const SpotParams& params, const PixelGrid& grid, double* density,
                            double* jacobian) const;
 
+  // Render and, in the same passes, the three densities above on their own grids (usually
+  // the boundaries and corners of a window of the image): x = RenderBoundaryDensity's axis 0,
+  // y = its axis 1, corner = RenderCornerDensity's. The renders that integrate alike along y
+  // (the pixels and x; y and corner) share that integral, the larger part of a render's cost.
+  // The same numbers as the four separate calls up to rounding; the same restrictions as
+  // RenderBoundaryDensity, and every grid must lie whole pixels from `grid` along y. Jacobians
+  // all null or none.
+  struct DensityImage {
+    PixelGrid grid;
+    double* values = nullptr;
+    double* jacobian = nullptr;
+  };
+  void RenderWithDensities(const SpotParams& params, const PixelGrid& grid, double* model,
+                           double* jacobian, const DensityImage& x, const DensityImage& y,
+                           const DensityImage& corner) const;
+
  private:
   // The integrated render with the pixel box replaced by its upper edge on the axes asked
   // (both: the point at the pixel's upper corner): the densities above.
