@@ -202,15 +202,9 @@ int RunDiagnose(const std::vector<std::string>& files) {
   std::vector<std::string> paths;
   int censored = 0;
   for (Exposure& e : set.exposures) {
-    // The effect models take measured pixels only: censored ones (saturated, clipped) are
-    // masked here, and said.
-    for (size_t q = 0; q < e.stamp.valid.size(); ++q) {
-      if (e.stamp.valid[q] && e.stamp.CensorAt(q) != Censor::kNone) {
-        e.stamp.valid[q] = 0;
-        ++censored;
-      }
-    }
-    e.stamp.censor.clear();
+    // Censored pixels (saturated, clipped) are bounds in every likelihood, as in a fit; the
+    // residual statistics leave them out.
+    censored += e.stamp.NumCensored();
     stamps.push_back(e.stamp);
     paths.push_back(e.stamp.info.source);
   }
@@ -230,11 +224,10 @@ int RunDiagnose(const std::vector<std::string>& files) {
                        f.exposure);
   }
   if (censored > 0) {
-    result.quality.Add("censored_masked", Severity::kNote,
+    result.quality.Add("censored_bounds", Severity::kNote,
                        std::to_string(censored) +
-                           " censored pixel(s) (saturated or clipped) left out: the effect models "
-                           "fit measured pixels only (a fit with final_fit.json keeps them as "
-                           "bounds, so its numbers can differ)");
+                           " censored pixel(s) (saturated or clipped) enter the likelihood as "
+                           "bounds, as in a fit; the residual statistics leave them out");
   }
   {
     // The noise check: the tests compare residuals with the noise model, so a chi^2 below

@@ -81,6 +81,9 @@ struct Stamp {
     return n;
   }
   Censor CensorAt(size_t q) const { return censor.empty() ? Censor::kNone : censor[q]; }
+  // A valid pixel whose value is a measurement, not a censoring bound: what statistics of
+  // residuals may use.
+  bool Measured(size_t q) const { return valid[q] && CensorAt(q) == Censor::kNone; }
   int NumCensored() const {
     int n = 0;
     for (size_t q = 0; q < censor.size(); ++q) n += valid[q] && censor[q] != Censor::kNone;

@@ -428,7 +428,7 @@ std::string SignalIndependenceContradiction(const EffectModel& m, const EffectFi
     }
     double hr = 0, hh = 0, s = 0;
     for (size_t q = 0; q < st.valid.size(); ++q) {
-      if (!st.valid[q]) continue;
+      if (!st.Measured(q)) continue;
       const double h = with_e[q] - without_e[q];
       const double v = std::max(with_e[q], 0.0) + st.read_noise_e * st.read_noise_e;
       hr += h * (st.electrons.data[q] - without_e[q]) / v;
@@ -512,7 +512,7 @@ std::string NonlinearityContradiction(const EffectModel& m, const EffectFitResul
     double a = 0, b = 0, s = 0;
     int pixels = 0;
     for (size_t q = 0; q < st.valid.size(); ++q) {
-      if (!st.valid[q]) continue;
+      if (!st.Measured(q)) continue;
       a += with_nl[q];
       b += linear[q];
       s += st.electrons.data[q];

@@ -317,6 +317,10 @@ std::vector<Image> SimulateData(const EffectModel& model, const std::vector<doub
       const double adu = ObservePixelAdu(c[q], m[q] - c[q], s.gain_e_per_adu, s.read_noise_e,
                                          s.bias_adu, s.saturation_adu, engine);
       d.data[q] = (adu - s.bias_adu) * s.gain_e_per_adu;
+      // A pixel censored in the data stays censored, at its recorded level: the refits take
+      // the stamps' censoring as it is, so the simulations are drawn given that pattern
+      // (every draw is a bound there, as the data are).
+      if (s.valid[q] && s.CensorAt(q) != Censor::kNone) d.data[q] = s.electrons.data[q];
     }
     out.push_back(std::move(d));
   }

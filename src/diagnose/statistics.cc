@@ -65,7 +65,10 @@ std::vector<ExposureResidual> ComputeResiduals(const EffectModel& model,
     e.data_e = data_e != nullptr ? (*data_e)[k] : s.electrons;
     e.model_e = Image(s.nx(), s.ny(), NAN);
     e.normalised = Image(s.nx(), s.ny(), NAN);
-    e.valid = s.valid;
+    // Residuals of measured pixels only: a censored pixel's value is a bound (the
+    // likelihood takes it so), not a measurement a residual could be formed from.
+    e.valid.assign(s.valid.size(), 0);
+    for (size_t q = 0; q < s.valid.size(); ++q) e.valid[q] = s.Measured(q) ? 1 : 0;
     e.origin_x = s.origin_x;
     e.origin_y = s.origin_y;
     CHECK(ev.Render(p.data(), k, &m, &c)) << "ComputeResiduals outside the model's domain";
@@ -75,7 +78,7 @@ std::vector<ExposureResidual> ComputeResiduals(const EffectModel& model,
     for (double v : m) e.flux_e += v;
     for (size_t q = 0; q < s.valid.size(); ++q) {
       e.model_e.data[q] = m[q];
-      if (!s.valid[q]) continue;
+      if (!e.valid[q]) continue;
       e.normalised.data[q] = (e.data_e.data[q] - m[q]) / std::sqrt(noise.VarianceE2(c[q]));
     }
     const model::SpotParams sp = model.fit_twin().SpotFor(model.TwinTheta(p.data()).data(), k);
