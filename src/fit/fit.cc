@@ -107,6 +107,33 @@ bool RunFit(const FitModel& model, const FitOptions& options, FitResult* result,
   const std::vector<double> fisher = evaluator->FisherInformation(theta_map.data());
   const std::vector<double> information = model.PosteriorInformation(fisher);
   result->laplace = ComputeLaplace(model, theta_map, information);
+  // The sandwich C M C: the meat is the scores' outer products plus the prior's precision
+  // (information - fisher), so that it equals C where the model holds.
+  LaplaceResult sandwich = result->laplace;
+  {
+    std::vector<double> meat = evaluator->ScoreOuterProducts(theta_map.data());
+    for (size_t e = 0; e < meat.size(); ++e) meat[e] += information[e] - fisher[e];
+    const std::vector<double>& c = result->laplace.covariance;
+    std::vector<double> cm(static_cast<size_t>(dim) * dim, 0.0);
+    sandwich.covariance.assign(static_cast<size_t>(dim) * dim, 0.0);
+    if (c.size() == cm.size()) {
+      for (int a = 0; a < dim; ++a) {
+        for (int k = 0; k < dim; ++k) {
+          const double cak = c[a * dim + k];
+          if (cak == 0.0) continue;
+          for (int b = 0; b < dim; ++b) cm[a * dim + b] += cak * meat[k * dim + b];
+        }
+      }
+      for (int a = 0; a < dim; ++a) {
+        for (int k = 0; k < dim; ++k) {
+          const double cmak = cm[a * dim + k];
+          if (cmak == 0.0) continue;
+          for (int b = 0; b < dim; ++b) sandwich.covariance[a * dim + b] += cmak * c[k * dim + b];
+        }
+      }
+    }
+    result->sandwich_covariance = sandwich.covariance;
+  }
   if (model.gaussian_prior().active()) {
     result->data_alone = EstimateFromDataAlone(model, theta_map, fisher);
   }
@@ -165,6 +192,9 @@ bool RunFit(const FitModel& model, const FitOptions& options, FitResult* result,
   for (int i = 0; i < dim; ++i) {
     result->parameters[i].map = theta_map[i];
     result->parameters[i].laplace_sd = result->laplace.sd[i];
+    const double v = sandwich.covariance.empty() ? NAN : sandwich.covariance[i * dim + i];
+    result->parameters[i].sandwich_sd =
+        std::isfinite(result->laplace.sd[i]) && v >= 0.0 ? std::sqrt(v) : NAN;
   }
   // ... and for the derived quantities (delta method with a numerical gradient; peak_e from
   // the model Jacobian at the brightest pixel of each exposure, averaged).
@@ -186,8 +216,11 @@ bool RunFit(const FitModel& model, const FitOptions& options, FitResult* result,
       tp[i] = tm[i] = theta_map[i];
     }
     result->derived[j].second.laplace_sd = DerivedSd(result->laplace, grad);
+    result->derived[j].second.sandwich_sd = DerivedSd(sandwich, grad);
     // The CCD-only metrics (the first six) depend on the unidentified split.
-    if (split_unidentified && j < 6) result->derived[j].second.laplace_sd = NAN;
+    if (split_unidentified && j < 6) {
+      result->derived[j].second.laplace_sd = result->derived[j].second.sandwich_sd = NAN;
+    }
   }
   {
     std::vector<double> pixels, jac, grad(dim, 0.0);
@@ -207,6 +240,7 @@ bool RunFit(const FitModel& model, const FitOptions& options, FitResult* result,
     if (model.through_focus()) grad[kDefocusPx] = grad[model.FocusIndex()] = 0.0;
     result->derived[kPeakIndex].second.map = peak;
     result->derived[kPeakIndex].second.laplace_sd = DerivedSd(result->laplace, grad);
+    result->derived[kPeakIndex].second.sandwich_sd = DerivedSd(sandwich, grad);
   }
 
   if (options.run_mcmc) {

@@ -1085,6 +1085,22 @@ int FitEvaluator::CensoredViolations(const double* theta, double sd, double* wor
   return count;
 }
 
+namespace {
+
+// The gradients of a pixel's two residuals by theta, from its model Jacobian row g.
+void ResidualGradients(const PixelValue& v, const double* g, int dim, int pedestal_index,
+                       double* r0_d, double* r1_d) {
+  // dr/dtheta = dr/dm d charge/dtheta - dr/dd d pedestal/dtheta: the pedestal moves the
+  // expectation and the datum's reference alike (EvaluatePixelWithPedestal).
+  for (int a = 0; a < dim; ++a) {
+    const double e = a == pedestal_index ? 1.0 : 0.0;
+    r0_d[a] = v.dr_dm[0] * (g[a] - e) - v.dr_dd[0] * e;
+    r1_d[a] = v.dr_dm[1] * (g[a] - e) - v.dr_dd[1] * e;
+  }
+}
+
+}  // namespace
+
 std::vector<double> FitEvaluator::FisherInformation(const double* theta) {
   const int dim = fit_model_.dim();
   std::vector<double> fisher(static_cast<size_t>(dim) * dim, 0.0);
@@ -1131,19 +1147,44 @@ bool FitEvaluator::AddExposureFisherInformation(const double* theta, int k, cons
     } else {
       // Interval and censored pixels: the Gauss-Newton information of their residuals
       // (observed, not expected: a censored pixel informs only where the model nears its
-      // level), dr/dtheta = dr/dm d charge/dtheta - dr/dd d pedestal/dtheta.
+      // level).
       EvaluatePixelWithPedestal(LikelihoodKind::kGaussian, data[q], s.CensorAt(q), pixels_[q],
                                 pedestal, noise, true, &v);
-      for (int a = 0; a < dim; ++a) {
-        const double e = a == pedestal_index ? 1.0 : 0.0;
-        r0_d[a] = v.dr_dm[0] * (g[a] - e) - v.dr_dd[0] * e;
-        r1_d[a] = v.dr_dm[1] * (g[a] - e) - v.dr_dd[1] * e;
-      }
+      ResidualGradients(v, g, dim, pedestal_index, r0_d.data(), r1_d.data());
       add_outer(r0_d, r0_d, 1.0);
       add_outer(r1_d, r1_d, 1.0);
     }
   }
   return true;
+}
+
+std::vector<double> FitEvaluator::ScoreOuterProducts(const double* theta) {
+  const int dim = fit_model_.dim();
+  std::vector<double> meat(static_cast<size_t>(dim) * dim, 0.0);
+  std::vector<double> jac, r0_d(dim), r1_d(dim), score(dim);
+  const int pedestal_index = fit_model_.EffectIndex(model::EffectKind::kBackground);
+  const double pedestal = fit_model_.PedestalAt(theta);
+  PixelValue v;
+  for (int k = 0; k < fit_model_.num_exposures(); ++k) {
+    const Stamp& s = fit_model_.stamps()[k];
+    const PixelNoise noise = StampNoise(s);
+    if (!ModelImage(theta, k, &pixels_, &jac)) {
+      return std::vector<double>(static_cast<size_t>(dim) * dim, NAN);
+    }
+    for (size_t q = 0; q < pixels_.size(); ++q) {
+      if (!s.valid[q]) continue;
+      EvaluatePixelWithPedestal(LikelihoodKind::kGaussian, s.electrons.data[q], s.CensorAt(q),
+                                pixels_[q], pedestal, noise, true, &v);
+      ResidualGradients(v, &jac[q * dim], dim, pedestal_index, r0_d.data(), r1_d.data());
+      // 1/2 (r0^2 + r1^2) = -log p + c: the score is -(r0 dr0 + r1 dr1).
+      for (int a = 0; a < dim; ++a) score[a] = -(v.r[0] * r0_d[a] + v.r[1] * r1_d[a]);
+      for (int a = 0; a < dim; ++a) {
+        if (score[a] == 0.0) continue;
+        for (int b = 0; b < dim; ++b) meat[a * dim + b] += score[a] * score[b];
+      }
+    }
+  }
+  return meat;
 }
 
 }  // namespace ccdpsf::fit

@@ -43,6 +43,7 @@ void ExpectedChi2PerDofRange(int dof, double tail_p, double* low, double* high) 
 void AssessFit(const FitModel& model, const FitResult& r, const FitQualityOptions& options,
                Quality* quality) {
   AssessChi2(r.map.chi2, r.map.dof, options, quality);
+  AssessIntervalsUnderMisfit(r, options, quality);
   AssessBounds(model, r, quality);
   // Censored pixels add no chi^2: one the model puts well on the wrong side of its level
   // (a saturated pixel predicted far below saturation) is a misfit of its own.
@@ -56,6 +57,32 @@ void AssessFit(const FitModel& model, const FitResult& r, const FitQualityOption
                      "fitted model (worst " + Fmt(-worst) + " sd): the model does not describe "
                      "the core that the detector cut off");
   }
+}
+
+void AssessIntervalsUnderMisfit(const FitResult& r, const FitQualityOptions& options,
+                                Quality* quality) {
+  if (!(r.map.dof >= 1) || !std::isfinite(r.map.chi2) ||
+      !(ChiSquareUpperTail(r.map.chi2, r.map.dof) < options.chi2_tail_p)) {
+    return;
+  }
+  // Where the misfit widens the uncertainty most: the largest sandwich / Laplace sd ratio.
+  double worst = 0.0;
+  std::string where;
+  auto consider = [&](const std::string& name, const Summary& s) {
+    const double ratio = s.sandwich_sd / s.laplace_sd;
+    if (std::isfinite(ratio) && ratio > worst) {
+      worst = ratio;
+      where = name + " " + Fmt(s.laplace_sd) + " -> " + Fmt(s.sandwich_sd);
+    }
+  };
+  for (size_t i = 0; i < r.parameters.size(); ++i) consider(r.names[i], r.parameters[i]);
+  for (const auto& [name, s] : r.derived) consider(name, s);
+  if (!(worst > 0.0)) return;
+  quality->Add("intervals_assume_model", Severity::kNote,
+               "the intervals assume the model, which chi2/dof = " +
+                   Fmt(r.map.chi2 / r.map.dof) +
+                   " rejects: the misspecification-robust (sandwich) sd is up to " + Fmt(worst) +
+                   " times the Laplace sd (" + where + "; fit.json sandwich_sd)");
 }
 
 void AssessChi2(double chi2, int dof, const FitQualityOptions& options, Quality* quality) {

@@ -8,7 +8,9 @@
 #include <sstream>
 
 #include "ccdpsf/atomic_file.h"
+#include "ccdpsf/chi_square.h"
 #include "ccdpsf/column_units.h"
+#include "ccdpsf/fit/fit_quality.h"
 #include "ccdpsf/fit/focus_plot.h"
 #include "ccdpsf/fit/intensity_plot.h"
 #include "ccdpsf/fit/prior_report.h"
@@ -26,8 +28,10 @@ using nlohmann::json;
 json Num(double v) { return std::isfinite(v) ? json(v) : json(nullptr); }
 
 json SummaryJson(const Summary& s) {
-  return {{"map", Num(s.map)},       {"laplace_sd", Num(s.laplace_sd)}, {"median", Num(s.median)},
-          {"lo68", Num(s.lo68)},     {"hi68", Num(s.hi68)},             {"lo997", Num(s.lo997)},
+  return {{"map", Num(s.map)},       {"laplace_sd", Num(s.laplace_sd)},
+          {"sandwich_sd", Num(s.sandwich_sd)},
+          {"median", Num(s.median)}, {"lo68", Num(s.lo68)},
+          {"hi68", Num(s.hi68)},     {"lo997", Num(s.lo997)},
           {"hi997", Num(s.hi997)}};
 }
 
@@ -209,25 +213,36 @@ json FitJson(const ExposuresFit& fit) {
   // The Laplace covariance of the parameters the data constrain (theta units, the names'
   // units; the others lie along identifiability.null_directions and have no entry).
   {
-    json names = json::array(), matrix = json::array();
+    json names = json::array();
     std::vector<int> kept;
     for (int i = 0; i < model.dim(); ++i) {
       if (r.laplace.constrained[i]) kept.push_back(i);
     }
-    const bool have = r.laplace.covariance.size() == static_cast<size_t>(model.dim()) * model.dim();
-    for (int a : kept) {
-      names.push_back(r.names[a]);
-      json row = json::array();
-      for (int b : kept) {
-        // The mean of the two triangles: the Laplace inverse is symmetric only to rounding.
-        const int n = model.dim();
-        row.push_back(have ? Num(0.5 * (r.laplace.covariance[a * n + b] +
-                                        r.laplace.covariance[b * n + a]))
-                           : json(nullptr));
+    for (int a : kept) names.push_back(r.names[a]);
+    // The mean of the two triangles: the inverses are symmetric only to rounding.
+    auto matrix_of = [&](const std::vector<double>& c) {
+      const int n = model.dim();
+      const bool have = c.size() == static_cast<size_t>(n) * n;
+      json matrix = json::array();
+      for (int a : kept) {
+        json row = json::array();
+        for (int b : kept) row.push_back(have ? Num(0.5 * (c[a * n + b] + c[b * n + a])) : json(nullptr));
+        matrix.push_back(row);
       }
-      matrix.push_back(row);
-    }
-    j["covariance"] = {{"names", names}, {"matrix", matrix}};
+      return matrix;
+    };
+    // Which intervals the file gives, and what they assume (docs/trust.md, Honest uncertainty
+    // under misfit).
+    j["intervals"] = {
+        {"from", r.have_mcmc ? "mcmc" : "laplace"},
+        {"assume_model", true},
+        {"model_rejected_by_chi2",
+         r.map.dof >= 1 && std::isfinite(r.map.chi2) &&
+             ChiSquareUpperTail(r.map.chi2, r.map.dof) < FitQualityOptions().chi2_tail_p},
+        {"robust_sd", "sandwich_sd"}};
+    j["covariance"] = {{"names", names},
+                       {"matrix", matrix_of(r.laplace.covariance)},
+                       {"sandwich", matrix_of(r.sandwich_covariance)}};
   }
   if (r.have_mcmc) {
     const SamplerResult& c = r.chain;
@@ -575,17 +590,21 @@ bool WriteFitReport(const std::string& out_dir, const ExposuresFit& fit, const j
     md << "\nThe Laplace approximation ignores the bound there.\n\n";
   }
   md << "## MAP / Laplace against MCMC\n\n"
-     << "| quantity | MAP | Laplace sd | MCMC median | MCMC 68 % | MCMC 99.7 % | sd ratio |\n"
-     << "|---|---|---|---|---|---|---|\n";
+     << "| quantity | MAP | Laplace sd | sandwich sd | MCMC median | MCMC 68 % | MCMC 99.7 % | sd "
+        "ratio |\n"
+     << "|---|---|---|---|---|---|---|---|\n";
   auto row = [&](const std::string& name, const Summary& s) {
     md << "| " << name << " | " << Fmt(s.map) << " | " << Fmt(s.laplace_sd, 3) << " | "
-       << Fmt(s.median) << " | " << Fmt(s.lo68) << " .. " << Fmt(s.hi68) << " | "
+       << Fmt(s.sandwich_sd, 3) << " | " << Fmt(s.median) << " | " << Fmt(s.lo68) << " .. " << Fmt(s.hi68) << " | "
        << Fmt(s.lo997) << " .. " << Fmt(s.hi997) << " | "
        << Fmt(s.laplace_sd / (0.5 * (s.hi68 - s.lo68)), 3) << " |\n";
   };
   for (int i = 0; i < dim; ++i) row(r.names[i], r.parameters[i]);
   for (const auto& [name, s] : r.derived) row(name, s);
-  md << "\nsd ratio = Laplace sd / half the MCMC 68 % interval (1 for a Gaussian posterior).\n\n";
+  md << "\nsd ratio = Laplace sd / half the MCMC 68 % interval (1 for a Gaussian posterior). "
+        "sandwich sd: the misspecification-robust sd at the MAP (docs/trust.md, Honest "
+        "uncertainty under misfit); the intervals assume the model, the sandwich sd does "
+        "not.\n\n";
   // The through-focus plot: each exposure alone against the fitted defocus law.
   bool focus_plot = false, focus_truth = false;
   if (model.through_focus() && !fit.focus_points.empty()) {

@@ -294,6 +294,76 @@ TEST(Fit, LaplaceIntervalsAreCalibrated) {
   }
 }
 
+// The scores behind the sandwich sd: at the true parameters their outer products average to
+// the Fisher information (the information identity), here over 60 realisations of one
+// exposure, for every parameter. Each realisation's diagonal entry scatters by ~sqrt(2 /
+// n_eff) of its mean (~0.5 for the positions, which a few flank pixels inform), so the mean
+// of 60 is held to 1 +- 0.2 (3 sd for the positions, more for the rest).
+TEST(Fit, ScoresAverageToTheFisherInformation) {
+  const SimulationConfig c = PaperConfig(model::Sampling::kIntegrated, 1, 9);
+  std::vector<double> truth = {c.exposures[0].flux_e, c.airy_radius_px, c.defocus_px,
+                               c.ccd_sigma_x_px,      c.ccd_sigma_y_px, c.exposures[0].x_px,
+                               c.exposures[0].y_px};
+  const int n = 60;
+  std::vector<double> ratio_sum(truth.size(), 0.0);
+  for (int s = 0; s < n; ++s) {
+    auto model = MustCreate(SimulateStamps(c, 500 + s));
+    auto ev = model->NewEvaluator();
+    const std::vector<double> meat = ev->ScoreOuterProducts(truth.data());
+    const std::vector<double> fisher = ev->FisherInformation(truth.data());
+    const int dim = model->dim();
+    ASSERT_EQ(dim, static_cast<int>(truth.size()));
+    for (int i = 0; i < dim; ++i) ratio_sum[i] += meat[i * dim + i] / fisher[i * dim + i] / n;
+  }
+  for (size_t i = 0; i < truth.size(); ++i) EXPECT_NEAR(ratio_sum[i], 1.0, 0.2) << i;
+}
+
+// The sandwich sd where the noise model understates the noise. Two independent noisy
+// realisations A, B of the same joint set (5 exposures) make C = A + u (A - B) with u = 0.823:
+// its noise about the truth is A's times (1 + u) less B's times u, variance (1 + u)^2 + u^2 =
+// 4.00 times the noise model's at every pixel. Fitted with the stated noise, chi^2/dof comes
+// out ~4, and the sandwich sd of the widths and the Airy radius (each informed by hundreds of
+// pixels) grows by ~1.6-2 over the Laplace sd (not exactly 2: the variance term of the
+// shot-noise likelihood moves the MAP and weighs the residuals' fourth moment); on A itself
+// (the model right) they agree within the meat's scatter. Held: chi^2/dof 4 +- 0.6 and 1 +-
+// 0.15 (dof ~2200); ratio > 1.4 misspecified, 1 +- 0.25 right.
+TEST(Fit, SandwichSdGrowsWhereTheNoiseIsUnderstated) {
+  const SimulationConfig c = PaperConfig(model::Sampling::kIntegrated, 5, 7);
+  const std::vector<Stamp> a = SimulateStamps(c, 71), b = SimulateStamps(c, 72);
+  std::vector<Stamp> inflated = a;
+  const double u = 0.823;
+  for (size_t k = 0; k < a.size(); ++k) {
+    for (size_t q = 0; q < a[k].electrons.data.size(); ++q) {
+      inflated[k].electrons.data[q] += u * (a[k].electrons.data[q] - b[k].electrons.data[q]);
+      // Masks and censoring of either realisation apply (both are tiny here).
+      inflated[k].valid[q] = a[k].valid[q] && b[k].valid[q];
+    }
+    inflated[k].censor.clear();
+    inflated[k].adc_step_e = 0.0;  // no longer whole ADU
+  }
+  for (const bool misspecified : {false, true}) {
+    auto model = MustCreate(misspecified ? inflated : a);
+    FitResult r;
+    std::string error;
+    ASSERT_TRUE(RunFit(*model, NoMcmc(), &r, &error)) << error;
+    EXPECT_NEAR(r.map.chi2 / r.map.dof, misspecified ? 4.0 : 1.0, misspecified ? 0.6 : 0.15);
+    std::vector<std::pair<std::string, Summary>> checked = {
+        {"airy_radius_px", r.parameters[kAiryRadiusPx]}};
+    for (const char* name : {"total_sigma_x_px", "total_sigma_y_px", "total_fwhm_um"}) {
+      checked.push_back(r.derived[IndexOf(r, name)]);
+    }
+    for (const auto& [name, s] : checked) {
+      const double ratio = s.sandwich_sd / s.laplace_sd;
+      if (misspecified) {
+        EXPECT_GT(ratio, 1.4) << name;
+        EXPECT_LT(ratio, 2.6) << name;
+      } else {
+        EXPECT_NEAR(ratio, 1.0, 0.25) << name;
+      }
+    }
+  }
+}
+
 // pixel_centre data fitted in pixel_centre mode: the 2015 discretisation separates defocus
 // from the CCD kernel, so the paper-style sigma_f, sigma_x, sigma_y come back individually.
 TEST(Fit, PixelCentreRecoversSeparateWidths) {

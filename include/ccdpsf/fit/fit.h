@@ -38,6 +38,11 @@ struct FitOptions {
 struct Summary {
   double map = NAN;
   double laplace_sd = NAN;
+  // The misspecification-robust (sandwich) sd at the MAP: C M C with C the Laplace covariance
+  // and M the outer products of the pixels' scores (FitEvaluator::ScoreOuterProducts). Equal
+  // to laplace_sd in expectation when the model and noise model hold; larger where the
+  // residuals exceed the noise model. NaN where laplace_sd is.
+  double sandwich_sd = NAN;
   double median = NAN;
   double lo68 = NAN, hi68 = NAN;
   double lo997 = NAN, hi997 = NAN;
@@ -52,6 +57,8 @@ struct FitResult {
   std::vector<std::string> names;
   MapResult map;
   LaplaceResult laplace;
+  // The sandwich covariance (Summary::sandwich_sd), dim x dim like laplace.covariance.
+  std::vector<double> sandwich_covariance;
   bool have_mcmc = false;
   SamplerResult chain;
   std::vector<Summary> parameters;                       // in theta order

@@ -361,6 +361,13 @@ class FitEvaluator {
   // (= g where m > 0); censored and interval pixels give the Gauss-Newton information of
   // their residuals (observed). dim x dim, row-major; NaN where an image cannot be drawn.
   std::vector<double> FisherInformation(const double* theta);
+  // The outer products of the pixels' scores at theta, sum over valid pixels of s s^T with
+  // s = d log p(pixel) / d theta (from the residuals: -(r0 dr0 + r1 dr1), pixel_likelihood.h):
+  // the "meat" of the misspecification-robust (sandwich) covariance. Its expectation is the
+  // Fisher information when the model and its noise are right; where the residuals are
+  // larger than the noise model says, it is larger. dim x dim, row-major; NaN where an image
+  // cannot be drawn.
+  std::vector<double> ScoreOuterProducts(const double* theta);
   // The same for exposure k alone, its censored and interval pixels against `data_e`
   // (stamp-sized; null: the stamp's data); added into *fisher (dim x dim). False where the
   // image cannot be drawn.

@@ -36,6 +36,11 @@ struct FitQualityOptions {
 // The chi^2 findings alone (chi2_high, chi2_low, gross_misfit), for a chi^2 with dof.
 void AssessChi2(double chi2, int dof, const FitQualityOptions& options, Quality* quality);
 
+// Where chi^2 rejects the model (above its range): a note (intervals_assume_model) that the
+// intervals assume the model, with the largest sandwich / Laplace sd ratio and where.
+void AssessIntervalsUnderMisfit(const FitResult& result, const FitQualityOptions& options,
+                                Quality* quality);
+
 // The prior-bound and convergence findings alone.
 void AssessBounds(const FitModel& model, const FitResult& result, Quality* quality);
 
