@@ -44,6 +44,7 @@ void AssessFit(const FitModel& model, const FitResult& r, const FitQualityOption
                Quality* quality) {
   AssessChi2(r.map.chi2, r.map.dof, options, quality);
   AssessIntervalsUnderMisfit(r, options, quality);
+  AssessSampling(model, r, options, quality);
   AssessBounds(model, r, quality);
   // Censored pixels add no chi^2: one the model puts well on the wrong side of its level
   // (a saturated pixel predicted far below saturation) is a misfit of its own.
@@ -57,6 +58,34 @@ void AssessFit(const FitModel& model, const FitResult& r, const FitQualityOption
                      "fitted model (worst " + Fmt(-worst) + " sd): the model does not describe "
                      "the core that the detector cut off");
   }
+}
+
+void AssessSampling(const FitModel& model, const FitResult& r, const FitQualityOptions& options,
+                    Quality* quality) {
+  // The largest share of an exposure's modelled light that falls in its brightest pixel.
+  std::unique_ptr<FitEvaluator> ev = model.NewEvaluator();
+  std::vector<double> pixels;
+  double worst = 0.0;
+  for (int k = 0; k < model.num_exposures(); ++k) {
+    if (!ev->ModelImage(r.map.theta.data(), k, &pixels, nullptr)) return;
+    double sum = 0.0, peak = 0.0;
+    for (double v : pixels) {
+      sum += std::max(v, 0.0);
+      peak = std::max(peak, v);
+    }
+    if (sum > 0.0) worst = std::max(worst, peak / sum);
+  }
+  if (!(worst > options.undersampled_peak_fraction)) return;
+  char percent[16];
+  std::snprintf(percent, sizeof percent, "%.0f", 100.0 * worst);
+  quality->Add("undersampled", Severity::kNote,
+               std::string(percent) +
+                   " % of the spot's modelled light falls in one pixel: the widths then rest on "
+                   "the assumed pixel response (the whole pixel, a box: FIT.json's "
+                   "pixel_response_width) and sampling (" +
+                   model::ToString(model.options().model.sampling) +
+                   ") more than on the data; a narrower response or another sampling can move "
+                   "them by more than their interval (docs/trust.md, Undersampled spots)");
 }
 
 void AssessIntervalsUnderMisfit(const FitResult& r, const FitQualityOptions& options,

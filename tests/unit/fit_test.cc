@@ -11,6 +11,7 @@
 #include "ccdpsf/campaign_simulation.h"
 #include "ccdpsf/exposure.h"
 #include "ccdpsf/fit/fit_config.h"
+#include "ccdpsf/fit/fit_quality.h"
 #include "ccdpsf/fit/map_fit.h"
 #include "ccdpsf/model/spot_model.h"
 #include "ccdpsf/trend/campaign.h"
@@ -361,6 +362,36 @@ TEST(Fit, SandwichSdGrowsWhereTheNoiseIsUnderstated) {
         EXPECT_NEAR(ratio, 1.0, 0.25) << name;
       }
     }
+  }
+}
+
+// The undersampled note: the paper's spot (total widths 0.50 / 0.53 px) puts well under half
+// its light in its brightest pixel (no note); with the defocus and CCD kernel shrunk to 0.05
+// and 0.1 px (the Airy pattern alone, nearly) most of it falls there (the note, naming the
+// pixel response and sampling). The share is the model's at the MAP.
+TEST(Fit, UndersampledSpotIsSaidOutLoud) {
+  for (const bool narrow : {false, true}) {
+    SimulationConfig c = PaperConfig(model::Sampling::kIntegrated, 1, 13);
+    if (narrow) {
+      c.defocus_px = 0.05;
+      c.ccd_sigma_x_px = 0.1;
+      c.ccd_sigma_y_px = 0.1;
+      c.exposures[0].flux_e *= 0.3;  // the narrower peak stays below saturation
+    }
+    auto model = MustCreate(SimulateStamps(c, 14));
+    FitResult r;
+    std::string error;
+    ASSERT_TRUE(RunFit(*model, NoMcmc(), &r, &error)) << error;
+    Quality quality;
+    AssessSampling(*model, r, FitQualityOptions(), &quality);
+    bool noted = false;
+    for (const Finding& f : quality.findings) {
+      if (f.code != "undersampled") continue;
+      noted = true;
+      EXPECT_EQ(f.severity, Severity::kNote);
+      EXPECT_NE(f.message.find("pixel_response_width"), std::string::npos) << f.message;
+    }
+    EXPECT_EQ(noted, narrow) << "chi2/dof " << r.map.chi2 / r.map.dof;
   }
 }
 

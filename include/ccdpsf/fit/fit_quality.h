@@ -31,6 +31,9 @@ struct FitQualityOptions {
   double chi2_tail_p = 1e-3;        // each tail of chi^2 below this probability is suspect
   double gross_chi2_per_dof = 10.0;  // above this the fit is invalid
   double censored_sd = 4.0;  // a censored pixel this far on the wrong side of its level
+  // Above this share of an exposure's modelled light in one pixel the spot is undersampled
+  // (a note): "most of the light".
+  double undersampled_peak_fraction = 0.5;
 };
 
 // The chi^2 findings alone (chi2_high, chi2_low, gross_misfit), for a chi^2 with dof.
@@ -40,6 +43,11 @@ void AssessChi2(double chi2, int dof, const FitQualityOptions& options, Quality*
 // intervals assume the model, with the largest sandwich / Laplace sd ratio and where.
 void AssessIntervalsUnderMisfit(const FitResult& result, const FitQualityOptions& options,
                                 Quality* quality);
+
+// The note `undersampled` where more than options.undersampled_peak_fraction of some
+// exposure's modelled light (at the MAP) falls in its brightest pixel.
+void AssessSampling(const FitModel& model, const FitResult& result,
+                    const FitQualityOptions& options, Quality* quality);
 
 // The prior-bound and convergence findings alone.
 void AssessBounds(const FitModel& model, const FitResult& result, Quality* quality);
