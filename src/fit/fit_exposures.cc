@@ -407,7 +407,32 @@ bool FitExposures(const std::vector<Exposure>& exposures, const Quality& set_qua
     }
   }
 
-  if (!RunFit(*model, options.config.fit, &out->result, error, &map)) return false;
+  // No MCMC on a source already judged invalid (calibration found no compact spot, or a
+  // masked peak; or the MAP's chi^2 is gross): its intervals would describe a model the data
+  // reject, at the sampler's highest cost (a poorly fitting posterior mixes slowly).
+  FitOptions fit_options = options.config.fit;
+  if (fit_options.run_mcmc) {
+    std::string invalid;
+    for (const Exposure& e : exposures) {
+      for (const Finding& f : e.report.quality.findings) {
+        if (f.severity == Severity::kInvalid && invalid.empty()) invalid = f.message;
+      }
+    }
+    for (const Finding& f : set_quality.findings) {
+      if (f.severity == Severity::kInvalid && invalid.empty()) invalid = f.message;
+    }
+    if (invalid.empty() && map.dof >= 1 &&
+        map.chi2 / map.dof > options.quality.gross_chi2_per_dof) {
+      invalid = "chi2/dof = " + Fmt(map.chi2 / map.dof, 4) + " at the MAP";
+    }
+    if (!invalid.empty()) {
+      fit_options.run_mcmc = false;
+      out->quality.Add("mcmc_skipped", Severity::kNote,
+                       "no MCMC: the source is already judged invalid (" + invalid +
+                           "); the intervals are the Laplace approximation's");
+    }
+  }
+  if (!RunFit(*model, fit_options, &out->result, error, &map)) return false;
 
   // The verdict: calibration's and the set's findings, then the fit's.
   for (size_t k = 0; k < exposures.size(); ++k) {

@@ -93,6 +93,32 @@ TEST(CliReliability, AnAbsurdSimulatedIntensityIsRefused) {
   EXPECT_FALSE(fs::exists(dir + "/out"));
 }
 
+// No MCMC on a source already judged invalid (issue 45: focus-scan frames spent ~25 s sampling
+// a source declared not compact): a spot defocused to 2.5 px is no compact source; the fit
+// says so, gives the Laplace intervals only, and says why there is no MCMC.
+TEST(CliReliability, NoMcmcOnASourceJudgedInvalid) {
+  const std::string dir = FreshDir("reliability", "invalid_source");
+  std::ifstream in(std::string(CCDPSF_TESTDATA) + "/demo_simulation.json");
+  nlohmann::json config = nlohmann::json::parse(in);
+  config["model"]["defocus"]["sigma_px"] = 2.5;
+  config["exposures"] = nlohmann::json::array({config["exposures"][0]});
+  std::ofstream(dir + "/sim.json") << config.dump();
+  ASSERT_EQ(RunCcdpsf("simulate --config=" + dir + "/sim.json --out=" + dir + "/sim").exit_code,
+            0);
+  const RunResult r =
+      RunCcdpsf("fit --plots=none --out=" + dir + "/fit " + dir + "/sim/exposure_000.fits");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  std::ifstream f(dir + "/fit/fit.json");
+  const nlohmann::json fit = nlohmann::json::parse(f);
+  EXPECT_EQ(fit["quality"]["verdict"], "invalid");
+  EXPECT_TRUE(fit["mcmc"].is_null());
+  EXPECT_EQ(fit["intervals"]["from"], "laplace");
+  bool said = false;
+  for (const auto& n : fit["quality"]["notes"]) said = said || n["code"] == "mcmc_skipped";
+  EXPECT_TRUE(said) << fit["quality"].dump(1);
+  EXPECT_NE(r.output.find("no MCMC"), std::string::npos) << r.output;
+}
+
 // Non-ASCII names and paths longer than CFITSIO's 1025-byte name buffers, end to end.
 TEST(CliReliability, AnyPathTheOsAcceptsWorks) {
   const std::string root = FreshDir("reliability", "paths");
