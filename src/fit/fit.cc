@@ -87,6 +87,19 @@ std::vector<double> DerivedAt(const FitModel& model, const double* theta) {
   return out;
 }
 
+void LaplaceInterval68(double map, double sd, bool positive, double* lo, double* hi) {
+  *lo = *hi = NAN;
+  if (!std::isfinite(sd) || !std::isfinite(map)) return;
+  if (positive && map > 0.0) {
+    const double factor = std::exp(sd / map);
+    *lo = map / factor;
+    *hi = map * factor;
+  } else {
+    *lo = map - sd;
+    *hi = map + sd;
+  }
+}
+
 bool RunFit(const FitModel& model, const FitOptions& options, FitResult* result,
             std::string* error, const MapResult* map) {
   const auto t0 = std::chrono::steady_clock::now();

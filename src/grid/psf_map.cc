@@ -32,17 +32,19 @@ std::string CsvText(const std::string& text) {
   return out + "\"";
 }
 
-// Centre and 68 % bounds of a summary: the posterior's with MCMC, else MAP +- Laplace sd.
-void Interval(const fit::Summary& s, bool have_mcmc, double* centre, double* lo, double* hi) {
+// Centre and 68 % bounds of a summary: the posterior's with MCMC, else the Laplace interval
+// (fit::LaplaceInterval68; for a quantity that cannot be negative, that of its logarithm:
+// MAP - sd gave e.g. 0.80 [-0.69, 2.30] um).
+void Interval(const fit::Summary& s, bool have_mcmc, bool positive, double* centre, double* lo,
+              double* hi) {
   if (have_mcmc && std::isfinite(s.median)) {
     *centre = s.median;
     *lo = s.lo68;
     *hi = s.hi68;
-  } else {
-    *centre = s.map;
-    *lo = std::isfinite(s.laplace_sd) ? s.map - s.laplace_sd : kNaN;
-    *hi = std::isfinite(s.laplace_sd) ? s.map + s.laplace_sd : kNaN;
+    return;
   }
+  *centre = s.map;
+  fit::LaplaceInterval68(s.map, s.laplace_sd, positive, lo, hi);
 }
 
 // A table as columns, written as FITS and CSV from the same values.
@@ -181,7 +183,7 @@ bool WritePsfMap(const std::string& dir, const GridResult& result,
       double c = kNaN, lo = kNaN, hi = kNaN;
       if (ok) {
         const auto it = e.fit.summaries.find(m);
-        if (it != e.fit.summaries.end()) Interval(it->second, have_mcmc, &c, &lo, &hi);
+        if (it != e.fit.summaries.end()) Interval(it->second, have_mcmc, true, &c, &lo, &hi);
       }
       map.Add(m, c);
       map.Add(m + "_lo68", lo);
@@ -191,7 +193,7 @@ bool WritePsfMap(const std::string& dir, const GridResult& result,
       double c = kNaN, lo = kNaN, hi = kNaN;
       if (ok) {
         const auto it = e.fit.summaries.find(name);
-        if (it != e.fit.summaries.end()) Interval(it->second, have_mcmc, &c, &lo, &hi);
+        if (it != e.fit.summaries.end()) Interval(it->second, have_mcmc, false, &c, &lo, &hi);
       }
       const std::string column = FitsColumnName(name);
       map.Add(column, c);
@@ -289,7 +291,7 @@ bool WritePsfMap(const std::string& dir, const GridResult& result,
       for (const std::string& m : PsfMapMetrics()) {
         const auto it = e->fit.summaries.find(m);
         double c = kNaN, lo, hi;
-        if (it != e->fit.summaries.end()) Interval(it->second, have_mcmc, &c, &lo, &hi);
+        if (it != e->fit.summaries.end()) Interval(it->second, have_mcmc, true, &c, &lo, &hi);
         values[m].push_back(c);
       }
     }
@@ -333,7 +335,7 @@ bool WritePsfMap(const std::string& dir, const GridResult& result,
           continue;
         }
         double c, lo, hi;
-        Interval(it->second, have_mcmc, &c, &lo, &hi);
+        Interval(it->second, have_mcmc, false, &c, &lo, &hi);  // the centre only
         in.x.push_back(e.where.x_px);
         in.y.push_back(e.where.y_px);
         in.value.push_back(c);

@@ -395,6 +395,25 @@ TEST(Fit, UndersampledSpotIsSaidOutLoud) {
   }
 }
 
+// LaplaceInterval68 against its closed forms: map -+ sd for a signed quantity; for a positive
+// one the interval of its logarithm, which never goes below 0 (grid's psf_map.csv gave
+// 0.80 [-0.69, 2.30] um) and approaches map -+ sd as sd / map -> 0 (error (sd/map)^2 / 2 of sd).
+TEST(Fit, LaplaceIntervalOfAPositiveQuantityStaysPositive) {
+  double lo, hi;
+  LaplaceInterval68(0.80, 1.49, false, &lo, &hi);
+  EXPECT_DOUBLE_EQ(lo, 0.80 - 1.49);
+  EXPECT_DOUBLE_EQ(hi, 0.80 + 1.49);
+  LaplaceInterval68(0.80, 1.49, true, &lo, &hi);
+  EXPECT_NEAR(lo, 0.80 * std::exp(-1.49 / 0.80), 1e-15);
+  EXPECT_NEAR(hi, 0.80 * std::exp(1.49 / 0.80), 1e-14);
+  EXPECT_GT(lo, 0.0);
+  LaplaceInterval68(3.0, 0.03, true, &lo, &hi);
+  EXPECT_NEAR(lo, 3.0 - 0.03, 0.03 * 0.01);
+  EXPECT_NEAR(hi, 3.0 + 0.03, 0.03 * 0.01);
+  LaplaceInterval68(0.5, NAN, true, &lo, &hi);
+  EXPECT_TRUE(std::isnan(lo) && std::isnan(hi));
+}
+
 // pixel_centre data fitted in pixel_centre mode: the 2015 discretisation separates defocus
 // from the CCD kernel, so the paper-style sigma_f, sigma_x, sigma_y come back individually.
 TEST(Fit, PixelCentreRecoversSeparateWidths) {

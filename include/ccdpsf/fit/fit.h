@@ -48,6 +48,12 @@ struct Summary {
   double lo997 = NAN, hi997 = NAN;
 };
 
+// The 68 % interval of the Laplace approximation for a quantity with MAP `map` and sd `sd`:
+// map -+ sd; for a quantity that cannot be negative (`positive`: a width, FWHM, ellipticity,
+// R^2) the interval of its logarithm, map x exp(-+ sd / map), the same to first order in
+// sd / map and never below 0. NaN bounds where sd is not finite.
+void LaplaceInterval68(double map, double sd, bool positive, double* lo, double* hi);
+
 // The posterior part of *s from draws of one quantity (non-finite draws dropped): median and
 // central 68.27 % and 99.73 % intervals, by linear interpolation between order statistics.
 // The MAP and Laplace sd are left as they are.
