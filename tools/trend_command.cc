@@ -2,6 +2,7 @@
 // intensity, the combined model and the requirement checks out.
 #include <cstdio>
 #include <map>
+#include <set>
 
 #include "ccdpsf/atomic_file.h"
 #include "ccdpsf/input_file.h"
@@ -31,6 +32,7 @@ DECLARE_bool(resume);
 DEFINE_string(requirements, "", "");
 DEFINE_double(reference_intensity_e, 157800, "");
 DEFINE_bool(group_reports, true, "");
+DEFINE_bool(quiet, false, "");
 DEFINE_string(group_plots, "flagged", "");
 DEFINE_string(anchor_defocus, "same_wavelength", "");
 
@@ -173,9 +175,25 @@ int RunTrend(const std::vector<std::string>& inputs) {
   // Through-focus series first; they anchor the defocus of single-focus settings at the
   // same stage position (defocus_anchor.h).
   std::vector<std::string> anchor_notes;
+  // A note is printed the first time its text appears: the same choice in many groups (a
+  // shared flux, a through-focus model) is said once, and counted after.
+  std::set<std::string> notes_shown;
+  int notes_repeated = 0;
   std::vector<trend::GroupResult> results = trend::FitCampaignGroups(
       groups, fit_options, anchor,
-      [](const trend::GroupResult& r, int done, int total) {
+      [&notes_shown, &notes_repeated](const trend::GroupResult& r, int done, int total) {
+        if (FLAGS_quiet) {
+          // Only what needs attention: failures and warnings.
+          if (!r.ok) {
+            std::fprintf(stderr, "[%d/%d] %s: FAILED: %s\n", done, total, r.group.name.c_str(),
+                         r.failure.c_str());
+          }
+          for (const std::string& w : r.ok ? r.warnings : std::vector<std::string>()) {
+            std::fprintf(stderr, "%s: warning: %s\n", r.group.name.c_str(), w.c_str());
+          }
+          std::fflush(stderr);
+          return;
+        }
         if (r.ok) {
           std::fprintf(stderr,
                        "[%d/%d] %s: %d exposures, chi2/dof %.3f, %s, verdict %s, %.1f s%s\n", done,
@@ -185,7 +203,13 @@ int RunTrend(const std::vector<std::string>& inputs) {
                                      : "MCMC NOT converged",
                        r.quality.Verdict().c_str(), r.seconds,
                        r.resumed ? " (kept from the interrupted run)" : "");
-          for (const std::string& n : r.notes) std::fprintf(stderr, "    note: %s\n", n.c_str());
+          for (const std::string& n : r.notes) {
+            if (notes_shown.insert(n).second) {
+              std::fprintf(stderr, "    note: %s\n", n.c_str());
+            } else {
+              ++notes_repeated;
+            }
+          }
           for (const std::string& w : r.warnings) {
             std::fprintf(stderr, "    warning: %s\n", w.c_str());
           }
@@ -196,7 +220,15 @@ int RunTrend(const std::vector<std::string>& inputs) {
         std::fflush(stderr);
       },
       &anchor_notes);
-  for (const std::string& n : anchor_notes) std::fprintf(stderr, "ccdpsf trend: %s\n", n.c_str());
+  if (notes_repeated > 0) {
+    std::fprintf(stderr,
+                 "ccdpsf trend: %d note(s) repeated in later groups not shown again (each "
+                 "group's report has its own)\n",
+                 notes_repeated);
+  }
+  if (!FLAGS_quiet) {
+    for (const std::string& n : anchor_notes) std::fprintf(stderr, "ccdpsf trend: %s\n", n.c_str());
+  }
   int failed = 0;
   for (const auto& r : results) failed += r.ok ? 0 : 1;
   if (failed == static_cast<int>(results.size())) {
@@ -289,6 +321,8 @@ Command TrendCommand() {
       {"reference_intensity_e", NumberText(trend::TrendOptions().reference_intensity_e),
        "Intensity zero point I0 [e- in the peak pixel] of the combined model"},
       {"group_reports", "true", "Write each group's full fit report under DIR/groups/"},
+      {"quiet", "false",
+       "Print only failures, warnings and the closing line (not each group's line and notes)"},
       {"group_plots", "flagged",
        "Which group reports get their pictures drawn: flagged (groups whose verdict is not ok), "
        "all or none; every report keeps the pictures' data and gnuplot scripts"},

@@ -53,7 +53,7 @@ GroupResult FitOne(const CampaignGroup& group, int position, int index, const st
     config.model.model.sampling = model::Sampling::kIntegrated;
     config.model.model.defocus = model::DefocusKind::kGaussian;
     config.model.through_focus = true;
-    out.warnings.push_back(
+    out.notes.push_back(
         "through-focus series: fitted with defocus = rate x |z - z0| (integrated sampling, "
         "Gaussian defocus), which identifies the CCD widths");
   }

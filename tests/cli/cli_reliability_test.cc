@@ -4,6 +4,9 @@
 
 #include <filesystem>
 #include <fstream>
+#include <set>
+#include <sstream>
+#include <algorithm>
 #include <string>
 
 #include "ccdpsf/fits_io.h"
@@ -117,6 +120,33 @@ TEST(CliReliability, NoMcmcOnASourceJudgedInvalid) {
   for (const auto& n : fit["quality"]["notes"]) said = said || n["code"] == "mcmc_skipped";
   EXPECT_TRUE(said) << fit["quality"].dump(1);
   EXPECT_NE(r.output.find("no MCMC"), std::string::npos) << r.output;
+}
+
+// The terminal on the bundled campaign (issue 46): no "warning:" for good news (the
+// through-focus model is a choice, a note), each note's text once however many groups repeat
+// it (then counted), and with --quiet only the opening and closing lines of a clean run.
+TEST(CliReliability, TrendTerminalSaysEachNoteOnceAndQuietIsQuiet) {
+  const std::string dir = FreshDir("reliability", "terminal");
+  const std::string campaign = std::string(CCDPSF_TESTDATA) + "/campaign_small";
+  const RunResult r = RunCcdpsf("trend --nomcmc --nogroup_reports --out=" + dir + "/a " + campaign);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_EQ(r.output.find("warning:"), std::string::npos) << r.output;
+  std::istringstream lines(r.output);
+  std::set<std::string> notes;
+  int groups = 0;
+  for (std::string line; std::getline(lines, line);) {
+    if (line.rfind("[", 0) == 0) ++groups;
+    if (line.find("note: ") == std::string::npos) continue;
+    EXPECT_TRUE(notes.insert(line).second) << "said twice: " << line;
+  }
+  EXPECT_EQ(groups, 14) << r.output;
+  EXPECT_NE(r.output.find("repeated in later groups not shown again"), std::string::npos)
+      << r.output;
+  const RunResult quiet =
+      RunCcdpsf("trend --quiet --nomcmc --nogroup_reports --out=" + dir + "/b " + campaign);
+  ASSERT_EQ(quiet.exit_code, 0) << quiet.output;
+  EXPECT_EQ(std::count(quiet.output.begin(), quiet.output.end(), '\n'), 2) << quiet.output;
+  EXPECT_NE(quiet.output.find("trend of 14 groups"), std::string::npos) << quiet.output;
 }
 
 // Non-ASCII names and paths longer than CFITSIO's 1025-byte name buffers, end to end.
