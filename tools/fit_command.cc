@@ -44,6 +44,7 @@ DEFINE_string(flux, "auto", "");
 DEFINE_string(effects, "", "");
 DEFINE_bool(mixed_wavelengths, false, "");
 DEFINE_bool(strict, false, "");
+DEFINE_bool(quiet, false, "");
 DEFINE_bool(resume, false, "");
 DEFINE_double(checkpoint_s, 30, "");
 DEFINE_bool(outliers, true, "");
@@ -156,6 +157,7 @@ int FitInto(const std::string& dir, const std::string& shown, const std::string&
   fit::ExposuresFitOptions options;
   options.config = config;
   options.config.fit.mcmc.progress_label = shown;
+  if (FLAGS_quiet) options.config.fit.mcmc.progress = false;
   // The MCMC's checkpoint, kept in the run's partial folder (dropped at the commit).
   options.config.fit.mcmc.checkpoint_path = checkpoint;
   options.config.fit.mcmc.checkpoint_seconds = FLAGS_checkpoint_s;
@@ -166,7 +168,7 @@ int FitInto(const std::string& dir, const std::string& shown, const std::string&
   if (!fit::FitExposures(exposures, set_quality, options, &fitted, &error)) {
     return Fail(shown + ": " + error);
   }
-  for (const std::string& note : fitted.notes) {
+  for (const std::string& note : FLAGS_quiet ? std::vector<std::string>() : fitted.notes) {
     std::fprintf(stderr, "ccdpsf: note: %s\n", note.c_str());
   }
   if (!fitted.result.chain.checkpoint_discarded.empty()) {
@@ -292,12 +294,14 @@ int RunFit(const std::vector<std::string>& files) {
       if (config.model.model.sampling == model::Sampling::kIntegrated &&
           config.model.model.defocus == model::DefocusKind::kGaussian) {
         config.model.through_focus = true;
-        std::fprintf(stderr,
-                     "ccdpsf: note: the %zu files carry focus positions with %ld distinct "
-                     "values: fitting them as a through-focus series (defocus = rate x |z - "
-                     "z0|, CCD kernel fixed; --nothrough_focus to turn off)\n",
-                     inputs.size(), distinct);
-      } else {
+        if (!FLAGS_quiet) {
+          std::fprintf(stderr,
+                       "ccdpsf: note: the %zu files carry focus positions with %ld distinct "
+                       "values: fitting them as a through-focus series (defocus = rate x |z - "
+                       "z0|, CCD kernel fixed; --nothrough_focus to turn off)\n",
+                       inputs.size(), distinct);
+        }
+      } else if (!FLAGS_quiet) {
         std::fprintf(stderr,
                      "ccdpsf: note: the %zu files carry focus positions with %ld distinct "
                      "values, but the through-focus model needs integrated sampling and a "
@@ -421,6 +425,8 @@ Command FitCommand() {
       {"strict", "false",
        "Exit with code 3 when a fit's verdict is suspect or invalid (for pipelines); without "
        "it a completed run exits 0 whatever the verdict"},
+      {"quiet", "false",
+       "Print only errors, warnings and each fit's closing line (no notes, no MCMC progress)"},
       {"resume", "false",
        "Continue a run that was killed, into the same --out with the same inputs and options: "
        "each MCMC from its last checkpoint, ending with the chain of an uninterrupted run"},

@@ -32,7 +32,7 @@ DECLARE_bool(resume);
 DEFINE_string(requirements, "", "");
 DEFINE_double(reference_intensity_e, 157800, "");
 DEFINE_bool(group_reports, true, "");
-DEFINE_bool(quiet, false, "");
+DECLARE_bool(quiet);
 DEFINE_string(group_plots, "flagged", "");
 DEFINE_string(anchor_defocus, "same_wavelength", "");
 

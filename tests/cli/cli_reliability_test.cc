@@ -124,7 +124,8 @@ TEST(CliReliability, NoMcmcOnASourceJudgedInvalid) {
 
 // The terminal on the bundled campaign (issue 46): no "warning:" for good news (the
 // through-focus model is a choice, a note), each note's text once however many groups repeat
-// it (then counted), and with --quiet only the opening and closing lines of a clean run.
+// it (then counted), and with --quiet only the opening and closing lines of a clean run (and
+// fit --quiet its closing line).
 TEST(CliReliability, TrendTerminalSaysEachNoteOnceAndQuietIsQuiet) {
   const std::string dir = FreshDir("reliability", "terminal");
   const std::string campaign = std::string(CCDPSF_TESTDATA) + "/campaign_small";
@@ -147,6 +148,12 @@ TEST(CliReliability, TrendTerminalSaysEachNoteOnceAndQuietIsQuiet) {
   ASSERT_EQ(quiet.exit_code, 0) << quiet.output;
   EXPECT_EQ(std::count(quiet.output.begin(), quiet.output.end(), '\n'), 2) << quiet.output;
   EXPECT_NE(quiet.output.find("trend of 14 groups"), std::string::npos) << quiet.output;
+  // fit --quiet: the closing line alone (the demo set's joint fit notes its flux choice).
+  const RunResult fit = RunCcdpsf("fit --joint --quiet --nomcmc --plots=none --out=" + dir +
+                                  "/c " + DemoSet() + "/exposure_000.fits " + DemoSet() +
+                                  "/exposure_001.fits");
+  ASSERT_EQ(fit.exit_code, 0) << fit.output;
+  EXPECT_EQ(std::count(fit.output.begin(), fit.output.end(), '\n'), 1) << fit.output;
 }
 
 // Non-ASCII names and paths longer than CFITSIO's 1025-byte name buffers, end to end.
