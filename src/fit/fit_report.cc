@@ -688,31 +688,38 @@ bool WriteFitReport(const std::string& out_dir, const ExposuresFit& fit, const j
                      "'\"` for " + PlotFormatName(options.plot.format) + ")")
        << ".\n\n";
   }
+  // A picture's link, or where it is not drawn the file its script would make (a link to a
+  // file that does not exist shows as broken in every Markdown viewer).
+  const auto picture = [&](const std::string& stem) {
+    const std::string file = stem + extension;
+    return options.plot.draw ? "![" + stem + "](" + file + ")"
+                             : "(not drawn: `gnuplot " + stem + ".gp` makes " + file + ")";
+  };
   md << "Residual maps: data and model on an asinh stretch (linear within about the noise of an "
         "empty pixel, logarithmic above, so the wings show), residuals and normalised "
         "residuals on a diverging scale with white at zero.\n\n";
-  md << "![residuals](residuals" << extension << ")\n\n";
+  md << picture("residuals") << "\n\n";
   if (r.have_mcmc) {
     md << "Corner plot: histograms with the median and the central 68 % interval (dashed; the "
           "numbers above each column), the MAP and the Laplace approximation in red";
     if (!truth_names.empty()) md << ", true values in blue";
-    md << ".\n\n![corner](corner" << extension << ")\n\n";
+    md << ".\n\n" << picture("corner") << "\n\n";
   }
   if (focus_plot) {
     md << "Through focus: the total Gaussian width sqrt(defocus^2 + ccd sigma^2) [px] against "
           "the stage position, the fitted law "
        << (r.have_mcmc ? "(posterior median and 68 % band)" : "(at the MAP)")
        << " beside each exposure fitted alone (MAP +- Laplace sd; free of the law)"
-       << (focus_truth ? ", true widths in black" : "") << ".\n\n![focus](focus" << extension
-       << ")\n\n";
+       << (focus_truth ? ", true widths in black" : "") << ".\n\n" << picture("focus")
+       << "\n\n";
   }
   if (intensity_plot) {
     md << "Widths against signal: the predicted width (the brightest exposure's spot with its "
           "flux scaled; "
        << (r.have_mcmc ? "posterior median and 68 % band" : "at the MAP")
        << "), each exposure fitted alone without the effect (MAP +- Laplace sd) and the "
-          "intrinsic width at zero signal.\n\n![intensity](intensity"
-       << extension << ")\n\n";
+          "intrinsic width at zero signal.\n\n"
+       << picture("intensity") << "\n\n";
   }
   if (options.truth) {
     md << "Truth file: " << options.truth->path << " ("

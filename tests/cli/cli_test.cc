@@ -356,6 +356,15 @@ TEST(Cli, FitDrawsPicturesWhereThePlotsOptionAsks) {
       if (!drawn) {
         EXPECT_NE(md.find("fit --plots=" + mode), std::string::npos) << md;
       }
+      // Every picture the report links exists (a report once linked pictures never drawn).
+      for (size_t at = md.find("]("); at != std::string::npos; at = md.find("](", at + 2)) {
+        if (at == 0 || md.rfind("![", at) == std::string::npos) continue;
+        const std::string target = md.substr(at + 2, md.find(')', at) - at - 2);
+        if (target.find(".svg") == std::string::npos && target.find(".png") == std::string::npos) {
+          continue;
+        }
+        EXPECT_TRUE(fs::exists(dir + "/" + target)) << "links " << target << "\n" << md;
+      }
       // The summary line names the pictures only where they were drawn.
       const size_t line = r.output.find("/" + name + "/fit.json");
       ASSERT_NE(line, std::string::npos) << r.output;
