@@ -117,14 +117,15 @@ bool RunFit(const FitModel& model, const FitOptions& options, FitResult* result,
   // The likelihood's information, and the posterior's: with a Gaussian prior its precision is
   // added (gaussian_prior.h), so that the Laplace covariance and the sampler's seeds and
   // proposals are the posterior's.
-  const std::vector<double> fisher = evaluator->FisherInformation(theta_map.data());
+  // The pixels' score outer products come from the same pass: the sandwich's meat below.
+  std::vector<double> meat;
+  const std::vector<double> fisher = evaluator->FisherInformation(theta_map.data(), &meat);
   const std::vector<double> information = model.PosteriorInformation(fisher);
   result->laplace = ComputeLaplace(model, theta_map, information);
   // The sandwich C M C: the meat is the scores' outer products plus the prior's precision
   // (information - fisher), so that it equals C where the model holds.
   LaplaceResult sandwich = result->laplace;
   {
-    std::vector<double> meat = evaluator->ScoreOuterProducts(theta_map.data());
     for (size_t e = 0; e < meat.size(); ++e) meat[e] += information[e] - fisher[e];
     const std::vector<double>& c = result->laplace.covariance;
     std::vector<double> cm(static_cast<size_t>(dim) * dim, 0.0);

@@ -1101,21 +1101,32 @@ void ResidualGradients(const PixelValue& v, const double* g, int dim, int pedest
 
 }  // namespace
 
-std::vector<double> FitEvaluator::FisherInformation(const double* theta) {
+std::vector<double> FitEvaluator::FisherInformation(const double* theta,
+                                                    std::vector<double>* scores) {
   const int dim = fit_model_.dim();
-  std::vector<double> fisher(static_cast<size_t>(dim) * dim, 0.0);
+  const size_t size = static_cast<size_t>(dim) * dim;
+  std::vector<double> fisher(size, 0.0);
+  if (scores != nullptr) scores->assign(size, 0.0);
   for (int k = 0; k < fit_model_.num_exposures(); ++k) {
-    if (!AddExposureFisherInformation(theta, k, nullptr, &fisher)) {
-      return std::vector<double>(static_cast<size_t>(dim) * dim, NAN);
+    if (!AddExposureFisherInformation(theta, k, nullptr, &fisher, scores)) {
+      if (scores != nullptr) scores->assign(size, NAN);
+      return std::vector<double>(size, NAN);
     }
   }
   return fisher;
 }
 
+std::vector<double> FitEvaluator::ScoreOuterProducts(const double* theta) {
+  std::vector<double> scores;
+  FisherInformation(theta, &scores);
+  return scores;
+}
+
 bool FitEvaluator::AddExposureFisherInformation(const double* theta, int k, const Image* data_e,
-                                                std::vector<double>* fisher) {
+                                                std::vector<double>* fisher,
+                                                std::vector<double>* scores) {
   const int dim = fit_model_.dim();
-  std::vector<double> jac, mean_d(dim), var_d(dim), r0_d(dim), r1_d(dim);
+  std::vector<double> jac, mean_d(dim), var_d(dim), r0_d(dim), r1_d(dim), score(dim);
   PixelValue v;
   // The pedestal moves the mean but not the variance (it has no shot noise).
   const int pedestal_index = fit_model_.EffectIndex(model::EffectKind::kBackground);
@@ -1154,37 +1165,20 @@ bool FitEvaluator::AddExposureFisherInformation(const double* theta, int k, cons
       add_outer(r0_d, r0_d, 1.0);
       add_outer(r1_d, r1_d, 1.0);
     }
+    if (scores == nullptr) continue;
+    // The pixel's score, d log p / d theta = -(r0 dr0 + r1 dr1) (1/2 (r0^2 + r1^2) = -log p
+    // + c), from the same residuals at the data.
+    EvaluatePixelWithPedestal(LikelihoodKind::kGaussian, data[q], s.CensorAt(q), pixels_[q],
+                              pedestal, noise, true, &v);
+    ResidualGradients(v, g, dim, pedestal_index, r0_d.data(), r1_d.data());
+    for (int a = 0; a < dim; ++a) score[a] = -(v.r[0] * r0_d[a] + v.r[1] * r1_d[a]);
+    for (int a = 0; a < dim; ++a) {
+      if (score[a] == 0.0) continue;
+      for (int b = 0; b < dim; ++b) (*scores)[a * dim + b] += score[a] * score[b];
+    }
   }
   return true;
 }
 
-std::vector<double> FitEvaluator::ScoreOuterProducts(const double* theta) {
-  const int dim = fit_model_.dim();
-  std::vector<double> meat(static_cast<size_t>(dim) * dim, 0.0);
-  std::vector<double> jac, r0_d(dim), r1_d(dim), score(dim);
-  const int pedestal_index = fit_model_.EffectIndex(model::EffectKind::kBackground);
-  const double pedestal = fit_model_.PedestalAt(theta);
-  PixelValue v;
-  for (int k = 0; k < fit_model_.num_exposures(); ++k) {
-    const Stamp& s = fit_model_.stamps()[k];
-    const PixelNoise noise = StampNoise(s);
-    if (!ModelImage(theta, k, &pixels_, &jac)) {
-      return std::vector<double>(static_cast<size_t>(dim) * dim, NAN);
-    }
-    for (size_t q = 0; q < pixels_.size(); ++q) {
-      if (!s.valid[q]) continue;
-      EvaluatePixelWithPedestal(LikelihoodKind::kGaussian, s.electrons.data[q], s.CensorAt(q),
-                                pixels_[q], pedestal, noise, true, &v);
-      ResidualGradients(v, &jac[q * dim], dim, pedestal_index, r0_d.data(), r1_d.data());
-      // 1/2 (r0^2 + r1^2) = -log p + c: the score is -(r0 dr0 + r1 dr1).
-      for (int a = 0; a < dim; ++a) score[a] = -(v.r[0] * r0_d[a] + v.r[1] * r1_d[a]);
-      for (int a = 0; a < dim; ++a) {
-        if (score[a] == 0.0) continue;
-        for (int b = 0; b < dim; ++b) meat[a * dim + b] += score[a] * score[b];
-      }
-    }
-  }
-  return meat;
-}
 
 }  // namespace ccdpsf::fit

@@ -360,7 +360,9 @@ class FitEvaluator {
   // sum over valid pixels of g g^T / var + (1/2) h h^T / var^2, g = dm/dtheta, h = dvar/dtheta
   // (= g where m > 0); censored and interval pixels give the Gauss-Newton information of
   // their residuals (observed). dim x dim, row-major; NaN where an image cannot be drawn.
-  std::vector<double> FisherInformation(const double* theta);
+  // With `scores`, the same pass also gives ScoreOuterProducts there.
+  std::vector<double> FisherInformation(const double* theta,
+                                        std::vector<double>* scores = nullptr);
   // The outer products of the pixels' scores at theta, sum over valid pixels of s s^T with
   // s = d log p(pixel) / d theta (from the residuals: -(r0 dr0 + r1 dr1), pixel_likelihood.h):
   // the "meat" of the misspecification-robust (sandwich) covariance. Its expectation is the
@@ -371,8 +373,10 @@ class FitEvaluator {
   // The same for exposure k alone, its censored and interval pixels against `data_e`
   // (stamp-sized; null: the stamp's data); added into *fisher (dim x dim). False where the
   // image cannot be drawn.
+  // With `scores`, that exposure's ScoreOuterProducts is added there too (one render).
   bool AddExposureFisherInformation(const double* theta, int k, const Image* data_e,
-                                    std::vector<double>* fisher);
+                                    std::vector<double>* fisher,
+                                    std::vector<double>* scores = nullptr);
 
   // Sets theta[kFluxE] to the least-squares flux of exposures [first, last), clamped to the
   // prior, and returns those exposures' log-likelihood there (-inf if it is not finite). One
